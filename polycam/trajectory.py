@@ -1,0 +1,116 @@
+"""Trajectories of rig poses and the TUM text format (SPEC.md).
+
+A :class:`Trajectory` holds ``T_world_rig`` per frame; world is the rig frame at
+the first frame for estimated trajectories. TUM lines are
+``timestamp tx ty tz qx qy qz qw`` with the timestamp in seconds.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FormatError
+from .geometry import R_from_quat, T_from_Rt, T_inverse, quat_from_R
+from .tomlio import atomic_write_text
+
+__all__ = ["Trajectory", "read_tum", "write_tum"]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Poses ``T_world_rig`` at increasing timestamps."""
+
+    timestamps_ns: np.ndarray
+    """(N,) int64 [ns], strictly increasing."""
+    T_world_rig: np.ndarray
+    """(N, 4, 4) rigid transforms, rig frame → world frame."""
+
+    def __post_init__(self) -> None:
+        ts = np.asarray(self.timestamps_ns)
+        T = np.asarray(self.T_world_rig)
+        if ts.ndim != 1 or T.shape != (ts.shape[0], 4, 4):
+            raise ValueError("Trajectory: need timestamps (N,) and T_world_rig (N, 4, 4)")
+
+    def __len__(self) -> int:
+        return int(self.timestamps_ns.shape[0])
+
+    def relative(self) -> np.ndarray:
+        """(N-1, 4, 4) motions between consecutive frames, ``T_rig[i]_rig[i+1]``."""
+        return T_inverse(self.T_world_rig[:-1]) @ self.T_world_rig[1:]
+
+    def rebased(self) -> "Trajectory":
+        """The same trajectory with world = rig frame at the first frame."""
+        return Trajectory(self.timestamps_ns, T_inverse(self.T_world_rig[0]) @ self.T_world_rig)
+
+    @classmethod
+    def from_relative(cls, timestamps_ns: np.ndarray, T_prev_next: np.ndarray) -> "Trajectory":
+        """Integrate (N-1, 4, 4) frame-to-frame motions ``T_rig[i]_rig[i+1]`` from identity."""
+        T = [np.eye(4)]
+        for M in T_prev_next:
+            T.append(T[-1] @ M)
+        return cls(np.asarray(timestamps_ns, dtype=np.int64), np.stack(T))
+
+
+def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
+    """Write a TUM file atomically (timestamps in seconds with ns precision)."""
+    q = quat_from_R(traj.T_world_rig[:, :3, :3])
+    t = traj.T_world_rig[:, :3, 3]
+    lines = []
+    for ns, ti, qi in zip(np.asarray(traj.timestamps_ns, dtype=np.int64), t, q):
+        sec = f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+        lines.append(sec + " " + " ".join(f"{v:.9f}" for v in (*ti, *qi)))
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _parse_ns(token: str) -> int:
+    """Seconds as text → int ns without going through a float (keeps ns exact)."""
+    neg = token.startswith("-")
+    body = token.lstrip("+-")
+    if "e" in body.lower():
+        return int(round(float(token) * 1e9))
+    whole, _, frac = body.partition(".")
+    if not (whole or frac) or not (whole.isdigit() or whole == "") or not (frac.isdigit() or frac == ""):
+        raise ValueError(token)
+    ns = int(whole or 0) * 1_000_000_000 + int((frac + "000000000")[:9] or 0)
+    return -ns if neg else ns
+
+
+def read_tum(path: str | os.PathLike) -> Trajectory:
+    """Read a TUM file; comments (#) and blank lines are skipped."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise FormatError(path, "no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise FormatError(path, f"cannot read ({e})") from None
+    ts, poses = [], []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        tok = line.replace(",", " ").split()
+        if len(tok) != 8:
+            raise FormatError(path, f"expected 8 values 'timestamp tx ty tz qx qy qz qw', got {len(tok)}",
+                              f"line {lineno}")
+        try:
+            ns = _parse_ns(tok[0])
+            vals = np.array([float(v) for v in tok[1:]])
+        except ValueError:
+            raise FormatError(path, "not a number", f"line {lineno}") from None
+        if not np.all(np.isfinite(vals)):
+            raise FormatError(path, "non-finite value", f"line {lineno}")
+        qn = np.linalg.norm(vals[3:])
+        if abs(qn - 1.0) > 1e-3:
+            raise FormatError(path, f"quaternion is not unit length (|q| = {qn:.6g})", f"line {lineno}")
+        if ts and ns <= ts[-1]:
+            raise FormatError(path, "timestamps are not strictly increasing", f"line {lineno}")
+        ts.append(ns)
+        poses.append(T_from_Rt(R_from_quat(vals[3:]), vals[:3]))
+    if not ts:
+        raise FormatError(path, "no poses")
+    return Trajectory(np.array(ts, dtype=np.int64), np.stack(poses))

@@ -1,0 +1,29 @@
+"""Shared fixtures: paths, seeded RNGs and the location of ../shared/data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def repo() -> Path:
+    return REPO
+
+
+def shared_data(name: str) -> Path:
+    """Path to a data set under ../shared/data, or skip the test with the reason."""
+    p = SHARED_DATA / name
+    if not p.exists():
+        pytest.skip(f"shared data set {name!r} not found at {p}")
+    return p
