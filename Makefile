@@ -1,0 +1,18 @@
+# The README's two commands: `make demo` (main job on the built-in mock rig) and
+# `make test`. Both set up ./.venv first (scripts/setup.sh; cheap when up to date).
+.PHONY: setup demo test bench clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	.venv/bin/polycam demo --out demo-out
+
+test: setup
+	.venv/bin/python -m pytest -q
+
+bench: setup
+	@for b in benchmarks/bench_*.py; do echo "== $$b"; .venv/bin/python $$b || exit 1; done
+
+clean:
+	rm -rf demo-out .pytest_cache

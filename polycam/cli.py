@@ -1,0 +1,250 @@
+"""The ``polycam`` command: a thin layer over library functions (SPEC.md, CLI verbs).
+
+Arguments are parsed before any heavy import so ``--help`` is instant. Known
+user errors (:class:`polycam.errors.PolycamError`, and OS errors on a named
+file) print one line on stderr and exit 1; bad usage exits 2 (argparse); any
+other exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+__all__ = ["main", "build_parser"]
+
+log = logging.getLogger("polycam")
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+@contextmanager
+def _progress(description: str, total: int | None):
+    """A rich progress bar on stderr; yields ``advance(done, total)`` for library callbacks."""
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
+
+    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TimeElapsedColumn(), TimeRemainingColumn()]
+    with Progress(*columns, transient=False, disable=not sys.stderr.isatty()) as bar:
+        task = bar.add_task(description, total=total)
+
+        def advance(done: int, total_now: int | None = None) -> None:
+            bar.update(task, completed=done, total=total_now if total_now is not None else total)
+
+        yield advance
+
+
+def _faces_arg(text: str) -> list[str]:
+    from .lightfield import FACE_NAMES
+
+    if text == "all":
+        return list(FACE_NAMES)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in FACE_NAMES]
+    if not names or bad:
+        raise argparse.ArgumentTypeError(
+            f"expected 'all' or a comma-separated list of {' '.join(FACE_NAMES)}, got {text!r}")
+    return names
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
+    return v
+
+
+def _nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    v = _nonneg_float(text)
+    if v == 0:
+        raise argparse.ArgumentTypeError("expected a number > 0")
+    return v
+
+
+# ----------------------------------------------------------------------------- verbs
+
+
+def cmd_synth_lightfield(args: argparse.Namespace) -> int:
+    from .synth import default_lightfield_grid, synth_lightfield
+    from .lightfield import load_grid
+
+    grid = load_grid(args.grid) if args.grid else default_lightfield_grid(args.faces)
+    with _progress(f"rendering {args.out}", args.frames) as advance:
+        synth_lightfield(args.out, grid=grid, scene=args.scene, distance=args.distance,
+                         frames=args.frames, seed=args.seed, supersample=args.supersample,
+                         step_t=args.step_t, step_r_deg=args.step_r, fps=args.fps,
+                         overwrite=args.overwrite, progress=advance)
+    print(f"wrote {args.out}: {args.frames} frames, {len(grid.faces)} face(s), "
+          f"{grid.shape[1]}x{grid.shape[2]} views of {grid.shape[3]}x{grid.shape[4]}; "
+          f"ground truth in {Path(args.out) / 'groundtruth.tum'}")
+    return 0
+
+
+def cmd_synth_session(args: argparse.Namespace) -> int:
+    from .rig import load_rig
+    from .synth import synth_board_session, synth_session
+
+    rig = load_rig(args.rig)
+    common = dict(seed=args.seed, supersample=args.supersample, bit_depth=args.bit_depth,
+                  noise=args.noise, perturb_position_m=args.perturb_position,
+                  perturb_rotation_deg=args.perturb_rotation, perturb_focal_frac=args.perturb_focal,
+                  overwrite=args.overwrite)
+    with _progress(f"rendering {args.out}", args.frames) as advance:
+        if args.board:
+            from .board import load_board
+
+            board = load_board(args.board)
+            synth_board_session(rig, args.out, board=board, frames=args.frames, progress=advance,
+                                **common)
+            what = "calibration-board session"
+        else:
+            synth_session(rig, args.out, scene=args.scene, frames=args.frames, progress=advance,
+                          **common)
+            what = "session"
+    print(f"wrote {what} {args.out}: {args.frames} frames from {len(rig.cameras)} cameras "
+          f"(true calibration in {Path(args.out) / 'calib'})")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    path = Path(args.path)
+    if (path / "session.toml").exists():
+        from .session import open_session
+
+        s = open_session(path)
+        print(f"session {path}: rig {s.rig.name!r}, {len(s.cameras)} cameras, {len(s)} frames, "
+              f"status {s.status}")
+        for cam in s.cameras:
+            ts = s.image_timestamps(cam)
+            w, h = s.image_size(cam)
+            print(f"  {cam}: {len(ts)} images {w}x{h}")
+        print(f"  calibration: {'yes' if s.calibration() is not None else 'no'}; "
+              f"ground truth: {'yes' if s.groundtruth() is not None else 'no'}")
+    else:
+        from .lfstore import open_lightfield
+
+        lf = open_lightfield(path)
+        F, Ny, Nx, Nv, Nu = lf.grid.shape
+        print(f"light field {path}: {len(lf)} frames, faces {' '.join(f.name for f in lf.grid.faces)}, "
+              f"{Ny}x{Nx} views of {Nv}x{Nu} samples"
+              + (f", {lf.colour} colour channels" if lf.colour else "")
+              + (", with confidence W" if lf.has_weights else ""))
+        print(f"  x [{lf.grid.x.min:g}, {lf.grid.x.max:g}] y [{lf.grid.y.min:g}, {lf.grid.y.max:g}] m; "
+              f"u [{lf.grid.u.min:g}, {lf.grid.u.max:g}] v [{lf.grid.v.min:g}, {lf.grid.v.max:g}]; "
+              f"f {lf.grid.faces[0].f:g}, z_pi {lf.grid.faces[0].z_pi:g} m")
+        print(f"  ground truth: {'yes' if lf.groundtruth() is not None else 'no'}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    run_demo(Path(args.out), progress_factory=_progress, echo=print)
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="polycam", description="Polydioptric camera arrays: "
+                                "capture, calibrate, resample, plenoptic egomotion.")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="log more (-v info, -vv debug)")
+    sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    # synth
+    ps = sub.add_parser("synth", help="ray-traced synthetic light fields and camera-array sessions")
+    ss = ps.add_subparsers(dest="what", metavar="WHAT", required=True)
+
+    pl = ss.add_parser("lightfield", help="a light-field sequence rendered straight onto the two-plane grid")
+    pl.add_argument("--scene", choices=("spheres", "room"), default="spheres")
+    pl.add_argument("--distance", type=_positive_float, default=6.0,
+                    help="distance from the sensor to the scene [m] (default 6)")
+    pl.add_argument("--faces", type=_faces_arg, default=["+z"],
+                    help="'all' (six nested-cube faces) or a list such as +z or +z,-x (default +z)")
+    pl.add_argument("--frames", type=_positive_int, default=2)
+    pl.add_argument("--out", required=True, help="output store NAME.zarr")
+    pl.add_argument("--grid", help="GRID.toml (default: 9x9 views, 64x64 directions, f = 60)")
+    pl.add_argument("--seed", type=int, default=0)
+    pl.add_argument("--supersample", type=_positive_int, default=2,
+                    help="k: average k x k rays over each (u, v) cell (default 2)")
+    pl.add_argument("--step-t", type=_nonneg_float, default=0.015, help="typical translation per frame [m]")
+    pl.add_argument("--step-r", type=_nonneg_float, default=0.2, help="typical rotation per frame [deg]")
+    pl.add_argument("--fps", type=_positive_float, default=30.0)
+    pl.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    pl.set_defaults(func=cmd_synth_lightfield)
+
+    pss = ss.add_parser("session", help="a camera-array session (or, with --board, a calibration session)")
+    pss.add_argument("--rig", required=True, help="rig file RIG.toml")
+    pss.add_argument("--scene", choices=("room", "spheres"), default=None,
+                     help="scene (default: the rig's [mock] scene, else room)")
+    pss.add_argument("--frames", type=_positive_int, default=10)
+    pss.add_argument("--out", required=True, help="output session folder")
+    pss.add_argument("--seed", type=int, default=0)
+    pss.add_argument("--board", help="BOARD.toml: render a calibration-board session instead")
+    pss.add_argument("--supersample", type=_positive_int, default=2, help="k x k rays per pixel (default 2)")
+    pss.add_argument("--bit-depth", type=int, choices=(8, 16), default=8)
+    pss.add_argument("--noise", type=_nonneg_float, default=None,
+                     help="grey-level noise std in [0, 1] units (default: the rig's [mock] noise, else 0)")
+    pss.add_argument("--perturb-position", type=_nonneg_float, default=0.0,
+                     help="std of per-camera position offsets from the rig file [m]")
+    pss.add_argument("--perturb-rotation", type=_nonneg_float, default=0.0,
+                     help="std of per-camera rotation offsets [deg]")
+    pss.add_argument("--perturb-focal", type=_nonneg_float, default=0.0,
+                     help="std of per-camera relative focal-length offsets")
+    pss.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    pss.set_defaults(func=cmd_synth_session)
+
+    pi = sub.add_parser("info", help="summarise a session folder or a light-field store")
+    pi.add_argument("path")
+    pi.set_defaults(func=cmd_info)
+
+    pd = sub.add_parser("demo", help="the main job on the built-in mock rig, end to end")
+    pd.add_argument("--out", default="demo-out", help="output folder (default demo-out)")
+    pd.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+    from .errors import PolycamError
+
+    try:
+        return int(args.func(args) or 0)
+    except PolycamError as e:
+        print(f"polycam: error: {e}", file=sys.stderr)
+        return 1
+    except OSError as e:
+        if e.filename is None:
+            raise
+        print(f"polycam: error: {e.filename}: {e.strerror}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("polycam: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
