@@ -83,10 +83,12 @@ def _positive_float(text: str) -> float:
 
 
 def cmd_synth_lightfield(args: argparse.Namespace) -> int:
-    from .synth import default_lightfield_grid, synth_lightfield
     from .lightfield import load_grid
 
-    grid = load_grid(args.grid) if args.grid else default_lightfield_grid(args.faces)
+    grid = load_grid(args.grid) if args.grid else None  # user files first: fail before heavy work
+    from .synth import default_lightfield_grid, synth_lightfield
+
+    grid = grid or default_lightfield_grid(args.faces)
     with _progress(f"rendering {args.out}", args.frames) as advance:
         synth_lightfield(args.out, grid=grid, scene=args.scene, distance=args.distance,
                          frames=args.frames, seed=args.seed, supersample=args.supersample,
@@ -100,18 +102,21 @@ def cmd_synth_lightfield(args: argparse.Namespace) -> int:
 
 def cmd_synth_session(args: argparse.Namespace) -> int:
     from .rig import load_rig
+
+    rig = load_rig(args.rig)  # user files first: fail before heavy work
+    board = None
+    if args.board:
+        from .board import load_board
+
+        board = load_board(args.board)
     from .synth import synth_board_session, synth_session
 
-    rig = load_rig(args.rig)
     common = dict(seed=args.seed, supersample=args.supersample, bit_depth=args.bit_depth,
                   noise=args.noise, perturb_position_m=args.perturb_position,
                   perturb_rotation_deg=args.perturb_rotation, perturb_focal_frac=args.perturb_focal,
                   overwrite=args.overwrite)
     with _progress(f"rendering {args.out}", args.frames) as advance:
-        if args.board:
-            from .board import load_board
-
-            board = load_board(args.board)
+        if board is not None:
             synth_board_session(rig, args.out, board=board, frames=args.frames, progress=advance,
                                 **common)
             what = "calibration-board session"

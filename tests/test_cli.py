@@ -1,0 +1,79 @@
+"""CLI smoke tests: the real command in a subprocess (evo style)."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def polycam(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONWARNINGS="error::DeprecationWarning")
+    return subprocess.run([sys.executable, "-m", "polycam.cli", *args], capture_output=True, text=True,
+                          cwd=cwd or REPO, env=env, timeout=timeout)
+
+
+def assert_one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> None:
+    assert res.returncode == 1, res.stderr
+    lines = [l for l in res.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith("polycam: error: ")
+    assert "Traceback" not in res.stderr
+    for frag in fragments:
+        assert frag in lines[0]
+
+
+def test_help_lists_verbs():
+    res = polycam("--help")
+    assert res.returncode == 0
+    for verb in ("synth", "info", "demo"):
+        assert verb in res.stdout
+
+
+def test_help_does_not_import_heavy_modules():
+    code = ("import sys; from polycam.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in ('mrcal','cv2','zarr','numba','scipy') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert out.stdout.strip() == "[]"
+
+
+def test_bad_usage_exits_2():
+    res = polycam("synth", "lightfield", "--faces", "sideways", "--out", "x.zarr")
+    assert res.returncode == 2
+    assert "--faces" in res.stderr
+
+
+def test_missing_rig_file_is_one_line(tmp_path):
+    res = polycam("synth", "session", "--rig", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "s"))
+    assert_one_line_error(res, "nope.toml", "no such file")
+
+
+def test_bad_rig_file_names_field(tmp_path):
+    rig = tmp_path / "bad.toml"
+    rig.write_text('[rig]\nname = "b"\n[grid]\nrows = "five"\ncols = 2\npitch = 0.1\n')
+    res = polycam("synth", "session", "--rig", str(rig), "--out", str(tmp_path / "s"))
+    assert_one_line_error(res, "bad.toml", "[grid].rows")
+
+
+def test_bad_grid_file_names_field(tmp_path):
+    grid = tmp_path / "grid.toml"
+    grid.write_text('[grid]\nf = 60\nz_pi = 0\nfaces = ["+q"]\nx = [-1, 1, 3]\ny = [-1, 1, 3]\n'
+                    'u = [-1, 1, 3]\nv = [-1, 1, 3]\n')
+    res = polycam("synth", "lightfield", "--grid", str(grid), "--out", str(tmp_path / "lf.zarr"))
+    assert_one_line_error(res, "grid.toml", "[grid].faces", "+q")
+
+
+def test_readme_starts_with_the_two_commands():
+    text = (REPO / "README.md").read_text()
+    first_block = re.search(r"```[a-z]*\n(.*?)```", text, re.S).group(1)
+    cmds = [l.split("#")[0].strip() for l in first_block.splitlines() if l.split("#")[0].strip()]
+    assert cmds == ["make demo", "make test"]
+    makefile = (REPO / "Makefile").read_text()
+    assert "polycam demo" in makefile
+    assert "make test" in (REPO / ".ci" / "run").read_text()
