@@ -1,0 +1,277 @@
+"""Plenoptic derivatives of a light-field frame pair: L_x, L_y, L_u, L_v, L_t.
+
+Arrays of one frame have dims ``(F, Ny, Nx, Nv, Nu)`` (SPEC.md: ``L[t, face, y, x,
+v, u]``); filters never cross faces. Derivatives are separable and *matched*: the
+derivative along one axis is taken with the derivative taps of a filter pair while
+the other three axes are smoothed with that pair's prefilter (Farid & Simoncelli,
+"Differentiation of discrete multidimensional signals", IEEE TIP 2004), so all four
+partial derivatives describe the same smoothed signal. The time derivative is
+symmetric: spatial derivatives are those of the frames' mean ``(L0 + L1) / 2`` (by
+linearity the average of the two frames' derivatives) and ``L_t`` is the fully
+prefiltered difference ``L1 - L0``; all five refer to the midpoint between frames.
+
+Units: ``L_x, L_y`` per metre (divided by the grid's x / y steps), ``L_u, L_v`` per
+unit of f, ``L_t`` per frame interval. Samples whose filter support leaves the grid
+are marked invalid. An axis with fewer samples than the filter support is not
+differentiated: its derivative is zero and it is not smoothed (the solver then
+reports the motion directions that depend on it as unobservable).
+
+The filters run as numba kernels (parallel over the leading dims) on float32
+C-contiguous arrays; :func:`correlate_axis` matches ``scipy.ndimage.correlate1d``
+with ``mode="nearest"``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from .lightfield import LightFieldGrid
+
+__all__ = [
+    "FilterPair",
+    "FILTERS",
+    "correlate_axis",
+    "Derivatives",
+    "plenoptic_derivatives",
+    "smooth_all",
+]
+
+
+@dataclass(frozen=True)
+class FilterPair:
+    """A matched prefilter / first-derivative pair, as correlation taps (odd length).
+
+    ``prefilter`` sums to 1; ``derivative`` has first moment 1 (``sum_k k d[k] = 1``
+    with k centred), so a unit ramp has derivative exactly 1 per sample.
+    """
+
+    name: str
+    prefilter: np.ndarray
+    """(2r+1,) smoothing taps."""
+    derivative: np.ndarray
+    """(2r+1,) derivative taps (correlation orientation: positive for a rising ramp)."""
+
+    @property
+    def radius(self) -> int:
+        return len(self.prefilter) // 2
+
+
+def _pair(name: str, p, d) -> FilterPair:
+    p = np.asarray(p, float)
+    d = np.asarray(d, float)
+    r = len(p) // 2
+    k = np.arange(-r, r + 1)
+    p = p / p.sum()
+    d = d / np.sum(k * d)
+    return FilterPair(name, p, d)
+
+
+FILTERS: dict[str, FilterPair] = {
+    # plain central differences, no smoothing (the baseline)
+    "central": _pair("central", [0.0, 1.0, 0.0], [-1.0, 0.0, 1.0]),
+    # Farid & Simoncelli (2004) 3- and 5-tap pairs
+    "fs3": _pair("fs3", [0.229879, 0.540242, 0.229879], [-0.425287, 0.0, 0.425287]),
+    "fs5": _pair("fs5", [0.030320, 0.249724, 0.439911, 0.249724, 0.030320],
+                 [-0.104550, -0.292315, 0.0, 0.292315, 0.104550]),
+}
+"""Available filter pairs by name."""
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def _corr_mid(a, taps, out):
+    """out[i, j, k] = sum_t taps[t] a[i, clamp(j + t - r), k] for a (A, n, B) view."""
+    A, n, B = a.shape
+    T = taps.shape[0]
+    r = T // 2
+    for ij in numba.prange(A * n):
+        i = ij // n
+        j = ij - i * n
+        for k in range(B):
+            out[i, j, k] = 0.0
+        for t in range(T):
+            w = taps[t]
+            if w == 0.0:
+                continue
+            jj = j + t - r
+            if jj < 0:
+                jj = 0
+            elif jj > n - 1:
+                jj = n - 1
+            for k in range(B):
+                out[i, j, k] += w * a[i, jj, k]
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def _corr_last(a, taps, out):
+    """out[i, j] = sum_t taps[t] a[i, clamp(j + t - r)] for a (A, n) view."""
+    A, n = a.shape
+    T = taps.shape[0]
+    r = T // 2
+    m = max(n - 2 * r, 0)
+    for i in numba.prange(A):
+        row = a[i]
+        o = out[i, r:r + m]
+        o[:] = 0.0
+        for t in range(T):
+            w = taps[t]
+            src = row[t:t + m]
+            for j in range(m):          # contiguous slices: vectorises
+                o[j] += w * src[j]
+        for jb in range(n - m):         # borders, with clamped indices
+            j = jb if jb < r else r + m + jb - r
+            if j >= n:
+                continue
+            acc = 0.0
+            for t in range(T):
+                jj = min(max(j + t - r, 0), n - 1)
+                acc += taps[t] * row[jj]
+            out[i, j] = acc
+
+
+def correlate_axis(a: np.ndarray, taps: np.ndarray, axis: int,
+                   out: np.ndarray | None = None) -> np.ndarray:
+    """Correlate float32 array ``a`` (any dims) with 1-D ``taps`` along ``axis``.
+
+    Same as ``scipy.ndimage.correlate1d(a, taps, axis, mode="nearest")`` (the
+    border values are only placeholders: callers mask them). Returns ``out``
+    (float32, dims of ``a``).
+    """
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    axis = axis % a.ndim
+    if out is None:
+        out = np.empty_like(a)
+    taps32 = np.asarray(taps, dtype=np.float32)
+    n = a.shape[axis]
+    A = int(np.prod(a.shape[:axis], dtype=np.int64))
+    B = int(np.prod(a.shape[axis + 1:], dtype=np.int64))
+    if B == 1:
+        _corr_last(a.reshape(A, n), taps32, out.reshape(A, n))
+    else:
+        _corr_mid(a.reshape(A, n, B), taps32, out.reshape(A, n, B))
+    return out
+
+
+# axes of a (F, Ny, Nx, Nv, Nu) array
+_AX = {"y": 1, "x": 2, "v": 3, "u": 4}
+
+
+@dataclass(frozen=True)
+class Derivatives:
+    """Plenoptic derivatives of a frame pair at the temporal midpoint.
+
+    Every array has dims ``(F, Ny, Nx, Nv, Nu)`` (float32).
+    """
+
+    Lx: np.ndarray
+    """[1/m] derivative along the focal-plane x axis (fixed direction)."""
+    Ly: np.ndarray
+    """[1/m] derivative along the focal-plane y axis."""
+    Lu: np.ndarray
+    """[1/unit of f] derivative along u (fixed position)."""
+    Lv: np.ndarray
+    """[1/unit of f] derivative along v."""
+    Lt: np.ndarray
+    """[1/frame] prefiltered ``L1 - L0``."""
+    valid: np.ndarray
+    """(Ny, Nx, Nv, Nu) bool: the filter support lies inside the grid."""
+    differentiated: dict
+    """Axis name (``x y u v``) → whether that axis had enough samples to differentiate."""
+
+
+def _axis_pairs(grid_counts: dict, filters: dict) -> dict:
+    """Per axis: the FilterPair, or None when the axis is too short to differentiate."""
+    out = {}
+    for name, n in grid_counts.items():
+        fp = filters[name]
+        out[name] = fp if n >= 2 * fp.radius + 1 else None
+    return out
+
+
+def _valid_mask(shape4: tuple, pairs: dict) -> np.ndarray:
+    """(Ny, Nx, Nv, Nu) bool: samples at least ``radius`` from every differentiated border."""
+    valid = np.ones(shape4, bool)
+    for name, fp in pairs.items():
+        if fp is None or fp.radius == 0:
+            continue
+        ax = _AX[name] - 1
+        n = shape4[ax]
+        sl = [slice(None)] * 4
+        keep = np.zeros(n, bool)
+        keep[fp.radius:n - fp.radius] = True
+        shape = [1, 1, 1, 1]
+        shape[ax] = n
+        valid &= keep.reshape(shape)
+    return valid
+
+
+def _resolve_filters(filters) -> dict:
+    """``filters``: a FILTERS name for all axes, or a dict axis name → name."""
+    if isinstance(filters, str):
+        filters = {k: filters for k in _AX}
+    out = {}
+    for k in _AX:
+        name = filters.get(k, "fs5") if isinstance(filters, dict) else filters
+        if name not in FILTERS:
+            raise ValueError(f"unknown derivative filter {name!r}; expected one of {sorted(FILTERS)}")
+        out[k] = FILTERS[name]
+    return out
+
+
+def smooth_all(a: np.ndarray, pairs: dict, skip: str | None = None) -> np.ndarray:
+    """Apply the prefilter of every differentiated axis (except ``skip``) to a (F, Ny, Nx, Nv, Nu) array."""
+    out = a
+    for name in ("y", "x", "v", "u"):
+        fp = pairs[name]
+        if name == skip or fp is None or fp.radius == 0:
+            continue
+        out = correlate_axis(out, fp.prefilter, _AX[name])
+    return out if out is not a else a.copy()
+
+
+def plenoptic_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
+                          filters: str | dict = "fs5") -> Derivatives:
+    """Derivatives of the frame pair ``L0``, ``L1`` (each (F, Ny, Nx, Nv, Nu)) on ``grid``.
+
+    ``filters`` names a :data:`FILTERS` pair for all axes, or maps axis names
+    (``x y u v``) to pair names (unnamed axes use ``fs5``).
+    """
+    pairs = _axis_pairs({"x": grid.x.count, "y": grid.y.count, "u": grid.u.count,
+                         "v": grid.v.count}, _resolve_filters(filters))
+    L0 = np.ascontiguousarray(L0, dtype=np.float32)
+    L1 = np.ascontiguousarray(L1, dtype=np.float32)
+    S = 0.5 * (L0 + L1)
+    D = L1 - L0
+    step = {"x": grid.x.step, "y": grid.y.step, "u": grid.u.step, "v": grid.v.step}
+    zeros = None
+
+    def deriv(name: str, base: np.ndarray) -> np.ndarray:
+        nonlocal zeros
+        fp = pairs[name]
+        if fp is None:
+            if zeros is None:
+                zeros = np.zeros_like(S)
+            return zeros
+        d = correlate_axis(base, fp.derivative, _AX[name])
+        d *= np.float32(1.0 / step[name])
+        return d
+
+    # share smoothing passes: (x, y) derivatives from S smoothed in (u, v) and vice versa
+    S_uv = smooth_all(smooth_all(S, {"u": pairs["u"], "v": None, "x": None, "y": None}),
+                      {"v": pairs["v"], "u": None, "x": None, "y": None})
+    S_xy = smooth_all(smooth_all(S, {"x": pairs["x"], "u": None, "v": None, "y": None}),
+                      {"y": pairs["y"], "u": None, "v": None, "x": None})
+    only = {k: None for k in _AX}
+
+    def sm(a, name):
+        return smooth_all(a, {**only, name: pairs[name]})
+
+    Lx = deriv("x", sm(S_uv, "y"))
+    Ly = deriv("y", sm(S_uv, "x"))
+    Lu = deriv("u", sm(S_xy, "v"))
+    Lv = deriv("v", sm(S_xy, "u"))
+    Lt = smooth_all(D, pairs)
+    valid = _valid_mask(S.shape[1:], pairs)
+    return Derivatives(Lx, Ly, Lu, Lv, Lt, valid, {k: pairs[k] is not None for k in _AX})
