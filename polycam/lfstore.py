@@ -1,0 +1,400 @@
+"""The light-field store ``NAME.zarr``: a Zarr v3 group holding ``L[t, face, y, x, v, u]`` (SPEC.md).
+
+Contents:
+
+* array ``L``: float32, dims ``(T, F, Ny, Nx, Nv, Nu)`` or ``(T, F, Ny, Nx, Nv, Nu, C)``,
+  intensities normalised to [0, 1] (8-bit / 255, 16-bit / 65535). ``L`` may
+  hold NaN where a sample has no data (e.g. a ray no camera saw); this module
+  stores whatever it is given and does not check values. Readers that cannot
+  handle NaN should use ``W`` (0 there) or ``np.nan_to_num``.
+* array ``W`` (optional): float32 in [0, 1], dims ``(T, F, Ny, Nx, Nv, Nu)``:
+  confidence of each sample (push-pull weight; 0 = no data).
+* attributes ``format = "polycam-lightfield"``, ``version = 1``, ``faces``
+  (``{"name", "R_rig_face", "z_pi", "f"}`` each), ``x``, ``y``, ``u``, ``v``
+  (regular increasing sample coordinates shared by all faces) and
+  ``timestamps_ns`` (T ints, strictly increasing). Other attributes and arrays
+  are allowed and ignored (room for provenance).
+* file ``groundtruth.tum`` (optional): ``T_world_rig`` per frame.
+
+Both arrays are chunked one chunk per (frame, face): a frame is written or read
+without touching any other, and writers of different faces never share a
+chunk. :class:`LightFieldWriter` builds the store in ``NAME.zarr.partial`` next
+to the target and renames it on :meth:`~LightFieldWriter.close`, so a crash
+never leaves a half-written ``NAME.zarr``. See docs/conventions.md for frames
+and axis orders.
+"""
+
+from __future__ import annotations
+
+import logging
+import operator
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from .errors import FormatError, InputError
+from .lightfield import Axis, LightFieldGrid, _check_faces_attr
+from .trajectory import Trajectory, read_tum, write_tum
+
+__all__ = [
+    "LIGHTFIELD_FORMAT",
+    "LIGHTFIELD_VERSION",
+    "LightFieldWriter",
+    "write_lightfield",
+    "LightFieldStore",
+    "open_lightfield",
+]
+
+log = logging.getLogger(__name__)
+
+LIGHTFIELD_FORMAT = "polycam-lightfield"
+LIGHTFIELD_VERSION = 1
+_INT64_MAX = int(np.iinfo(np.int64).max)
+
+
+def _zarr():
+    import zarr  # lazily: keeps `polycam --help` fast
+
+    return zarr
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _check_groundtruth(traj: Trajectory, timestamps_ns: list[int]) -> None:
+    if len(traj) != len(timestamps_ns) or not np.array_equal(
+            np.asarray(traj.timestamps_ns, np.int64), np.asarray(timestamps_ns, np.int64)):
+        raise ValueError(f"groundtruth: needs one pose per frame at the frame timestamps "
+                         f"({len(timestamps_ns)} frames, {len(traj)} poses)")
+
+
+class LightFieldWriter:
+    """Write a light-field store frame by frame.
+
+    ``grid`` fixes the per-frame dims ``(F, Ny, Nx, Nv, Nu)``; ``colour`` = C
+    adds a trailing colour axis; ``with_weights`` adds the ``W`` array. The
+    store is built in ``<path>.partial`` (a stale one from a crash is removed)
+    and renamed to ``path`` by :meth:`close`. An existing ``path`` is an error
+    unless ``overwrite`` (and then it is only replaced once the new store is
+    complete). As a context manager an exception removes the partial store.
+    """
+
+    def __init__(self, path: str | os.PathLike, grid: LightFieldGrid, *, colour: int | None = None,
+                 with_weights: bool = False, overwrite: bool = False,
+                 groundtruth: Trajectory | None = None):
+        self.path = Path(path)
+        self.grid = grid
+        if colour is not None and (not _is_int(colour) or colour < 1):
+            raise ValueError(f"colour must be None or an integer >= 1, got {colour!r}")
+        self.colour = None if colour is None else int(colour)
+        self.with_weights = bool(with_weights)
+        self.overwrite = bool(overwrite)
+        self.groundtruth = groundtruth
+        self._check_target()
+        self.partial = self.path.with_name(self.path.name + ".partial")
+        if self.partial.exists():
+            log.warning("%s: removing a stale partial store from an earlier run", self.partial)
+            shutil.rmtree(self.partial)
+        self.frame_shape = tuple(grid.shape) + ((self.colour,) if self.colour else ())
+        """Dims of one frame of L: (F, Ny, Nx, Nv, Nu[, C])."""
+        zarr = _zarr()
+        self._group = zarr.open_group(str(self.partial), mode="w-", zarr_format=3)
+        self._L = self._group.create_array(
+            "L", shape=(0, *self.frame_shape), chunks=(1, 1, *self.frame_shape[1:]),
+            dtype="float32", fill_value=0.0)
+        self._W = None
+        if self.with_weights:
+            self._W = self._group.create_array(
+                "W", shape=(0, *grid.shape), chunks=(1, 1, *grid.shape[1:]),
+                dtype="float32", fill_value=0.0)
+        self._timestamps: list[int] = []
+        self._closed = False
+        self._write_attrs()
+
+    def _check_target(self) -> None:
+        p = self.path
+        if not p.exists():
+            return
+        if not self.overwrite:
+            raise InputError(f"{p}: already exists (choose another name or allow overwriting)")
+        if p.is_dir() and any(p.iterdir()) and not (p / "zarr.json").is_file():
+            raise InputError(f"{p}: refusing to overwrite a folder that is not a Zarr store")
+
+    def _write_attrs(self) -> None:
+        attrs = {"format": LIGHTFIELD_FORMAT, "version": LIGHTFIELD_VERSION, **self.grid.attrs(),
+                 "timestamps_ns": list(self._timestamps)}
+        self._group.attrs.update(attrs)
+
+    def __len__(self) -> int:
+        return len(self._timestamps)
+
+    def append(self, L_frame: np.ndarray, timestamp_ns: int, W_frame: np.ndarray | None = None) -> int:
+        """Append one frame; returns its index t.
+
+        L_frame: (F, Ny, Nx, Nv, Nu[, C]) intensities in [0, 1] (cast to float32; NaN allowed).
+        timestamp_ns: int [ns], strictly increasing.
+        W_frame: (F, Ny, Nx, Nv, Nu) weights in [0, 1]; required iff ``with_weights``.
+        """
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        L = np.asarray(L_frame, dtype=np.float32)
+        if L.shape != self.frame_shape:
+            raise ValueError(f"L_frame: expected dims {self.frame_shape}, got {L.shape}")
+        if not _is_int(timestamp_ns) or not 0 <= int(timestamp_ns) <= _INT64_MAX:
+            raise ValueError(f"timestamp_ns: expected a non-negative integer [ns], got {timestamp_ns!r}")
+        ns = int(timestamp_ns)
+        if self._timestamps and ns <= self._timestamps[-1]:
+            raise ValueError(f"timestamp_ns {ns} is not after the previous frame's {self._timestamps[-1]}")
+        if self._W is not None:
+            if W_frame is None:
+                raise ValueError("W_frame is required: the store was opened with with_weights=True")
+            W = np.asarray(W_frame, dtype=np.float32)
+            if W.shape != tuple(self.grid.shape):
+                raise ValueError(f"W_frame: expected dims {tuple(self.grid.shape)}, got {W.shape}")
+        elif W_frame is not None:
+            raise ValueError("W_frame given but the store was opened with with_weights=False")
+        t = len(self._timestamps)
+        self._L.resize((t + 1, *self.frame_shape))
+        self._L[t] = L
+        if self._W is not None:
+            self._W.resize((t + 1, *self.grid.shape))
+            self._W[t] = W
+        self._timestamps.append(ns)
+        return t
+
+    def close(self, groundtruth: Trajectory | None = None) -> Path:
+        """Finish the store: write the attributes (and ``groundtruth.tum`` when a trajectory
+        is given here or to the constructor: one pose per frame at the frame timestamps),
+        then rename the partial store to ``path``. Returns ``path``. Idempotent."""
+        if self._closed:
+            return self.path
+        traj = groundtruth if groundtruth is not None else self.groundtruth
+        try:
+            self._write_attrs()
+            if traj is not None:
+                _check_groundtruth(traj, self._timestamps)
+                write_tum(self.partial / "groundtruth.tum", traj)
+            self._publish()
+        except BaseException:
+            self.abort()
+            raise
+        self._closed = True
+        log.debug("light field %s: %d frames written", self.path, len(self._timestamps))
+        return self.path
+
+    def _publish(self) -> None:
+        if self.path.exists():
+            self._check_target()  # may have appeared since __init__
+            old = self.path.with_name(f"{self.path.name}.old-{os.getpid()}")
+            os.replace(self.path, old)
+            os.replace(self.partial, self.path)
+            if old.is_dir():
+                shutil.rmtree(old)
+            else:
+                old.unlink()
+        else:
+            os.replace(self.partial, self.path)
+
+    def abort(self) -> None:
+        """Drop the partial store (nothing is left at ``path``)."""
+        self._closed = True
+        shutil.rmtree(self.partial, ignore_errors=True)
+
+    def __enter__(self) -> "LightFieldWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+            log.warning("light field %s: not written (%s)", self.path, exc_type.__name__)
+
+
+def write_lightfield(path: str | os.PathLike, grid: LightFieldGrid, frames: np.ndarray | Iterable[np.ndarray],
+                     timestamps_ns: np.ndarray | Iterable[int], weights: np.ndarray | Iterable[np.ndarray] | None = None,
+                     groundtruth: Trajectory | None = None, *, overwrite: bool = False) -> Path:
+    """Write a whole light-field store at once.
+
+    frames: (T, F, Ny, Nx, Nv, Nu[, C]) array or an iterable of per-frame arrays
+        (the colour axis is inferred from the first frame).
+    timestamps_ns: (T,) int [ns], strictly increasing.
+    weights: optional (T, F, Ny, Nx, Nv, Nu) array or iterable.
+    """
+    ts = np.asarray(timestamps_ns if isinstance(timestamps_ns, np.ndarray) else list(timestamps_ns))
+    if ts.ndim != 1 or (ts.size and not np.issubdtype(ts.dtype, np.integer)):
+        raise ValueError(f"timestamps_ns: expected (T,) integers [ns], got {ts.dtype} {ts.shape}")
+    it = iter(frames)
+    ws = iter(weights) if weights is not None else None
+    first = next(it, None)
+    colour = None
+    if first is not None:
+        nd = np.ndim(first)
+        if nd == 6:
+            colour = int(np.shape(first)[-1])
+        elif nd != 5:
+            raise ValueError(f"frames: expected frames of dims (F, Ny, Nx, Nv, Nu[, C]), got {np.shape(first)}")
+    with LightFieldWriter(path, grid, colour=colour, with_weights=weights is not None,
+                          overwrite=overwrite, groundtruth=groundtruth) as w:
+        if first is not None:
+            for n, frame in enumerate(_chain(first, it)):
+                if n >= ts.size:
+                    raise ValueError(f"more frames than timestamps ({ts.size})")
+                w.append(frame, int(ts[n]), next(ws) if ws is not None else None)
+        if len(w) != ts.size:
+            raise ValueError(f"{len(w)} frames but {ts.size} timestamps")
+    return Path(path)
+
+
+def _chain(first, rest: Iterator) -> Iterator:
+    yield first
+    yield from rest
+
+
+def _array_member(group, name: str):
+    """The zarr array ``name`` of ``group``, or None if there is none (or it is a group)."""
+    zarr = _zarr()
+    try:
+        node = group[name]
+    except KeyError:
+        return None
+    return node if isinstance(node, zarr.Array) else None
+
+
+class LightFieldStore:
+    """A validated, lazily read light-field store (see :func:`open_lightfield`).
+
+    Opening reads only metadata; :meth:`frame` and :meth:`weights` read the
+    chunks of one frame. ``L`` and ``W`` give the raw zarr arrays for other
+    slices (e.g. an orthographic image ``store.L[t, k, :, :, m, n]``).
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        p = self.path
+        if not p.exists():
+            raise FormatError(p, "no such light-field store")
+        zarr = _zarr()
+        try:
+            group = zarr.open_group(str(p), mode="r")
+        except Exception as e:  # zarr raises several types (GroupNotFoundError, ContainsArrayError, ...)
+            raise FormatError(p, f"not a Zarr group ({type(e).__name__})") from None
+        attrs = dict(group.attrs)
+        self.attrs: dict = attrs
+        """All attributes of the group."""
+        fmt = attrs.get("format")
+        if fmt != LIGHTFIELD_FORMAT:
+            raise FormatError(p, f"expected {LIGHTFIELD_FORMAT!r}, got {fmt!r}", "attrs.format")
+        version = attrs.get("version")
+        if not _is_int(version) or version != LIGHTFIELD_VERSION:
+            raise FormatError(p, f"unsupported version {version!r} (this polycam reads version "
+                                 f"{LIGHTFIELD_VERSION})", "attrs.version")
+        faces = _check_faces_attr(p, attrs.get("faces"))
+        axes = {}
+        for key in ("x", "y", "u", "v"):
+            values = attrs.get(key)
+            if not isinstance(values, list) or not all(
+                    isinstance(a, (int, float)) and not isinstance(a, bool) for a in values):
+                raise FormatError(p, "expected a list of numbers", f"attrs.{key}")
+            try:
+                axes[key] = Axis.from_values(values, where=f"attrs.{key}")
+            except ValueError as e:
+                raise FormatError(p, str(e).split(": ", 1)[-1], f"attrs.{key}") from None
+        self.grid = LightFieldGrid(faces, **axes)
+        """Faces and sample axes of the store."""
+        ts = attrs.get("timestamps_ns")
+        if not isinstance(ts, list) or not all(_is_int(t) for t in ts):
+            raise FormatError(p, "expected a list of integers [ns]", "attrs.timestamps_ns")
+        timestamps = np.array(ts, dtype=np.int64) if ts else np.zeros(0, np.int64)
+        if np.any(np.diff(timestamps) <= 0):
+            i = int(np.flatnonzero(np.diff(timestamps) <= 0)[0]) + 1
+            raise FormatError(p, f"not strictly increasing (entry {i})", "attrs.timestamps_ns")
+        timestamps.flags.writeable = False
+        self.timestamps_ns = timestamps
+        """(T,) int64 [ns] frame timestamps (read-only)."""
+
+        # members are looked up by name: listing the group would trip over groundtruth.tum
+        L = _array_member(group, "L")
+        if L is None:
+            raise FormatError(p, "missing array", "L")
+        F_shape = tuple(self.grid.shape)
+        if L.dtype != np.float32:
+            raise FormatError(p, f"expected float32, got {L.dtype}", "L")
+        if L.ndim not in (6, 7) or tuple(L.shape[1:6]) != F_shape:
+            raise FormatError(p, f"dims {tuple(L.shape)} do not match (T, F, Ny, Nx, Nv, Nu[, C]) with "
+                                 f"(F, Ny, Nx, Nv, Nu) = {F_shape} from the faces and axes", "L")
+        if L.shape[0] != timestamps.size:
+            raise FormatError(p, f"{timestamps.size} timestamps for {L.shape[0]} frames in L",
+                              "attrs.timestamps_ns")
+        self.L = L
+        """The zarr array ``L`` (lazy)."""
+        self.colour: int | None = int(L.shape[6]) if L.ndim == 7 else None
+        """Size C of the colour axis, or None for grey stores."""
+        W = _array_member(group, "W")
+        if W is not None:
+            if W.dtype != np.float32:
+                raise FormatError(p, f"expected float32, got {W.dtype}", "W")
+            if tuple(W.shape) != tuple(L.shape[:6]):
+                raise FormatError(p, f"dims {tuple(W.shape)} do not match L's (T, F, Ny, Nx, Nv, Nu) = "
+                                     f"{tuple(L.shape[:6])}", "W")
+        self.W = W
+        """The zarr array ``W`` (lazy) or None."""
+
+    @property
+    def num_frames(self) -> int:
+        """T, the number of frames."""
+        return int(self.timestamps_ns.size)
+
+    def __len__(self) -> int:
+        return self.num_frames
+
+    @property
+    def has_weights(self) -> bool:
+        return self.W is not None
+
+    @property
+    def frame_shape(self) -> tuple[int, ...]:
+        """Dims of one frame of L: (F, Ny, Nx, Nv, Nu[, C])."""
+        return tuple(self.L.shape[1:])
+
+    def _index(self, t: int) -> int:
+        i = operator.index(t)
+        n = self.num_frames
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"{self.path}: frame {t} out of range (T = {n})")
+        return i
+
+    def frame(self, t: int) -> np.ndarray:
+        """Frame t of L: float32 (F, Ny, Nx, Nv, Nu[, C]); reads only that frame's chunks."""
+        return np.asarray(self.L[self._index(t)], dtype=np.float32)
+
+    def weights(self, t: int) -> np.ndarray:
+        """Frame t of W: float32 (F, Ny, Nx, Nv, Nu). InputError if the store has no W."""
+        if self.W is None:
+            raise InputError(f"{self.path}: the light field has no weights (array W)")
+        return np.asarray(self.W[self._index(t)], dtype=np.float32)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        """Frames of L in order, one at a time."""
+        for t in range(self.num_frames):
+            yield self.frame(t)
+
+    def groundtruth(self) -> Trajectory | None:
+        """``groundtruth.tum`` inside the store (``T_world_rig`` per frame), or None."""
+        p = self.path / "groundtruth.tum"
+        return read_tum(p) if p.exists() else None
+
+    def __repr__(self) -> str:
+        return (f"LightFieldStore({str(self.path)!r}, frames={self.num_frames}, "
+                f"frame_shape={self.frame_shape}, weights={self.has_weights})")
+
+
+def open_lightfield(path: str | os.PathLike) -> LightFieldStore:
+    """Open and validate a light-field store (metadata only; frames are read lazily)."""
+    return LightFieldStore(path)
