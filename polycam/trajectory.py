@@ -61,7 +61,8 @@ def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
     t = traj.T_world_rig[:, :3, 3]
     lines = []
     for ns, ti, qi in zip(np.asarray(traj.timestamps_ns, dtype=np.int64), t, q):
-        sec = f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+        sign, a = ("-", -int(ns)) if ns < 0 else ("", int(ns))
+        sec = f"{sign}{a // 1_000_000_000}.{a % 1_000_000_000:09d}"
         lines.append(sec + " " + " ".join(f"{v:.9f}" for v in (*ti, *qi)))
     atomic_write_text(path, "\n".join(lines) + "\n")
 

@@ -1,0 +1,131 @@
+"""Light-field grids: GRID.toml, sample axes, ray generation and store attributes."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from polycam.errors import FormatError
+from polycam.lightfield import (FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for, _check_faces_attr,
+                                load_grid)
+from tolerances import GEOMETRY_ATOL, GRID_RAY_ATOL
+
+GRID = """
+[grid]
+f = 1.0
+z_pi = 0.05
+faces = ["+z", "-x"]
+x = [-0.04, 0.04, 5]
+y = [-0.02, 0.02, 3]
+u = [-0.5, 0.5, 11]
+v = [-0.3, 0.3, 7]
+"""
+
+
+def _grid_file(tmp_path, text):
+    p = tmp_path / "grid.toml"
+    p.write_text(text)
+    return p
+
+
+def test_load_grid(tmp_path):
+    g = load_grid(_grid_file(tmp_path, GRID))
+    assert g.shape == (2, 3, 5, 7, 11)
+    assert g.num_rays == 2 * 3 * 5 * 7 * 11
+    assert [f.name for f in g.faces] == ["+z", "-x"]
+    assert all(f.f == 1.0 and f.z_pi == 0.05 for f in g.faces)
+    np.testing.assert_allclose(g.faces[1].R_rig_face, R_rig_face_for("-x"))
+    np.testing.assert_allclose(g.x.values, np.linspace(-0.04, 0.04, 5))
+    assert g.u.step == pytest.approx(0.1)
+    assert Axis(2.0, 2.0, 1).step == 0.0
+
+
+def test_face_rays_closed_form(tmp_path):
+    g = load_grid(_grid_file(tmp_path, GRID))
+    for k, face in enumerate(g.faces):
+        rays = g.face_rays(k)
+        assert rays.shape == (3, 5, 7, 11) and rays.frame == "rig"
+        R = face.R_rig_face
+        j, i, m, n = 2, 1, 4, 9  # L[t, k, j, i, m, n] is sample (x[i], y[j], u[n], v[m])
+        x, y, u, v = g.x.values[i], g.y.values[j], g.u.values[n], g.v.values[m]
+        np.testing.assert_allclose(rays.origins[j, i, m, n], R @ [x, y, face.z_pi], atol=GRID_RAY_ATOL)
+        d = np.array([u, v, face.f]) / np.linalg.norm([u, v, face.f])
+        np.testing.assert_allclose(rays.directions[j, i, m, n], R @ d, atol=GRID_RAY_ATOL)
+        np.testing.assert_allclose(np.linalg.norm(rays.directions, axis=-1), 1.0, atol=GRID_RAY_ATOL)
+    # the +z face of a planar forward array: R = I, origins on the plane z = z_pi
+    r0 = g.face_rays(0)
+    np.testing.assert_allclose(r0.origins[..., 2], 0.05, atol=GRID_RAY_ATOL)
+    assert np.all(r0.directions[..., 2] > 0)
+    # the -x face looks along rig -x
+    assert np.all(g.face_rays(1).directions[..., 0] < 0)
+
+
+def test_all_rays_stack_faces(tmp_path):
+    g = load_grid(_grid_file(tmp_path, GRID))
+    r = g.rays()
+    assert r.origins.shape == (2, 3, 5, 7, 11, 3) and r.directions.shape == (2, 3, 5, 7, 11, 3)
+    np.testing.assert_array_equal(r.directions[1], g.face_rays(1).directions)
+
+
+def test_cube_grid_and_attrs_round_trip():
+    g = LightFieldGrid.cube(list(FACE_NAMES), f=0.5, z_pi=-0.1, x=Axis(-1, 1, 3), y=Axis(-1, 1, 3),
+                            u=Axis(-1, 1, 4), v=Axis(-1, 1, 4))
+    a = g.attrs()
+    assert set(a) == {"faces", "x", "y", "u", "v"}
+    faces = _check_faces_attr("store.zarr", a["faces"])
+    assert [f.name for f in faces] == list(FACE_NAMES)
+    for f0, f1 in zip(g.faces, faces):
+        np.testing.assert_allclose(f1.R_rig_face, f0.R_rig_face, atol=GEOMETRY_ATOL)
+        assert (f1.z_pi, f1.f) == (f0.z_pi, f0.f)
+    for key in "xyuv":
+        ax = Axis.from_values(a[key])
+        assert ax == getattr(g, key)
+
+
+def test_axis_from_values_rejects_irregular():
+    with pytest.raises(ValueError, match="regularly spaced"):
+        Axis.from_values([0, 1, 3])
+    with pytest.raises(ValueError, match="regularly spaced"):
+        Axis.from_values([3, 2, 1])
+    with pytest.raises(ValueError, match="non-empty"):
+        Axis.from_values([])
+    assert Axis.from_values([0.25]) == Axis(0.25, 0.25, 1)
+
+
+@pytest.mark.parametrize("old, new, substrings", [
+    ('faces = ["+z", "-x"]', 'faces = ["+z", "+w"]', ["[grid].faces", "unknown face '+w'"]),
+    ('faces = ["+z", "-x"]', 'faces = ["+z", "+z"]', ["[grid].faces", "twice"]),
+    ('faces = ["+z", "-x"]', "faces = []", ["[grid].faces", "non-empty"]),
+    ("f = 1.0", "f = 0", ["[grid].f", "> 0"]),
+    ("z_pi = 0.05\n", "", ["[grid].z_pi", "missing"]),
+    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04]", ["[grid].x", "list of 3 numbers"]),
+    ("x = [-0.04, 0.04, 5]", "x = [0.04, -0.04, 5]", ["[grid].x", "max > min"]),
+    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 2.5]", ["[grid].x", "count"]),
+    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 0]", ["[grid].x", "count"]),
+    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 1]", ["[grid].x", "max > min"]),
+    ("u = [-0.5, 0.5, 11]", "u = [-0.5, 0.5, 11]\nw = 3", ["[grid].w", "unknown key"]),
+    ("[grid]", "[other]\nk = 1\n[grid]", ["other", "unknown key"]),
+])
+def test_grid_errors(tmp_path, old, new, substrings):
+    assert old in GRID
+    p = _grid_file(tmp_path, GRID.replace(old, new, 1))
+    with pytest.raises(FormatError) as e:
+        load_grid(p)
+    msg = str(e.value)
+    assert str(p) in msg, msg
+    for s in substrings:
+        assert s in msg, msg
+
+
+@pytest.mark.parametrize("faces, where", [
+    ("not a list", "attrs.faces"),
+    ([{"name": "+z"}], "attrs.faces[0]"),
+    ([{"name": "+z", "R_rig_face": [[1, 0], [0, 1]], "z_pi": 0, "f": 1}], "attrs.faces[0]"),
+    ([{"name": "+z", "R_rig_face": np.eye(3).tolist(), "z_pi": "0", "f": 1}], "attrs.faces[0]"),
+    ([{"name": "+z", "R_rig_face": np.eye(3).tolist(), "z_pi": 0, "f": -1}], "attrs.faces[0]"),
+])
+def test_faces_attr_errors(faces, where):
+    with pytest.raises(FormatError, match=re.escape(f"store.zarr: {where}: ")):
+        _check_faces_attr("store.zarr", faces)
