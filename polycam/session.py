@@ -153,7 +153,8 @@ class SessionWriter:
     the status ``"incomplete"`` (the data written so far stays readable).
 
     :meth:`write_image` may be called from several threads at once for
-    different cameras (PNG encoding runs outside the GIL).
+    different cameras (PNG encoding runs outside the GIL); with ``threads`` > 1
+    :meth:`add_frame` does that itself on a pool of that many threads.
 
     ``rig.toml`` is a verbatim copy of ``rig.path`` when the rig was read from a
     file and uses no ``lens`` files; otherwise the rig is serialised (grid
@@ -161,7 +162,7 @@ class SessionWriter:
     ``SESSION/lenses/`` so the session stays self-contained.
     """
 
-    def __init__(self, path: str | os.PathLike, rig: Rig, *, overwrite: bool = False):
+    def __init__(self, path: str | os.PathLike, rig: Rig, *, overwrite: bool = False, threads: int = 1):
         self.path = Path(path)
         self.rig = rig
         self.cameras: list[str] = list(rig.ids)
@@ -202,6 +203,11 @@ class SessionWriter:
         self._frames_lock = threading.Lock()
         self._next_frame = 0
         self._last_frame_ns: int | None = None
+        self._pool = None
+        if threads > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(int(threads), thread_name_prefix="polycam-png")
         log.debug("session %s: started with %d cameras", self.path, len(self.cameras))
 
     # -- metadata files
@@ -332,13 +338,18 @@ class SessionWriter:
     def add_frame(self, timestamp_ns: int, images: Mapping[str, np.ndarray | None]) -> int:
         """Write every image of ``images`` (camera id → image or None) at ``timestamp_ns``,
         then the frame row; returns the frame index. Cameras left out have no image."""
-        stamps: dict[str, int | None] = {}
-        for cam, img in images.items():
-            if img is not None:
+        stamps = {cam: (None if img is None else timestamp_ns) for cam, img in images.items()}
+        todo = [(cam, img) for cam, img in images.items() if img is not None]
+        if self._pool is not None and len(todo) > 1:
+            from concurrent.futures import wait
+
+            futures = [self._pool.submit(self.write_image, cam, timestamp_ns, img) for cam, img in todo]
+            wait(futures)
+            for f in futures:
+                f.result()  # re-raises the first failure, once every image is done
+        else:
+            for cam, img in todo:
                 self.write_image(cam, timestamp_ns, img)
-                stamps[cam] = timestamp_ns
-            else:
-                stamps[cam] = None
         return self.write_frame(timestamp_ns, stamps)
 
     @property
@@ -396,6 +407,8 @@ class SessionWriter:
             self._frames_csv.flush()
 
     def _close_files(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
         for f in [*self._data_csv.values(), self._frames_csv]:
             try:
                 f.flush()

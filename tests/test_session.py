@@ -456,3 +456,19 @@ def test_unknown_image_is_a_key_error(session):
         s.read_image("g8", T0 + 1)
     with pytest.raises(KeyError):
         s.image_timestamps("cam00")
+
+
+def test_threaded_add_frame(tmp_path, rig, rng):
+    path = tmp_path / "S"
+    written = []
+    with SessionWriter(path, rig, threads=2) as w:
+        for i in range(3):
+            written.append(_images(rng, i))
+            w.add_frame(T0 + i * DT, written[-1])
+        with pytest.raises(InputError, match="but the rig gives"):
+            w.add_frame(T0 + 5 * DT, {"g8": np.zeros((6, 8), np.uint8), "rgb": np.zeros((4, 4, 3), np.uint8)})
+    s = open_session(path)
+    assert len(s) == 3
+    for i, imgs in enumerate(written):
+        for cam, img in s.read_frame(i).items():
+            np.testing.assert_array_equal(img, imgs[cam])
