@@ -740,14 +740,24 @@ class Session:
         return {cam: (self.read_image(cam, int(ns)) if ns >= 0 else None)
                 for cam, ns in zip(self.cameras, row.tolist())}
 
-    def calibration(self) -> dict | None:
-        """``calib/<cam>.cameramodel`` of every camera (mrcal cameramodels, rt_cam_ref = T_cam_rig),
-        or None when the session has no ``calib/`` folder. A missing model is an error."""
+    def calibration(self, calib_dir: str | os.PathLike | None = None) -> dict | None:
+        """``<cam>.cameramodel`` of every camera (mrcal cameramodels, rt_cam_ref = T_cam_rig).
+
+        From ``calib_dir`` (e.g. ``polycam calibrate --out``; an error if it does
+        not exist) or by default ``SESSION/calib`` (None when the session has
+        none). A missing model or one whose imagersize differs from the
+        camera's is a :class:`FormatError`.
+        """
         from .cameras import load_cameramodel
 
-        d = self.path / "calib"
-        if not d.is_dir():
-            return None
+        if calib_dir is not None:
+            d = Path(calib_dir)
+            if not d.is_dir():
+                raise FormatError(d, "no such calibration folder")
+        else:
+            d = self.path / "calib"
+            if not d.is_dir():
+                return None
         models = {}
         for cam in self.cameras:
             p = d / f"{cam}.cameramodel"

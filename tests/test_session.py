@@ -472,3 +472,16 @@ def test_threaded_add_frame(tmp_path, rig, rng):
     for i, imgs in enumerate(written):
         for cam, img in s.read_frame(i).items():
             np.testing.assert_array_equal(img, imgs[cam])
+
+
+def test_calibration_from_another_folder(session, rig, tmp_path):
+    path, _ = session
+    s = open_session(path)
+    with pytest.raises(FormatError, match="no such calibration folder"):
+        s.calibration(tmp_path / "nope")
+    d = tmp_path / "calib_out"
+    d.mkdir()
+    for c in rig.cameras:
+        nominal_cameramodel(c).write(str(d / f"{c.id}.cameramodel"))
+    assert set(s.calibration(d)) == {"g8", "g16", "rgb"}
+    assert s.calibration() is None
