@@ -64,6 +64,7 @@ SESSION_FORMAT = "polycam-session"
 SESSION_VERSION = 1
 DATA_CSV_HEADER = "#timestamp [ns],filename"
 _STATUSES = ("complete", "incomplete")
+_RESERVED = {"session.toml", "rig.toml", "frames.csv", "groundtruth.tum", "calib", "lenses"}
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _INT64_MAX = np.iinfo(np.int64).max
 
@@ -168,6 +169,9 @@ class SessionWriter:
         self.cameras: list[str] = list(rig.ids)
         if not self.cameras:
             raise InputError(f"{self.path}: the rig {rig.name!r} has no cameras")
+        clash = [c for c in self.cameras if c in _RESERVED]
+        if clash:
+            raise InputError(f"{self.path}: camera id {clash[0]!r} clashes with a session file name")
         if self.path.exists():
             if not self.path.is_dir():
                 raise InputError(f"{self.path}: exists and is not a folder")
@@ -384,8 +388,7 @@ class SessionWriter:
     def write_extra(self, relname: str | os.PathLike, text: str) -> Path:
         """Write a text file (report, statistics) at ``relname`` inside the session, atomically."""
         rel = Path(relname)
-        reserved = {"session.toml", "rig.toml", "frames.csv", "groundtruth.tum", "calib", "lenses",
-                    *self.cameras}
+        reserved = {*_RESERVED, *self.cameras}
         if rel.is_absolute() or not rel.parts or ".." in rel.parts or rel.parts[0] in reserved:
             raise ValueError(f"write_extra: {str(relname)!r} must be a relative path that does not "
                              "touch the session's own files")
