@@ -22,7 +22,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import FormatError
 from .tomlio import Table, load_toml
 
 __all__ = ["BOARD_TYPES", "Board", "BoardImage", "load_board", "aruco_dictionary_names"]
