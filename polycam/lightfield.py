@@ -51,7 +51,7 @@ def R_rig_face_for(name: str) -> np.ndarray:
     return np.stack([xx, yy, zz], axis=1)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Face:
     """One two-plane face of a light field."""
 
@@ -67,6 +67,14 @@ class Face:
     @classmethod
     def cube(cls, name: str, z_pi: float, f: float) -> "Face":
         return cls(name, R_rig_face_for(name), float(z_pi), float(f))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Face):
+            return NotImplemented
+        return (self.name == other.name and self.z_pi == other.z_pi and self.f == other.f
+                and np.array_equal(np.asarray(self.R_rig_face), np.asarray(other.R_rig_face)))
+
+    __hash__ = None  # mutable array inside
 
     def to_attrs(self) -> dict:
         return {"name": self.name, "R_rig_face": np.asarray(self.R_rig_face).tolist(),

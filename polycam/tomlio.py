@@ -54,7 +54,10 @@ class Table:
         self._seen: set[str] = set()
 
     def error(self, key: str | None, problem: str) -> FormatError:
-        field = f"{self.name}.{key}" if key else self.name
+        if key is None:
+            field = self.name or None
+        else:
+            field = f"{self.name}.{key}" if self.name else key
         return FormatError(self.path, problem, field)
 
     def has(self, key: str) -> bool:
