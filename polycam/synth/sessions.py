@@ -1,0 +1,357 @@
+"""Synthetic data products on disk: light-field stores, camera-array sessions and
+calibration-board sessions, each with its ground truth.
+
+- :func:`synth_lightfield` / :func:`write_lightfield_sequence`: a ray-traced
+  light-field sequence in a ``NAME.zarr`` store, ``groundtruth.tum`` inside.
+- :func:`synth_session`: a camera-array session (SPEC.md) of a rig moving through
+  a scene, with ``groundtruth.tum`` (``T_world_rig``, world = rig at frame 0) and
+  the TRUE camera models in ``calib/`` (:func:`true_cameramodels`: the nominal
+  models of the rig file with seeded per-camera perturbations).
+- :func:`synth_board_session`: a static rig watching a ChArUco / chess board moved
+  through varied poses in front of a room, with ``board_poses.tum`` (below).
+
+``board_poses.tum`` (written by :func:`synth_board_session`): one TUM line per
+frame, ``timestamp tx ty tz qx qy qz qw`` with the frame timestamp in seconds and
+the pose ``T_rig_board`` (board frame → rig frame; board frame as in
+:mod:`polycam.board`: origin at the outer corner of the top-left square, z into
+the board). Because the rig is static at the world origin, ``T_world_board`` is
+the same.
+
+Seeds: every random choice derives from ``seed`` through its own stream
+(scene layout, textures, motion, camera perturbations, board poses, noise), so
+equal seeds give byte-identical output.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..cameras import T_rig_cam_of, nominal_cameramodel
+from ..errors import InputError
+from ..geometry import R_from_r, T_from_Rt, T_inverse, quat_from_R, rt_from_T
+from ..lightfield import LightFieldGrid
+from ..rig import Rig
+from ..trajectory import Trajectory
+from .motion import make_trajectory, static_trajectory
+from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, quantize
+from .scenes import Scene, make_scene, room_scene
+
+__all__ = [
+    "true_cameramodels",
+    "board_poses",
+    "write_lightfield_sequence",
+    "synth_lightfield",
+    "synth_session",
+    "synth_board_session",
+    "tum_text",
+]
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int], None]
+"""``progress(done, total)``: called after each frame."""
+
+_SALT_PERTURB, _SALT_NOISE, _SALT_BOARD = 31, 32, 33
+
+
+def _mrcal():
+    import mrcal  # lazily: heavy
+
+    return mrcal
+
+
+# ----------------------------------------------------------------------------- cameras
+
+
+def true_cameramodels(rig: Rig, *, seed: int = 0, perturb_position_m: float = 0.0,
+                      perturb_rotation_deg: float = 0.0, perturb_focal_frac: float = 0.0) -> dict:
+    """Camera id → the TRUE ``mrcal.cameramodel`` of a synthetic rig (rt_cam_ref = T_cam_rig).
+
+    Each camera starts from :func:`~polycam.cameras.nominal_cameramodel` and gets,
+    from its own seeded stream: a position offset with std ``perturb_position_m`` [m]
+    per axis, a rotation by an axis-angle vector with std ``perturb_rotation_deg``
+    [deg] per component (applied in the camera frame), and a focal-length factor
+    ``1 + N(0, perturb_focal_frac)`` (fx and fy alike) with a principal-point shift of
+    std ``perturb_focal_frac * fx`` [px] per axis. Distortion is not perturbed.
+    """
+    mrcal = _mrcal()
+    out = {}
+    for i, cam in enumerate(rig.cameras):
+        rng = np.random.default_rng([seed, _SALT_PERTURB, i])
+        dp = rng.normal(size=3) * perturb_position_m
+        dr = rng.normal(size=3) * math.radians(perturb_rotation_deg)
+        kf = 1.0 + rng.normal() * perturb_focal_frac
+        dc = rng.normal(size=2) * perturb_focal_frac
+        T_rig_cam = cam.T_rig_cam.copy()
+        T_rig_cam[:3, :3] = T_rig_cam[:3, :3] @ R_from_r(dr)
+        T_rig_cam[:3, 3] += dp
+        m = nominal_cameramodel(cam, T_rig_cam)
+        lensmodel, intr = m.intrinsics()
+        intr = np.array(intr, float)
+        fx = intr[0]
+        intr[0] *= kf
+        intr[1] *= kf
+        intr[2:4] += dc * fx
+        out[cam.id] = mrcal.cameramodel(intrinsics=(lensmodel, intr), imagersize=m.imagersize(),
+                                        rt_cam_ref=rt_from_T(T_inverse(T_rig_cam)))
+    return out
+
+
+def _image_for(cam, radiance: np.ndarray, bit_depth: int | None, noise: float, rng) -> np.ndarray:
+    """Quantised image in the camera's pixel format: grey (H, W), or (H, W, 3) for RGB."""
+    depth = bit_depth if bit_depth is not None else (16 if cam.pixel_format == "Y16" else 8)
+    img = quantize(radiance, depth, noise, rng)
+    if cam.pixel_format == "RGB":
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    return img
+
+
+def tum_text(timestamps_ns: np.ndarray, T: np.ndarray) -> str:
+    """TUM lines ``timestamp tx ty tz qx qy qz qw`` for poses T (N, 4, 4) at (N,) ns."""
+    q = quat_from_R(np.asarray(T)[:, :3, :3])
+    lines = []
+    for ns, Ti, qi in zip(np.asarray(timestamps_ns, np.int64), np.asarray(T), q):
+        ns = int(ns)
+        sec = f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+        lines.append(sec + " " + " ".join(f"{v:.9f}" for v in (*Ti[:3, 3], *qi)))
+    return "\n".join(lines) + "\n"
+
+
+# ----------------------------------------------------------------------------- light fields
+
+
+def write_lightfield_sequence(out: str | os.PathLike, scene: Scene, grid: LightFieldGrid,
+                              trajectory: Trajectory, *, supersample: int = 1, overwrite: bool = False,
+                              progress: Progress | None = None) -> Path:
+    """Render ``scene`` on ``grid`` at every pose of ``trajectory`` into a light-field store
+    ``out`` (SPEC.md), with the trajectory as ``groundtruth.tum``; returns the store path."""
+    from ..lfstore import LightFieldWriter
+
+    renderer = LightFieldRenderer(scene, grid, supersample)
+    n = len(trajectory)
+    with LightFieldWriter(out, grid, overwrite=overwrite) as w:
+        for i in range(n):
+            w.append(renderer.render(trajectory.T_world_rig[i]), int(trajectory.timestamps_ns[i]))
+            if progress is not None:
+                progress(i + 1, n)
+        return w.close(groundtruth=trajectory)
+
+
+def synth_lightfield(out: str | os.PathLike, *, grid: LightFieldGrid | None = None, scene: str | Scene = "spheres",
+                     distance: float = 6.0, frames: int = 2, seed: int = 0, supersample: int = 2,
+                     step_t: float = 0.015, step_r_deg: float = 0.2, fps: float = 30.0,
+                     trajectory: Trajectory | None = None, overwrite: bool = False,
+                     progress: Progress | None = None) -> Path:
+    """``polycam synth lightfield``: a seeded scene and smooth trajectory rendered into ``out``.
+
+    grid: default :func:`~polycam.synth.render.default_lightfield_grid` on all six faces.
+    scene: a :class:`Scene` or a name (``spheres``: all directions, ``spheres-forward``,
+        ``room``) built with ``distance`` [m] and ``seed``.
+    trajectory: default a smooth random one with RMS steps ``step_t`` [m], ``step_r_deg``.
+    """
+    grid = grid if grid is not None else default_lightfield_grid("all")
+    sc = scene if isinstance(scene, Scene) else make_scene(scene, distance, seed)
+    traj = trajectory if trajectory is not None else make_trajectory(
+        "smooth", frames, step_t=step_t, step_r_deg=step_r_deg, fps=fps, seed=seed)
+    return write_lightfield_sequence(out, sc, grid, traj, supersample=supersample, overwrite=overwrite,
+                                     progress=progress)
+
+
+# ----------------------------------------------------------------------------- sessions
+
+
+def _resolve_scene(rig: Rig, scene: str | Scene | None, distance: float | None, seed: int) -> Scene:
+    if isinstance(scene, Scene):
+        return scene
+    name = scene if scene is not None else (rig.mock.scene if rig.mock is not None else "room")
+    if name == "pattern":
+        raise InputError(f"{rig.path or rig.name}: [mock] scene 'pattern' is the mock driver's test "
+                         "pattern; synthetic sessions need 'room' or 'spheres'")
+    d = distance if distance is not None else (rig.mock.distance if rig.mock is not None else 4.0)
+    return make_scene(name, d, seed)
+
+
+def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None = None, frames: int = 10,
+                  seed: int | None = None, supersample: int = 2, bit_depth: int | None = 8,
+                  noise: float | None = None, perturb_position_m: float = 0.0,
+                  perturb_rotation_deg: float = 0.0, perturb_focal_frac: float = 0.0,
+                  distance: float | None = None, trajectory: Trajectory | None = None,
+                  models: dict | None = None, overwrite: bool = False, threads: int = 2,
+                  progress: Progress | None = None) -> Path:
+    """``polycam synth session``: render a rig moving through a scene into a session folder.
+
+    Defaults come from the rig's ``[mock]`` table where it has one: ``scene``,
+    ``distance``, ``seed``, ``noise``, ``motion`` (``static``/``smooth``), ``step_t``,
+    ``step_r_deg``; otherwise room, 4 m, seed 0, no noise, smooth, 5 mm, 0.2 deg.
+    Frame timestamps follow the first camera's ``fps``.
+
+    scene: a :class:`Scene` or a name (``room``, ``spheres``, ``spheres-forward``).
+    bit_depth: 8 or 16; None: 16 for ``Y16`` cameras, 8 otherwise. ``RGB`` cameras get
+        the grey radiance in three channels.
+    noise: Gaussian grey-level std in [0, 1] units, seeded per frame.
+    perturb_*: see :func:`true_cameramodels`; ignored when ``models`` are given.
+    trajectory: ``T_world_rig`` per frame (overrides frames / motion settings).
+    Writes ``groundtruth.tum`` and ``calib/<cam>.cameramodel`` (the true models).
+    """
+    from ..session import SessionWriter
+
+    mock = rig.mock
+    seed = seed if seed is not None else (mock.seed if mock is not None else 0)
+    noise = noise if noise is not None else (mock.noise if mock is not None else 0.0)
+    sc = _resolve_scene(rig, scene, distance, seed)
+    fps = float(rig.cameras[0].fps)
+    if trajectory is None:
+        trajectory = make_trajectory(mock.motion if mock is not None else "smooth", frames,
+                                     step_t=mock.step_t if mock is not None else 0.005,
+                                     step_r_deg=mock.step_r_deg if mock is not None else 0.2,
+                                     fps=fps, seed=seed)
+    if models is None:
+        models = true_cameramodels(rig, seed=seed, perturb_position_m=perturb_position_m,
+                                   perturb_rotation_deg=perturb_rotation_deg,
+                                   perturb_focal_frac=perturb_focal_frac)
+    renderer = CameraArrayRenderer(rig, models, sc, supersample)
+    n = len(trajectory)
+    with SessionWriter(out, rig, overwrite=overwrite, threads=threads) as w:
+        for cam in rig.cameras:
+            w.write_calibration(cam.id, models[cam.id])
+        for i in range(n):
+            rng = np.random.default_rng([seed, _SALT_NOISE, i])
+            images = {cam.id: _image_for(cam, renderer.render_camera(cam.id, trajectory.T_world_rig[i]),
+                                         bit_depth, noise, rng) for cam in rig.cameras}
+            w.add_frame(int(trajectory.timestamps_ns[i]), images)
+            if progress is not None:
+                progress(i + 1, n)
+        w.write_groundtruth(trajectory)
+        w.close()
+    return Path(out)
+
+
+# ----------------------------------------------------------------------------- boards
+
+
+def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: float = 40.0,
+                roll_deg: float = 20.0, fill: tuple[float, float] = (0.35, 0.7), margin_px: float = 4.0,
+                cam_ids: list[str] | None = None) -> np.ndarray:
+    """(frames, 4, 4) seeded board poses ``T_rig_board`` for calibration sessions.
+
+    Frame i aims at camera ``cam_ids[i % N]`` (default: the models' order): the
+    board's squared area spans a fraction ``fill`` (uniform) of that camera's image
+    width, its centre at a random point of the image, tilted about the board's x and
+    y axes by up to ``tilt_deg`` each and rolled by up to ``roll_deg``, facing the
+    camera; a pose is redrawn until all four outer corners project inside that
+    camera's image with ``margin_px`` to spare. With nearby parallel cameras (a
+    planar array) most poses are seen by several cameras at once.
+    """
+    mrcal = _mrcal()
+    ids = list(cam_ids) if cam_ids is not None else list(models)
+    rng = np.random.default_rng([seed, _SALT_BOARD])
+    bw, bh = board.size_m
+    centre_b = np.array([bw / 2.0, bh / 2.0, 0.0])
+    corners_b = np.array([[0, 0, 0], [bw, 0, 0], [0, bh, 0], [bw, bh, 0]], float)
+    out = np.empty((frames, 4, 4))
+    for i in range(frames):
+        model = models[ids[i % len(ids)]]
+        lensmodel, intr = model.intrinsics()
+        W, H = (float(v) for v in model.imagersize())
+        T_rig_cam = T_rig_cam_of(model)
+        for attempt in range(200):
+            f = rng.uniform(*fill)
+            z = intr[0] * bw / (f * W)
+            q = np.array([rng.uniform(0.25, 0.75) * W, rng.uniform(0.25, 0.75) * H])
+            d = mrcal.unproject(q, lensmodel, intr, normalize=True)
+            p_c = d * (z / d[2])
+            ax, ay = np.radians(rng.uniform(-tilt_deg, tilt_deg, size=2))
+            az = math.radians(rng.uniform(-roll_deg, roll_deg))
+            R = R_from_r(np.array([0.0, 0.0, az])) @ R_from_r(np.array([ax, 0.0, 0.0])) \
+                @ R_from_r(np.array([0.0, ay, 0.0]))
+            T_cam_board = T_from_Rt(R, p_c - R @ centre_b)
+            pc = corners_b @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+            if np.any(pc[:, 2] <= 0.05):
+                continue
+            qc = mrcal.project(pc, lensmodel, intr)
+            if np.all(np.isfinite(qc)) and np.all(qc >= margin_px - 0.5) and \
+                    np.all(qc[:, 0] <= W - 0.5 - margin_px) and np.all(qc[:, 1] <= H - 0.5 - margin_px):
+                break
+        else:
+            raise InputError(f"could not place the board inside the view of camera {ids[i % len(ids)]} "
+                             "(is the board too large for the lens?)")
+        out[i] = T_rig_cam @ T_cam_board
+    return out
+
+
+def synth_board_session(rig: Rig, out: str | os.PathLike, *, board, frames: int = 20, seed: int | None = None,
+                        supersample: int = 2, bit_depth: int | None = 8, noise: float | None = None,
+                        perturb_position_m: float = 0.0, perturb_rotation_deg: float = 0.0,
+                        perturb_focal_frac: float = 0.0, scene: Scene | None = None,
+                        distance: float | None = None, models: dict | None = None,
+                        poses: np.ndarray | None = None, tilt_deg: float = 40.0, overwrite: bool = False,
+                        threads: int = 2, progress: Progress | None = None) -> Path:
+    """``polycam synth session --board``: a static rig (at the world origin) watching a
+    calibration board moved through :func:`board_poses` in front of a room.
+
+    board: a :class:`polycam.board.Board`. Its image (:meth:`~polycam.board.Board.render`,
+        white margin of half a square, at least 2x the finest camera sampling) is a
+        two-sided textured rectangle, placed at ``T_rig_board`` per frame.
+    scene: the background (default an object-free :func:`room_scene` with the rig's
+        ``[mock] distance`` to the far wall, so nothing occludes the board).
+    poses: (frames, 4, 4) ``T_rig_board`` (default :func:`board_poses`).
+    Writes ``groundtruth.tum`` (identity poses), ``calib/`` (true models),
+    ``board_poses.tum`` (see the module docstring) and ``board.toml`` (a copy of the
+    board file, when the board was read from one). Other arguments as
+    :func:`synth_session`.
+    """
+    from ..session import SessionWriter
+
+    mock = rig.mock
+    seed = seed if seed is not None else (mock.seed if mock is not None else 0)
+    noise = noise if noise is not None else (mock.noise if mock is not None else 0.0)
+    if scene is None:
+        d = distance if distance is not None else (mock.distance if mock is not None else 4.0)
+        scene = room_scene(max(d, 2.0), seed=seed, n_spheres=0, n_boxes=0)
+    if models is None:
+        models = true_cameramodels(rig, seed=seed, perturb_position_m=perturb_position_m,
+                                   perturb_rotation_deg=perturb_rotation_deg,
+                                   perturb_focal_frac=perturb_focal_frac)
+    if poses is None:
+        poses = board_poses(board, models, frames, seed=seed, tilt_deg=tilt_deg,
+                            cam_ids=[c.id for c in rig.cameras])
+    poses = np.asarray(poses, float)
+    frames = poses.shape[0]
+    traj = static_trajectory(frames, float(rig.cameras[0].fps))
+
+    # Texture resolution: at least twice the finest sampling of any camera.
+    z_min = float(np.min([np.min(np.linalg.norm(
+        poses[:, :3, 3] - T_rig_cam_of(m)[:3, 3], axis=1)) for m in models.values()]))
+    fx_max = max(float(m.intrinsics()[1][0]) for m in models.values())
+    pps = int(np.clip(math.ceil(2.0 * fx_max * board.square_length / max(z_min, 1e-3)), 40, 240))
+    image, H_image_board = board.render(pps, 0.5)
+    k = pps / board.square_length
+    m_m = (image.shape[1] - board.cols * pps) / 2.0 / k             # margin [m]
+    bw, bh = board.size_m
+    scene, rect = scene.with_image_rect(image, poses[0], (-m_m, bw + m_m, -m_m, bh + m_m),
+                                        np.asarray(H_image_board)[:2])
+
+    renderer = CameraArrayRenderer(rig, models, scene, supersample)
+    with SessionWriter(out, rig, overwrite=overwrite, threads=threads) as w:
+        for cam in rig.cameras:
+            w.write_calibration(cam.id, models[cam.id])
+        for i in range(frames):
+            sc = scene.with_rect_pose(rect, poses[i])
+            rng = np.random.default_rng([seed, _SALT_NOISE, i])
+            images = {cam.id: _image_for(cam, renderer.render_camera(cam.id, traj.T_world_rig[i], sc),
+                                         bit_depth, noise, rng) for cam in rig.cameras}
+            w.add_frame(int(traj.timestamps_ns[i]), images)
+            if progress is not None:
+                progress(i + 1, frames)
+        w.write_groundtruth(traj)
+        w.write_extra("board_poses.tum", tum_text(traj.timestamps_ns, poses))
+        if getattr(board, "path", None) is not None and Path(board.path).is_file():
+            w.write_extra("board.toml", Path(board.path).read_text())
+        w.close()
+    return Path(out)
