@@ -1,0 +1,996 @@
+"""Plenoptic egomotion: rig motion between two light-field frames (paper Eq. 5).
+
+Conventions (SPEC.md, docs/conventions.md). A frame is an array ``L`` of dims
+``(F, Ny, Nx, Nv, Nu)`` on a :class:`~polycam.lightfield.LightFieldGrid`: sample
+``(x, y, u, v)`` of face k is the ray with origin ``o = (x, y, z_pi)`` and direction
+``d ∝ (u, v, f)`` in face coordinates, ``R_rig_face`` maps face to rig coordinates.
+
+Sign convention, derived from ray geometry
+------------------------------------------
+Let ``M = T_rig[i]_rig[i+1]`` be the rig's motion (the pose of frame i+1 in the
+rig frame of frame i; :meth:`Trajectory.relative`). The scene is static, so a
+ray ``ρ`` expressed in rig frame i+1 sees what the same physical ray, ``M ρ`` in
+rig frame i, saw before::
+
+    L_{i+1}(ρ) = L_i(M ρ)        ⇔        L_{i+1}(G ρ) = L_i(ρ),   G = M⁻¹.
+
+The paper's constraint (NOTES.md Eq. 2–5) is written for ``G``: the ray ``ρ`` of
+frame i is found at ``G ρ`` in frame i+1, and for ``G ≈ (I + [ω]ₓ, t)`` a ray moves
+by ``δo = ω × o + t``, ``δd = ω × d``. Re-intersecting the moved ray with the plane
+``z = z_pi`` and the image plane ``z = z_pi + f`` gives, to first order,
+
+    δx = t_x − (u/f) t_z − (uy/f) ω_x + (ux/f + z_pi) ω_y − y ω_z
+    δy = t_y − (v/f) t_z − (vy/f + z_pi) ω_x + (vx/f) ω_y + x ω_z
+    δu = −(uv/f) ω_x + (u²/f + f) ω_y − v ω_z
+    δv = −(v²/f + f) ω_x + (uv/f) ω_y + u ω_z
+
+and ``L_t + L_x δx + L_y δy + L_u δu + L_v δv = 0``: exactly the rows of M_t, M_ω
+in paper Eq. 5. Each face sees ``(R_rig_faceᵀ t, R_rig_faceᵀ ω)``; all faces
+stack into one system for the rig-frame ``(t, ω)`` of ``G``. The rig motion is
+``M = G⁻¹``: to first order a rig moving by ``+t`` along x gives ``G`` with
+``t_x < 0`` and the output ``T_prev_next`` has ``+t_x``.
+
+Iterated linearisation (symmetric warping)
+------------------------------------------
+With a current estimate ``M_e`` and its square root ``H`` (``H H = M_e``), both
+frames are resampled half-way (4-D multilinear interpolation in ray space):
+``L0w(ρ) = L0(H ρ)``, ``L1w(ρ) = L1(H⁻¹ ρ)``, so both carry the same
+interpolation blur. If ``L1w(Δ ρ) = L0w(ρ)`` for the small ray motion ``Δ``
+solved from Eq. 5, then ``M = H Δ⁻¹ H`` exactly. This runs coarse to fine over a
+pyramid in (u, v) (and (x, y) where there are enough viewpoints).
+
+Robust weighting
+----------------
+Per ray weight = confidence ``W`` (minimum over the filter support; 0 outside
+the data) × validity (filter support inside the grid, warped sample inside the
+grid) × an occlusion weight × an IRLS weight. The occlusion weight uses the
+light-field structure (no motion): on a surface at one depth ``Z`` the
+directional and positional gradients are parallel, ``(L_u, L_v) = (Z/f)(L_x,
+L_y)`` (paper Eq. 6); near a silhouette two depths mix and they are not. The
+IRLS weight is Tukey's biweight of the residual normalised by a robust scale
+(1.4826 · weighted MAD) that is fixed once per pyramid level, so the weights do
+not tighten as the warp converges.
+
+Diagnostics
+-----------
+Each pair yields a :class:`PairResult` with the 6x6 covariance of the rig
+motion's ``(t, r)`` (``T_prev_next = [R_from_r(r) | t]``), the Jacobi-scaled
+condition number, the inlier fraction, and the unobservable directions when
+the normal matrix is (near-)singular (no texture, one viewpoint, ...). The
+covariance is a cluster-robust sandwich over tiles of rays (residuals of
+filtered derivatives are correlated over the filter support); the textbook
+``σ² (AᵀWA)⁻¹`` is kept as ``covariance_iid``.
+
+This module does no file I/O; :func:`estimate_trajectory` streams frames from
+a light-field store (anything with ``grid``, ``timestamps_ns``, ``frame(i)``,
+``weights(i)``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numba
+import numpy as np
+
+from .derivatives import FILTERS, Derivatives, correlate_axis, plenoptic_derivatives
+from .errors import InputError
+from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
+from .lightfield import Axis, LightFieldGrid
+from .trajectory import Trajectory
+
+__all__ = [
+    "PARAM_NAMES",
+    "MotionOptions",
+    "PairResult",
+    "estimate_motion",
+    "estimate_trajectory",
+    "ray_motion_coefficients",
+    "warp_lightfield",
+]
+
+log = logging.getLogger(__name__)
+
+PARAM_NAMES = ("t_x", "t_y", "t_z", "w_x", "w_y", "w_z")
+"""Order of the six motion parameters: translation [m] then rotation vector [rad]."""
+
+
+# ============================================================================ options / result
+
+
+@dataclass(frozen=True)
+class MotionOptions:
+    """Settings of the plenoptic motion solver (defaults are the tuned ones)."""
+
+    filters: str | dict = field(default_factory=lambda: {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"})
+    """Derivative filter pair name for all axes, or axis name (x y u v) → name (see FILTERS)."""
+    levels: int = 3
+    """Pyramid levels (1 = single scale)."""
+    pyramid_xy: bool = False
+    """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
+    iterations: int = 4
+    """Warp / re-solve iterations per level (the last level may stop early on convergence)."""
+    irls_steps: int = 2
+    """Re-weighted solves per iteration (0 = plain weighted least squares)."""
+    robust: str = "tukey"
+    """``tukey``, ``huber`` or ``none``: the IRLS loss on normalised residuals."""
+    robust_c: float = 4.685
+    """Loss constant in units of the robust residual scale (4.685 Tukey, 1.345 Huber)."""
+    occlusion: bool = True
+    """Down-weight rays whose directional and positional gradients disagree (silhouettes)."""
+    occlusion_tau: float = 0.05
+    """Scale of the occlusion measure (0 = consistent .. 0.25 = orthogonal gradients)."""
+    symmetric: bool = True
+    """Warp both frames half-way (else frame 2 by the whole estimate)."""
+    cubic: bool = True
+    """Cubic (4-point Lagrange) interpolation along (u, v) in the warp (else linear)."""
+    rcond: float = 1e-7
+    """Jacobi-scaled eigenvalue ratio below which a direction is unobservable."""
+    min_rays: int = 64
+    """Fewer usable rays than this is a failed estimate."""
+    tol: float = 1e-7
+    """Stop iterating when the increment is below this (|t| [m] + |ω| [rad])."""
+    tile: int = 16
+    """(u, v) tile size in samples for the cluster-robust covariance."""
+
+    def __post_init__(self) -> None:
+        if self.robust not in ("tukey", "huber", "none"):
+            raise ValueError(f"robust must be tukey, huber or none, got {self.robust!r}")
+        if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
+            raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """Rig motion between frames ``index`` and ``index + 1`` with diagnostics.
+
+    Falsy when the estimate failed (``reason`` says why, e.g. unobservable
+    directions); ``T_prev_next`` is then the best estimate in the observable
+    subspace (zero motion along the unobservable directions).
+    """
+
+    index: int
+    """Frame index i of the pair (i, i+1)."""
+    T_prev_next: np.ndarray
+    """(4, 4) ``T_rig[i]_rig[i+1]``: pose of frame i+1 in the rig frame of frame i."""
+    covariance: np.ndarray
+    """(6, 6) covariance of (t [m], r [rad]) of ``T_prev_next`` (cluster-robust sandwich)."""
+    covariance_iid: np.ndarray
+    """(6, 6) ``σ² (AᵀWA)⁻¹`` mapped like ``covariance`` (assumes independent residuals)."""
+    sigma: float
+    """Robust residual scale [intensity per frame] at the final solve."""
+    condition: float
+    """Condition number of the Jacobi-scaled normal matrix (inf when singular)."""
+    inlier_fraction: float
+    """Fraction of usable rays with IRLS weight > 0.5 at the final solve."""
+    num_rays: int
+    """Rays with a positive weight at the final solve."""
+    iterations: int
+    """Total linear solves (over all levels)."""
+    unobservable: tuple[str, ...] = ()
+    """Names of (near-)unobservable directions, e.g. ``("t_x", "t_y", "t_z")``."""
+    unobservable_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    """(k, 6) unit vectors (scaled parameter space) spanning the unobservable subspace."""
+    reason: str = ""
+    """Why the estimate failed; empty when it succeeded."""
+
+    @property
+    def ok(self) -> bool:
+        return not self.reason
+
+    def __bool__(self) -> bool:
+        return self.ok
+
+    @property
+    def t(self) -> np.ndarray:
+        """(3,) [m] translation of ``T_prev_next``."""
+        return self.T_prev_next[:3, 3]
+
+    @property
+    def r(self) -> np.ndarray:
+        """(3,) [rad] rotation vector of ``T_prev_next``."""
+        return r_from_R(self.T_prev_next[:3, :3])
+
+    @property
+    def std(self) -> np.ndarray:
+        """(6,) standard deviations of (t, r) from ``covariance``."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+
+# ============================================================================ numba kernels
+
+
+@numba.njit(cache=True, inline="always")
+def _lagrange4(a, w):
+    """Cubic (4-point Lagrange) weights for samples at -1, 0, 1, 2 and fraction a ∈ [0, 1]."""
+    w[0] = -a * (a - 1.0) * (a - 2.0) / 6.0
+    w[1] = (a + 1.0) * (a - 1.0) * (a - 2.0) / 2.0
+    w[2] = -(a + 1.0) * a * (a - 2.0) / 2.0
+    w[3] = (a + 1.0) * a * (a - 1.0) / 6.0
+
+
+@numba.njit(parallel=True, cache=True)
+def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, cubic, out, ok):
+    """Resample ``src`` (K, Ny, Nx, Nv, Nu) of one face at the grid rays moved by (R, tr).
+
+    The ray (x, y, u, v) → origin ``R (x, y, z_pi) + tr``, direction ``R (u, v, f)``,
+    re-intersected with the face's two planes. Interpolation is linear in (x, y)
+    and, with ``cubic``, 4-point Lagrange in (u, v) (linear interpolation of the
+    image axes biases sub-sample shifts by ~k²/6 for k rad/sample), else linear.
+    ``ok`` (Ny, Nx, Nv, Nu) is False where the moved ray leaves the grid.
+    """
+    K, Ny, Nx, Nv, Nu = src.shape
+    x0 = xs[0]
+    y0 = ys[0]
+    u0 = us[0]
+    v0 = vs[0]
+    hx = (xs[Nx - 1] - x0) / (Nx - 1) if Nx > 1 else 1.0
+    hy = (ys[Ny - 1] - y0) / (Ny - 1) if Ny > 1 else 1.0
+    hu = (us[Nu - 1] - u0) / (Nu - 1) if Nu > 1 else 1.0
+    hv = (vs[Nv - 1] - v0) / (Nv - 1) if Nv > 1 else 1.0
+    eps = 1e-6
+    use_cubic_u = cubic and Nu >= 4
+    use_cubic_v = cubic and Nv >= 4
+    for jy in numba.prange(Ny):
+        wu = np.empty(4)
+        wv = np.empty(4)
+        iu_idx = np.empty(4, np.int64)
+        iv_idx = np.empty(4, np.int64)
+        for ix in range(Nx):
+            ox = xs[ix]
+            oy = ys[jy]
+            px = R[0, 0] * ox + R[0, 1] * oy + R[0, 2] * z_pi + tr[0]
+            py = R[1, 0] * ox + R[1, 1] * oy + R[1, 2] * z_pi + tr[1]
+            pz = R[2, 0] * ox + R[2, 1] * oy + R[2, 2] * z_pi + tr[2]
+            for jv in range(Nv):
+                v = vs[jv]
+                for iu in range(Nu):
+                    u = us[iu]
+                    dx = R[0, 0] * u + R[0, 1] * v + R[0, 2] * f
+                    dy = R[1, 0] * u + R[1, 1] * v + R[1, 2] * f
+                    dz = R[2, 0] * u + R[2, 1] * v + R[2, 2] * f
+                    good = dz > 1e-9 * f
+                    fx = fy = fu = fv = 0.0
+                    if good:
+                        s = (z_pi - pz) / dz
+                        if Nx > 1:
+                            fx = (px + s * dx - x0) / hx
+                        if Ny > 1:
+                            fy = (py + s * dy - y0) / hy
+                        if Nu > 1:
+                            fu = (f * dx / dz - u0) / hu
+                        if Nv > 1:
+                            fv = (f * dy / dz - v0) / hv
+                        good = (fx > -eps and fx < Nx - 1 + eps and fy > -eps and fy < Ny - 1 + eps
+                                and fu > -eps and fu < Nu - 1 + eps and fv > -eps and fv < Nv - 1 + eps)
+                    if not good:
+                        ok[jy, ix, jv, iu] = False
+                        for k in range(K):
+                            out[k, jy, ix, jv, iu] = 0.0
+                        continue
+                    ok[jy, ix, jv, iu] = True
+                    bx = min(max(int(math.floor(fx)), 0), max(Nx - 2, 0))
+                    by = min(max(int(math.floor(fy)), 0), max(Ny - 2, 0))
+                    bu = min(max(int(math.floor(fu)), 0), max(Nu - 2, 0))
+                    bv = min(max(int(math.floor(fv)), 0), max(Nv - 2, 0))
+                    ax = min(max(fx - bx, 0.0), 1.0)
+                    ay = min(max(fy - by, 0.0), 1.0)
+                    au = min(max(fu - bu, 0.0), 1.0)
+                    av = min(max(fv - bv, 0.0), 1.0)
+                    sx = 1 if Nx > 1 else 0
+                    sy = 1 if Ny > 1 else 0
+                    # (u, v) stencils: 4 taps (cubic) or 2 (linear), indices clamped
+                    if use_cubic_u:
+                        _lagrange4(au, wu)
+                        for q in range(4):
+                            iu_idx[q] = min(max(bu - 1 + q, 0), Nu - 1)
+                        nu_t = 4
+                    else:
+                        wu[0] = 1.0 - au
+                        wu[1] = au
+                        iu_idx[0] = bu
+                        iu_idx[1] = min(bu + 1, Nu - 1)
+                        nu_t = 2
+                    if use_cubic_v:
+                        _lagrange4(av, wv)
+                        for q in range(4):
+                            iv_idx[q] = min(max(bv - 1 + q, 0), Nv - 1)
+                        nv_t = 4
+                    else:
+                        wv[0] = 1.0 - av
+                        wv[1] = av
+                        iv_idx[0] = bv
+                        iv_idx[1] = min(bv + 1, Nv - 1)
+                        nv_t = 2
+                    for k in range(K):
+                        acc = 0.0
+                        for cy in range(2):
+                            wy = ay if cy else 1.0 - ay
+                            if wy == 0.0:
+                                continue
+                            yy = by + cy * sy
+                            for cx in range(2):
+                                wx = ax if cx else 1.0 - ax
+                                if wx == 0.0:
+                                    continue
+                                xx = bx + cx * sx
+                                wyx = wy * wx
+                                for qv in range(nv_t):
+                                    row = 0.0
+                                    vv = iv_idx[qv]
+                                    for qu in range(nu_t):
+                                        row += wu[qu] * src[k, yy, xx, vv, iu_idx[qu]]
+                                    acc += wyx * wv[qv] * row
+                        out[k, jy, ix, jv, iu] = acc
+
+
+@numba.njit(parallel=True, cache=True)
+def _normal_kernel(Lx, Ly, Lu, Lv, Lt, w, xs, ys, us, vs, z_pi, f, acc):
+    """Per (y, x, v) row: sums of w c cᵀ (21 unique), w c b (6), w b², w into acc (rows, 29).
+
+    c = the Eq. 5 coefficients of (t, ω) in face coordinates, b = −L_t.
+    """
+    Ny, Nx, Nv, Nu = Lx.shape
+    inv_f = 1.0 / f
+    for row in numba.prange(Ny * Nx * Nv):
+        jy = row // (Nx * Nv)
+        rem = row - jy * Nx * Nv
+        ix = rem // Nv
+        jv = rem - ix * Nv
+        x = xs[ix]
+        y = ys[jy]
+        v = vs[jv]
+        n00 = n01 = n02 = n03 = n04 = n05 = 0.0
+        n11 = n12 = n13 = n14 = n15 = 0.0
+        n22 = n23 = n24 = n25 = 0.0
+        n33 = n34 = n35 = 0.0
+        n44 = n45 = 0.0
+        n55 = 0.0
+        r0 = r1 = r2 = r3 = r4 = r5 = 0.0
+        sbb = 0.0
+        sw = 0.0
+        for iu in range(Nu):
+            wi = w[jy, ix, jv, iu]
+            if wi <= 0.0:
+                continue
+            u = us[iu]
+            gx = Lx[jy, ix, jv, iu]
+            gy = Ly[jy, ix, jv, iu]
+            gu = Lu[jy, ix, jv, iu]
+            gv = Lv[jy, ix, jv, iu]
+            b = -Lt[jy, ix, jv, iu]
+            c0 = gx
+            c1 = gy
+            c2 = -(u * gx + v * gy) * inv_f
+            c3 = -(u * y * inv_f) * gx - (v * y * inv_f + z_pi) * gy - (u * v * inv_f) * gu \
+                - (v * v * inv_f + f) * gv
+            c4 = (u * x * inv_f + z_pi) * gx + (v * x * inv_f) * gy + (u * u * inv_f + f) * gu \
+                + (u * v * inv_f) * gv
+            c5 = -y * gx + x * gy - v * gu + u * gv
+            w0 = wi * c0
+            w1 = wi * c1
+            w2 = wi * c2
+            w3 = wi * c3
+            w4 = wi * c4
+            w5 = wi * c5
+            n00 += w0 * c0
+            n01 += w0 * c1
+            n02 += w0 * c2
+            n03 += w0 * c3
+            n04 += w0 * c4
+            n05 += w0 * c5
+            n11 += w1 * c1
+            n12 += w1 * c2
+            n13 += w1 * c3
+            n14 += w1 * c4
+            n15 += w1 * c5
+            n22 += w2 * c2
+            n23 += w2 * c3
+            n24 += w2 * c4
+            n25 += w2 * c5
+            n33 += w3 * c3
+            n34 += w3 * c4
+            n35 += w3 * c5
+            n44 += w4 * c4
+            n45 += w4 * c5
+            n55 += w5 * c5
+            r0 += w0 * b
+            r1 += w1 * b
+            r2 += w2 * b
+            r3 += w3 * b
+            r4 += w4 * b
+            r5 += w5 * b
+            sbb += wi * b * b
+            sw += wi
+        a = acc[row]
+        a[0] = n00
+        a[1] = n01
+        a[2] = n02
+        a[3] = n03
+        a[4] = n04
+        a[5] = n05
+        a[6] = n11
+        a[7] = n12
+        a[8] = n13
+        a[9] = n14
+        a[10] = n15
+        a[11] = n22
+        a[12] = n23
+        a[13] = n24
+        a[14] = n25
+        a[15] = n33
+        a[16] = n34
+        a[17] = n35
+        a[18] = n44
+        a[19] = n45
+        a[20] = n55
+        a[21] = r0
+        a[22] = r1
+        a[23] = r2
+        a[24] = r3
+        a[25] = r4
+        a[26] = r5
+        a[27] = sbb
+        a[28] = sw
+
+
+@numba.njit(parallel=True, cache=True)
+def _residual_kernel(Lx, Ly, Lu, Lv, Lt, xs, ys, us, vs, z_pi, f, p, out):
+    """out = L_t + c · p: the Eq. 5 residual for face-frame parameters p (6,)."""
+    Ny, Nx, Nv, Nu = Lx.shape
+    inv_f = 1.0 / f
+    tx, ty, tz, wx, wy, wz = p[0], p[1], p[2], p[3], p[4], p[5]
+    for row in numba.prange(Ny * Nx * Nv):
+        jy = row // (Nx * Nv)
+        rem = row - jy * Nx * Nv
+        ix = rem // Nv
+        jv = rem - ix * Nv
+        x = xs[ix]
+        y = ys[jy]
+        v = vs[jv]
+        # flow of this row: δx = ax0 + ax1 u, etc. (linear / quadratic in u)
+        for iu in range(Nu):
+            u = us[iu]
+            dxp = tx - u * inv_f * tz - u * y * inv_f * wx + (u * x * inv_f + z_pi) * wy - y * wz
+            dyp = ty - v * inv_f * tz - (v * y * inv_f + z_pi) * wx + v * x * inv_f * wy + x * wz
+            dup = -u * v * inv_f * wx + (u * u * inv_f + f) * wy - v * wz
+            dvp = -(v * v * inv_f + f) * wx + u * v * inv_f * wy + u * wz
+            out[jy, ix, jv, iu] = (Lt[jy, ix, jv, iu] + Lx[jy, ix, jv, iu] * dxp
+                                   + Ly[jy, ix, jv, iu] * dyp + Lu[jy, ix, jv, iu] * dup
+                                   + Lv[jy, ix, jv, iu] * dvp)
+
+
+@numba.njit(parallel=True, cache=True)
+def _score_kernel(Lx, Ly, Lu, Lv, w, res, xs, ys, us, vs, z_pi, f, tile, out):
+    """Per (y, x, v) row and u tile: sums of w c r (6) into out (Ny, Nx, Nv, n_tiles, 6)."""
+    Ny, Nx, Nv, Nu = Lx.shape
+    inv_f = 1.0 / f
+    for row in numba.prange(Ny * Nx * Nv):
+        jy = row // (Nx * Nv)
+        rem = row - jy * Nx * Nv
+        ix = rem // Nv
+        jv = rem - ix * Nv
+        x = xs[ix]
+        y = ys[jy]
+        v = vs[jv]
+        for iu in range(Nu):
+            wi = w[jy, ix, jv, iu]
+            if wi <= 0.0:
+                continue
+            u = us[iu]
+            gx = Lx[jy, ix, jv, iu]
+            gy = Ly[jy, ix, jv, iu]
+            gu = Lu[jy, ix, jv, iu]
+            gv = Lv[jy, ix, jv, iu]
+            s = wi * res[jy, ix, jv, iu]
+            o = out[jy, ix, jv, iu // tile]
+            o[0] += s * gx
+            o[1] += s * gy
+            o[2] += s * (-(u * gx + v * gy) * inv_f)
+            o[3] += s * (-(u * y * inv_f) * gx - (v * y * inv_f + z_pi) * gy - (u * v * inv_f) * gu
+                         - (v * v * inv_f + f) * gv)
+            o[4] += s * ((u * x * inv_f + z_pi) * gx + (v * x * inv_f) * gy + (u * u * inv_f + f) * gu
+                         + (u * v * inv_f) * gv)
+            o[5] += s * (-y * gx + x * gy - v * gu + u * gv)
+
+
+@numba.njit(parallel=True, cache=True)
+def _occlusion_kernel(Lx, Ly, Lu, Lv, su, out):
+    """Gradient-consistency measure μ ∈ [0, 1/4] per ray (0: one depth, large: mixed).
+
+    With a = (L_x, L_y) and b = (L_u, L_v)/su, μ = (|a|²|b|² − (a·b)²) / (|a|² + |b|²)².
+    """
+    n = Lx.size
+    ax_ = Lx.ravel()
+    ay_ = Ly.ravel()
+    bu_ = Lu.ravel()
+    bv_ = Lv.ravel()
+    o = out.ravel()
+    for i in numba.prange(n):
+        a0 = ax_[i]
+        a1 = ay_[i]
+        b0 = bu_[i] / su
+        b1 = bv_[i] / su
+        aa = a0 * a0 + a1 * a1
+        bb = b0 * b0 + b1 * b1
+        ab = a0 * b0 + a1 * b1
+        t = aa + bb
+        o[i] = (aa * bb - ab * ab) / (t * t) if t > 0.0 else 0.0
+
+
+# ============================================================================ building blocks
+
+
+def ray_motion_coefficients(der: Derivatives, grid: LightFieldGrid, k: int) -> np.ndarray:
+    """The Eq. 5 coefficient rows of face ``k`` in *rig* coordinates, dims (Ny, Nx, Nv, Nu, 6).
+
+    Row · (t, ω) of the ray motion G equals −L_t for an exact first-order model.
+    Reference implementation (numpy, allocates); the solver uses fused kernels.
+    """
+    face = grid.faces[k]
+    f, Z = face.f, face.z_pi
+    y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
+    gx, gy, gu, gv = (np.asarray(a[k], float) for a in (der.Lx, der.Ly, der.Lu, der.Lv))
+    c = np.stack([
+        gx, gy, -(u * gx + v * gy) / f,
+        -(u * y / f) * gx - (v * y / f + Z) * gy - (u * v / f) * gu - (v * v / f + f) * gv,
+        (u * x / f + Z) * gx + (v * x / f) * gy + (u * u / f + f) * gu + (u * v / f) * gv,
+        -y * gx + x * gy - v * gu + u * gv], axis=-1)
+    R = np.asarray(face.R_rig_face, float)
+    B = np.zeros((6, 6))
+    B[:3, :3] = R.T
+    B[3:, 3:] = R.T
+    return c @ B
+
+
+def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
+                    cubic: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Resample light fields at the grid rays moved by the rigid transform ``T_ray`` (rig frame).
+
+    ``arrays``: (K, F, Ny, Nx, Nv, Nu) stacked fields (e.g. L and W) sharing the
+    warp. Returns ``out`` (same dims, float32) with ``out(ρ) = in(T_ray ρ)`` and
+    ``ok`` (F, Ny, Nx, Nv, Nu) bool: the moved ray lies inside the grid. Interpolation
+    is linear in (x, y) and cubic (``cubic``) or linear in (u, v).
+    """
+    arrays = np.ascontiguousarray(arrays, dtype=np.float32)
+    K, F = arrays.shape[:2]
+    out = np.empty_like(arrays)
+    ok = np.empty(arrays.shape[1:], bool)
+    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    for k, face in enumerate(grid.faces):
+        Rk = np.asarray(face.R_rig_face, float)
+        Tk = T_from_Rt(Rk, np.zeros(3))
+        G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
+        src = np.ascontiguousarray(arrays[:, k])
+        o = np.empty_like(src)
+        _warp_kernel(src, *vals, np.ascontiguousarray(G[:3, :3]), np.ascontiguousarray(G[:3, 3]),
+                     float(face.z_pi), float(face.f), bool(cubic), o, ok[k])
+        out[:, k] = o
+    return out, ok
+
+
+def _T_sqrt(T: np.ndarray) -> np.ndarray:
+    """H with H @ H = T for a rigid transform T (4, 4) (rotation angle < π)."""
+    r = r_from_R(T[:3, :3])
+    Rh = R_from_r(0.5 * r)
+    th = np.linalg.solve(Rh + np.eye(3), T[:3, 3])
+    return T_from_Rt(Rh, th)
+
+
+def _adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) adjoint of T acting on twists ordered (v, ω)."""
+    R, p = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[:3, 3:] = skew(p) @ R
+    A[3:, 3:] = R
+    return A
+
+
+def _face_B(face) -> np.ndarray:
+    """(6, 6) map from rig-frame (t, ω) to face-frame (t, ω)."""
+    R = np.asarray(face.R_rig_face, float)
+    B = np.zeros((6, 6))
+    B[:3, :3] = R.T
+    B[3:, 3:] = R.T
+    return B
+
+
+def _unpack_normal(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(29,) sums → N (6, 6), rhs (6,), Σ w b², Σ w."""
+    N = np.zeros((6, 6))
+    iu = np.triu_indices(6)
+    N[iu] = s[:21]
+    N = N + np.triu(N, 1).T
+    return N, s[21:27].copy(), float(s[27]), float(s[28])
+
+
+def _downsample(a: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
+    """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu) array."""
+    taps = np.array([1, 4, 6, 4, 1], np.float32) / 16
+    out = np.ascontiguousarray(a, dtype=np.float32)
+    for ax in axes:
+        out = correlate_axis(out, taps, ax)
+        sl = [slice(None)] * out.ndim
+        sl[ax] = slice(None, None, 2)
+        out = np.ascontiguousarray(out[tuple(sl)])
+    return out
+
+
+def _half_axis(a: Axis) -> Axis:
+    n = (a.count - 1) // 2 + 1
+    return Axis(a.min, a.min + (n - 1) * 2 * a.step, n)
+
+
+@dataclass
+class _Level:
+    grid: LightFieldGrid
+    L0: np.ndarray      # (F, Ny, Nx, Nv, Nu) float32
+    L1: np.ndarray
+    W0: np.ndarray | None
+    W1: np.ndarray | None
+
+
+def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict) -> list[_Level]:
+    """Levels finest first. (u, v) are halved while ≥ 16 samples remain; (x, y) only with
+    ``pyramid_xy`` and while the halved axis still leaves valid derivative samples."""
+    levels = [_Level(grid, L0, L1, W0, W1)]
+    for _ in range(opts.levels - 1):
+        g = levels[-1].grid
+        axes, kw = [], {}
+        for name, ax_idx in (("v", 3), ("u", 4)):
+            a = getattr(g, name)
+            if a.count >= 32:
+                axes.append(ax_idx)
+                kw[name] = _half_axis(a)
+        if opts.pyramid_xy:
+            for name, ax_idx in (("y", 1), ("x", 2)):
+                a = getattr(g, name)
+                if (a.count - 1) // 2 + 1 >= 2 * pairs_radius[name] + 3:
+                    axes.append(ax_idx)
+                    kw[name] = _half_axis(a)
+        if not axes:
+            break
+        ng = replace(g, **kw)
+        prev = levels[-1]
+        ds = (lambda a: None if a is None else _downsample(a, tuple(sorted(axes))))
+        levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1)))
+    return levels
+
+
+def _min_filter_support(c: np.ndarray, radius: dict) -> np.ndarray:
+    """Separable minimum of c (F, Ny, Nx, Nv, Nu) over ±radius per axis (y x v u)."""
+    from scipy.ndimage import minimum_filter1d
+
+    out = c
+    for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
+        r = radius[name]
+        if r > 0 and out.shape[ax] > 1:
+            out = minimum_filter1d(out, 2 * r + 1, axis=ax, mode="nearest")
+    return out
+
+
+def _robust_weights(res: np.ndarray, scale: float, kind: str, c: float) -> np.ndarray:
+    """IRLS weights ψ(z)/z for z = res/scale."""
+    if kind == "none" or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * c)
+    if kind == "huber":
+        return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
+
+
+def _weighted_mad(res: np.ndarray, w: np.ndarray) -> float:
+    """1.4826 × weighted median of |res| over w > 0."""
+    m = w > 0
+    if not np.any(m):
+        return 0.0
+    a = np.abs(res[m])
+    ww = w[m]
+    order = np.argsort(a)
+    cw = np.cumsum(ww[order])
+    i = int(np.searchsorted(cw, 0.5 * cw[-1]))
+    return 1.4826 * float(a[order[min(i, len(a) - 1)]])
+
+
+# ============================================================================ the solver
+
+
+class _Solver:
+    """One pyramid level: warp, derivatives, weights and (re-)weighted solves."""
+
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
+        self.lev = lev
+        self.g = lev.grid
+        self.opts = opts
+        self.filters = filters
+        self.vals = [np.ascontiguousarray(a.values, dtype=np.float64)
+                     for a in (self.g.x, self.g.y, self.g.u, self.g.v)]
+        self.radius = {k: (fp.radius if getattr(self.g, k).count >= 2 * fp.radius + 1 else 0)
+                       for k, fp in filters.items()}
+        self.scale: float | None = None
+
+    def prepare(self, M: np.ndarray) -> None:
+        """Warp both frames by the estimate M and compute derivatives and base weights."""
+        lev, opts = self.lev, self.opts
+        H = _T_sqrt(M) if opts.symmetric else np.eye(4)
+        H1 = T_inverse(H) if opts.symmetric else T_inverse(M)
+        stack0 = [lev.L0] + ([lev.W0] if lev.W0 is not None else [])
+        stack1 = [lev.L1] + ([lev.W1] if lev.W1 is not None else [])
+        if opts.symmetric:
+            w0, ok0 = warp_lightfield(np.stack(stack0), self.g, H, cubic=opts.cubic)
+        else:
+            w0, ok0 = np.stack(stack0).astype(np.float32), np.ones(lev.L0.shape, bool)
+        w1, ok1 = warp_lightfield(np.stack(stack1), self.g, H1, cubic=opts.cubic)
+        conf = (ok0 & ok1).astype(np.float32)
+        if lev.W0 is not None:
+            conf *= np.clip(w0[1], 0, 1)
+        if lev.W1 is not None:
+            conf *= np.clip(w1[1], 0, 1)
+        der = plenoptic_derivatives(w0[0], w1[0], self.g, filters={k: v.name for k, v in self.filters.items()})
+        if not (lev.W0 is None and lev.W1 is None and conf.min() > 0):
+            conf = _min_filter_support(conf, self.radius)
+        base = conf * der.valid[None].astype(np.float32)
+        if opts.occlusion:
+            mu = np.empty_like(der.Lx)
+            # compare (L_u, L_v) with (L_x, L_y) in units that make a typical depth ~1:
+            su = self._depth_scale(der, base)
+            _occlusion_kernel(der.Lx, der.Ly, der.Lu, der.Lv, su, mu)
+            base *= np.exp(-(mu / np.float32(opts.occlusion_tau)) ** 2).astype(np.float32)
+        self.der = der
+        self.base = base
+
+    def _depth_scale(self, der: Derivatives, base: np.ndarray) -> float:
+        """A typical ratio |L_u, L_v| / |L_x, L_y| (= Z/f of the scene) to balance the measure."""
+        m = base > 0
+        a = np.sqrt(der.Lx[m] ** 2 + der.Ly[m] ** 2)
+        b = np.sqrt(der.Lu[m] ** 2 + der.Lv[m] ** 2)
+        sa, sb = float(np.median(a)) if a.size else 0.0, float(np.median(b)) if b.size else 0.0
+        return sb / sa if sa > 0 and sb > 0 else 1.0
+
+    def normal(self, w: np.ndarray):
+        """Rig-frame N (6, 6), rhs (6,), Σ w b², Σ w for weights w (F, Ny, Nx, Nv, Nu)."""
+        d = self.der
+        N = np.zeros((6, 6))
+        rhs = np.zeros(6)
+        sbb = sw = 0.0
+        for k, face in enumerate(self.g.faces):
+            Ny, Nx, Nv, Nu = d.Lx.shape[1:]
+            acc = np.empty((Ny * Nx * Nv, 29))
+            _normal_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], d.Lt[k], w[k], *self.vals,
+                           float(face.z_pi), float(face.f), acc)
+            Nk, rk, bk, wk = _unpack_normal(acc.sum(axis=0))
+            B = _face_B(face)
+            N += B.T @ Nk @ B
+            rhs += B.T @ rk
+            sbb += bk
+            sw += wk
+        return N, rhs, sbb, sw
+
+    def residuals(self, p_rig: np.ndarray) -> np.ndarray:
+        d = self.der
+        out = np.empty_like(d.Lt)
+        for k, face in enumerate(self.g.faces):
+            pk = _face_B(face) @ p_rig
+            _residual_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], d.Lt[k], *self.vals,
+                             float(face.z_pi), float(face.f), pk, out[k])
+        return out
+
+    def scores(self, w: np.ndarray, res: np.ndarray) -> np.ndarray:
+        """(n_blocks, 6) per-tile sums of w a r in rig coordinates (tiles of (u, v), whole (x, y))."""
+        d = self.der
+        tile = max(1, int(self.opts.tile))
+        blocks = []
+        for k, face in enumerate(self.g.faces):
+            Ny, Nx, Nv, Nu = d.Lx.shape[1:]
+            nt = (Nu + tile - 1) // tile
+            out = np.zeros((Ny, Nx, Nv, nt, 6))
+            _score_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], w[k], res[k], *self.vals,
+                          float(face.z_pi), float(face.f), tile, out)
+            s = out.sum(axis=(0, 1))                                   # (Nv, nt, 6)
+            nv = (Nv + tile - 1) // tile
+            pad = np.zeros((nv * tile, nt, 6))
+            pad[:Nv] = s
+            s = pad.reshape(nv, tile, nt, 6).sum(axis=1).reshape(-1, 6)
+            blocks.append(s @ _face_B(face))
+        return np.concatenate(blocks)
+
+    def solve(self, final: bool) -> dict:
+        """Weighted (IRLS) solve of the increment; returns a dict of the pieces."""
+        opts = self.opts
+        w = self.base
+        N, rhs, sbb, sw = self.normal(w)
+        sol = _solve_normal(N, rhs, opts.rcond)
+        steps = opts.irls_steps if opts.robust != "none" else 0
+        wr = None
+        res = None
+        for _ in range(steps):
+            res = self.residuals(sol["p"])
+            if self.scale is None:
+                self.scale = _weighted_mad(res, w)
+            wr = _robust_weights(res, self.scale, opts.robust, opts.robust_c)
+            w = self.base * wr
+            N, rhs, sbb, sw = self.normal(w)
+            sol = _solve_normal(N, rhs, opts.rcond)
+        sol.update(N=N, w=w, wr=wr, sw=sw)
+        if final:
+            res = self.residuals(sol["p"])
+            sol["res"] = res
+        return sol
+
+
+def _solve_normal(N: np.ndarray, rhs: np.ndarray, rcond: float) -> dict:
+    """Solve N p = rhs with Jacobi scaling; directions with tiny scaled eigenvalues are dropped."""
+    d = np.diag(N).copy()
+    dmax = float(d.max()) if d.size else 0.0
+    live = d > max(dmax, 1e-300) * 1e-14
+    s = np.where(live, 1.0 / np.sqrt(np.where(live, d, 1.0)), 0.0)
+    Ns = N * s[:, None] * s[None, :]
+    evals, evecs = np.linalg.eigh(Ns)
+    lmax = float(evals.max()) if evals.size else 0.0
+    good = evals > rcond * lmax if lmax > 0 else np.zeros(6, bool)
+    # dead columns give zero eigenvalues whose eigenvectors are axis vectors: unobservable
+    inv = np.zeros(6)
+    inv[good] = 1.0 / evals[good]
+    Ns_pinv = (evecs * inv) @ evecs.T
+    N_pinv = Ns_pinv * s[:, None] * s[None, :]
+    p = N_pinv @ rhs
+    bad_dirs = evecs[:, ~good].T
+    cond = float(lmax / evals[good].min()) if good.all() and lmax > 0 else math.inf
+    return {"p": p, "N_pinv": N_pinv, "unobs": bad_dirs, "cond": cond}
+
+
+def _name_direction(vec: np.ndarray) -> str:
+    """'t_x' for an axis-aligned unit vector, else a short linear combination."""
+    a = np.abs(vec)
+    i = int(np.argmax(a))
+    if a[i] > 0.95:
+        return PARAM_NAMES[i]
+    terms = [f"{vec[j]:+.2f} {PARAM_NAMES[j]}" for j in np.argsort(-a) if a[j] > 0.1]
+    return "(" + " ".join(terms) + ")"
+
+
+def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid) -> np.ndarray:
+    L = np.asarray(L)
+    if L.ndim == 6 and L.shape[:5] == grid.shape:        # colour: average the channels
+        L = L.mean(axis=-1)
+    if L.shape != grid.shape:
+        raise InputError(f"motion: {name} has dims {L.shape}, but the grid is {grid.shape} "
+                         "(F, Ny, Nx, Nv, Nu)")
+    if not np.all(np.isfinite(L)):
+        raise InputError(f"motion: {name} contains NaN or infinite samples; mask them with W instead")
+    return np.ascontiguousarray(L, dtype=np.float32)
+
+
+def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
+                    W0: np.ndarray | None = None, W1: np.ndarray | None = None,
+                    T_init: np.ndarray | None = None, options: MotionOptions | None = None,
+                    index: int = 0) -> PairResult:
+    """Rig motion ``T_rig0_rig1`` between light-field frames ``L0`` and ``L1``.
+
+    ``L0``, ``L1``: (F, Ny, Nx, Nv, Nu) intensities on ``grid`` (a trailing colour
+    axis is averaged). ``W0``, ``W1``: optional confidences of the same dims in
+    [0, 1]. ``T_init``: (4, 4) starting estimate of ``T_rig0_rig1`` (identity).
+    Raises :class:`InputError` for unusable input (NaNs, mismatched dims).
+    """
+    opts = options or MotionOptions()
+    L0 = _check_frame("frame 0", L0, grid)
+    L1 = _check_frame("frame 1", L1, grid)
+    W0 = None if W0 is None else _check_frame("weights 0", W0, grid)
+    W1 = None if W1 is None else _check_frame("weights 1", W1, grid)
+    fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
+    try:
+        filters = {k: FILTERS[fnames.get(k, "fs5")] for k in "xyuv"}
+    except KeyError as e:
+        raise InputError(f"motion: unknown derivative filter {e.args[0]!r}; expected one of "
+                         f"{sorted(FILTERS)}") from None
+    M = np.eye(4) if T_init is None else np.asarray(T_init, float).copy()
+    levels = _pyramid(L0, L1, W0, W1, grid, opts, {k: fp.radius for k, fp in filters.items()})
+    n_solves = 0
+    sol = None
+    solver = None
+    for li in range(len(levels) - 1, -1, -1):
+        solver = _Solver(levels[li], opts, filters)
+        for it in range(opts.iterations):
+            solver.prepare(M)
+            final_try = li == 0
+            sol = solver.solve(final=False)
+            n_solves += 1
+            p = sol["p"]
+            if not np.all(np.isfinite(p)):
+                break
+            H = _T_sqrt(M) if opts.symmetric else M
+            D = T_from_Rt(R_from_r(p[3:]), p[:3])
+            M = H @ T_inverse(D) @ H if opts.symmetric else T_inverse(D) @ M
+            if final_try and np.linalg.norm(p[:3]) + np.linalg.norm(p[3:]) < opts.tol:
+                break
+    # diagnostics at the final estimate
+    solver.prepare(M)
+    sol = solver.solve(final=True)
+    return _result(index, M, sol, solver, opts, n_solves)
+
+
+def _result(index, M, sol, solver: _Solver, opts: MotionOptions, n_solves: int) -> PairResult:
+    w, res, N = sol["w"], sol["res"], sol["N"]
+    num = int(np.count_nonzero(w > 0))
+    base_n = int(np.count_nonzero(solver.base > 0))
+    wr = sol["wr"]
+    inl = float(np.count_nonzero((wr > 0.5) & (solver.base > 0)) / base_n) if (wr is not None and base_n) \
+        else (1.0 if base_n else 0.0)
+    sw = float(np.sum(w, dtype=np.float64))
+    # textbook covariance of the increment (ray motion), then the sandwich
+    chi2 = float(np.sum(w.astype(np.float64) * res.astype(np.float64) ** 2))
+    dof = max(sw - 6.0, 1.0)
+    sigma2 = chi2 / dof
+    Np = sol["N_pinv"]
+    C_iid = sigma2 * Np
+    S = solver.scores(w, res)
+    G = S.shape[0]
+    meat = S.T @ S * (G / max(G - 1, 1))
+    C_sand = Np @ meat @ Np
+    # map the increment covariance to rig (t, r): M = H exp(−δ) H = M · exp(Ad(H⁻¹)(−δ))
+    H = _T_sqrt(M) if opts.symmetric else M
+    J = np.zeros((6, 6))
+    J[:3, :3] = M[:3, :3]
+    J[3:, 3:] = np.eye(3)
+    J = -J @ (_adjoint(T_inverse(H)) if opts.symmetric else np.eye(6))
+    cov = J @ C_sand @ J.T
+    cov_iid = J @ C_iid @ J.T
+    unobs_vecs = sol["unobs"]
+    names = tuple(_name_direction(v) for v in unobs_vecs)
+    reason = ""
+    if num < opts.min_rays:
+        reason = f"only {num} usable rays (need {opts.min_rays}): too little texture or valid data"
+    elif names:
+        reason = "unobservable: " + ", ".join(names)
+    elif not np.all(np.isfinite(M)):
+        reason = "the solution diverged"
+    if reason:
+        log.warning("pair %d: %s", index, reason)
+    return PairResult(index=index, T_prev_next=M, covariance=cov, covariance_iid=cov_iid,
+                      sigma=math.sqrt(sigma2), condition=sol["cond"], inlier_fraction=inl,
+                      num_rays=num, iterations=n_solves, unobservable=names,
+                      unobservable_directions=unobs_vecs, reason=reason)
+
+
+def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = None,
+                        options: MotionOptions | None = None, constant_velocity: bool = True,
+                        **option_overrides) -> tuple[Trajectory, list[PairResult]]:
+    """Egomotion of every consecutive frame pair of a light-field store, integrated.
+
+    ``store`` provides ``grid``, ``timestamps_ns`` (T,), ``frame(i)`` → (F, Ny, Nx, Nv, Nu)
+    (optionally with a colour axis) and ``weights(i)`` → same dims or None. Frames are
+    read one at a time (two in memory). ``progress(done, total)`` is called after each
+    pair. ``constant_velocity`` starts each pair from the previous pair's estimate.
+    Returns the trajectory (``T_world_rig``, world = rig at the first frame) and the
+    per-pair results (falsy ones failed; their motion is still integrated).
+    """
+    opts = options or MotionOptions()
+    if option_overrides:
+        opts = replace(opts, **option_overrides)
+    grid = store.grid
+    ts = np.asarray(store.timestamps_ns, dtype=np.int64)
+    n = int(ts.shape[0])
+    if n < 2:
+        raise InputError(f"motion: the light field has {n} frame(s); need at least 2")
+    get_w = getattr(store, "weights", None)
+    L_prev = _check_frame("frame 0", store.frame(0), grid)
+    W_prev = get_w(0) if get_w else None
+    results: list[PairResult] = []
+    T_init = None
+    for i in range(n - 1):
+        L_next = _check_frame(f"frame {i + 1}", store.frame(i + 1), grid)
+        W_next = get_w(i + 1) if get_w else None
+        res = estimate_motion(L_prev, L_next, grid, W0=W_prev, W1=W_next, T_init=T_init,
+                              options=opts, index=i)
+        results.append(res)
+        if constant_velocity and res.ok:
+            T_init = res.T_prev_next
+        L_prev, W_prev = L_next, W_next
+        if progress is not None:
+            progress(i + 1, n - 1)
+    traj = Trajectory.from_relative(ts, np.stack([r.T_prev_next for r in results]))
+    return traj, results
