@@ -435,15 +435,18 @@ def _run(scene, orig, dirs, paired, T_world_rig):
     T = np.asarray(T_world_rig, dtype=np.float64)
     if T.shape != (4, 4):
         raise ValueError("T_world_rig must be (4, 4)")
-    R = np.ascontiguousarray(T[:3, :3])
-    tr = np.ascontiguousarray(T[:3, 3])
-    orig = np.ascontiguousarray(orig, dtype=np.float64)
-    dirs = np.ascontiguousarray(dirs, dtype=np.float32)
+    # One compiled signature: C-contiguous, writable arrays of fixed dtypes everywhere.
+    R = np.require(T[:3, :3], np.float64, ["C", "W"])
+    tr = np.require(T[:3, 3], np.float64, ["C", "W"])
+    orig = np.require(orig, np.float64, ["C", "W"])
+    dirs = np.require(dirs, np.float32, ["C", "W"])
+    args = tuple(np.require(a, a.dtype, ["C", "W"]) if isinstance(a, np.ndarray) else a
+                 for a in scene.kernel_args())
     n = dirs.shape[0] if paired else orig.shape[0] * dirs.shape[0]
     rad = np.empty(n, np.float32)
     dist = np.empty(n, np.float64)
     pid = np.empty(n, np.int32)
-    _trace_kernel(orig, dirs, paired, R, tr, *scene.kernel_args(), rad, dist, pid)
+    _trace_kernel(orig, dirs, bool(paired), R, tr, *args, rad, dist, pid)
     return rad, dist, pid
 
 

@@ -352,7 +352,7 @@ def _empty_prims() -> dict:
 
 
 def _light_dir() -> np.ndarray:
-    l = np.array([-0.35, -1.0, -0.45])        # from above (y down), a little left and behind
+    l = np.array([-0.3, -0.6, -0.75])         # from above (y down), left, and behind the rig
     return l / np.linalg.norm(l)
 
 

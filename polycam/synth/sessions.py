@@ -236,15 +236,16 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
 
 
 def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: float = 40.0,
-                roll_deg: float = 20.0, fill: tuple[float, float] = (0.35, 0.7), margin_px: float = 4.0,
+                roll_deg: float = 20.0, fill: tuple[float, float] = (0.6, 0.95), margin_px: float = 4.0,
                 cam_ids: list[str] | None = None) -> np.ndarray:
     """(frames, 4, 4) seeded board poses ``T_rig_board`` for calibration sessions.
 
-    Frame i aims at camera ``cam_ids[i % N]`` (default: the models' order): the
-    board's squared area spans a fraction ``fill`` (uniform) of that camera's image
-    width, its centre at a random point of the image, tilted about the board's x and
-    y axes by up to ``tilt_deg`` each and rolled by up to ``roll_deg``, facing the
-    camera; a pose is redrawn until all four outer corners project inside that
+    Frame i aims at camera ``cam_ids[i % N]`` (default: the models' order): seen
+    square-on, the board's squared area would span a fraction ``fill`` (uniform) of
+    that camera's image along the limiting dimension (fx-based scale), its centre at a
+    random point of the central half of the image, facing the camera, tilted by up to
+    ``tilt_deg`` about a random axis in the board plane and rolled by up to
+    ``roll_deg``; a pose is redrawn until all four outer corners project inside that
     camera's image with ``margin_px`` to spare. With nearby parallel cameras (a
     planar array) most poses are seen by several cameras at once.
     """
@@ -261,15 +262,16 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
         W, H = (float(v) for v in model.imagersize())
         T_rig_cam = T_rig_cam_of(model)
         for attempt in range(200):
-            f = rng.uniform(*fill)
-            z = intr[0] * bw / (f * W)
+            scale = rng.uniform(*fill) * min(W / bw, H / bh)          # [px/m] square-on
+            z = intr[0] / scale
             q = np.array([rng.uniform(0.25, 0.75) * W, rng.uniform(0.25, 0.75) * H])
             d = mrcal.unproject(q, lensmodel, intr, normalize=True)
             p_c = d * (z / d[2])
-            ax, ay = np.radians(rng.uniform(-tilt_deg, tilt_deg, size=2))
+            # tilt: up to tilt_deg about a random axis in the board plane; then roll about z
+            phi = rng.uniform(0.0, 2.0 * np.pi)
+            tilt = math.radians(rng.uniform(-tilt_deg, tilt_deg))
             az = math.radians(rng.uniform(-roll_deg, roll_deg))
-            R = R_from_r(np.array([0.0, 0.0, az])) @ R_from_r(np.array([ax, 0.0, 0.0])) \
-                @ R_from_r(np.array([0.0, ay, 0.0]))
+            R = R_from_r(np.array([0.0, 0.0, az])) @ R_from_r(tilt * np.array([math.cos(phi), math.sin(phi), 0.0]))
             T_cam_board = T_from_Rt(R, p_c - R @ centre_b)
             pc = corners_b @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
             if np.any(pc[:, 2] <= 0.05):

@@ -1,0 +1,384 @@
+"""The synthetic world (polycam.synth): determinism, agreement with mrcal and the
+light-field geometry, brightness constancy, scene coverage, board detectability,
+and the files the session / light-field writers produce."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from polycam.cameras import T_rig_cam_of, camera_rays, pixel_grid
+from polycam.geometry import R_from_r, T_from_Rt, T_from_rt, T_inverse, r_from_R
+from polycam.lightfield import Axis, LightFieldGrid
+from polycam.rays import RayBundle
+from polycam.rig import load_rig
+from polycam.synth import (CameraArrayRenderer, SphereGrid, board_poses, default_lightfield_grid,
+                           lightfield_face_rays, make_trajectory, quantize, render_lightfield, room_scene,
+                           smooth_trajectory, spheres_scene, static_trajectory, synth_board_session,
+                           synth_lightfield, synth_session, trace_outer, trace_rays, true_cameramodels)
+from polycam.trajectory import read_tum
+
+from conftest import shared_data
+from tolerances import (RENDER_CONSTANCY_ATOL, RENDER_PROJECTION_PX, RENDER_SHIFT_ATOL,
+                        RENDER_SUPERSAMPLE_ATOL, SYNTH_BACKGROUND_MAX, SYNTH_BOARD_CORNER_MAX_PX,
+                        SYNTH_BOARD_CORNER_RMS_PX, SYNTH_BOARD_DETECTED_MIN, SYNTH_STEP_RTOL)
+
+BOARD_TOML = """[board]
+type = "charuco"
+squares = [5, 7]
+square_length = 0.04
+marker_length = 0.03
+dictionary = "DICT_5X5_100"
+"""
+
+
+def _rig_file(tmp_path: Path, body: str, name: str = "rig.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(body)
+    return p
+
+
+def _small_rig(tmp_path: Path, width=32, height=24, lens: Path | None = None, extra: str = ""):
+    lens_line = f'lens = "{lens}"\n' if lens is not None else ""
+    return load_rig(_rig_file(tmp_path, f"""[rig]
+name = "tiny"
+[defaults]
+driver = "mock"
+width = {width}
+height = {height}
+fps = 30
+fov_deg = 70
+{lens_line}
+[[camera]]
+id = "cam00"
+position = [0.0, 0.0, 0.0]
+[[camera]]
+id = "cam01"
+position = [0.05, 0.01, 0.0]
+rotation = [0.0, 0.3, 0.05]
+{extra}"""))
+
+
+def _tiny_grid(faces=("+z",), n_uv=8, fov_half=30.0) -> LightFieldGrid:
+    # Power-of-two x/y spacing: rig translations by one step are exact in binary.
+    xy = Axis(-0.5, 0.5, 5)
+    du = 2 * fov_half / n_uv
+    uv = Axis(-fov_half + du / 2, fov_half - du / 2, n_uv)
+    return LightFieldGrid.cube(list(faces), f=60.0, z_pi=0.5, x=xy, y=xy, u=uv, v=uv)
+
+
+# ----------------------------------------------------------------------------- scenes, determinism
+
+
+def test_scene_builders_are_seeded():
+    a, b, c = spheres_scene(6.0, seed=4), spheres_scene(6.0, seed=4), spheres_scene(6.0, seed=5)
+    for name in ("sphere_centres", "sphere_texture"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    np.testing.assert_array_equal(a.textures.waves, b.textures.waves)
+    assert not np.array_equal(a.sphere_centres[:10], c.sphere_centres[:10])
+    r1, r2, r3 = room_scene(4.0, seed=1), room_scene(4.0, seed=1), room_scene(4.0, seed=2)
+    np.testing.assert_array_equal(r1.box_lo, r2.box_lo)
+    np.testing.assert_array_equal(r1.textures.waves, r2.textures.waves)
+    assert not np.array_equal(r1.textures.waves, r3.textures.waves)
+
+
+def test_spheres_start_at_distance():
+    D = 5.0
+    sc = spheres_scene(D, seed=0)
+    near = np.linalg.norm(sc.sphere_centres, axis=1) - sc.sphere_radii
+    assert near.min() >= D - 1e-9
+    fwd = spheres_scene(D, seed=0, faces="forward")
+    cosang = fwd.sphere_centres[:, 2] / np.linalg.norm(fwd.sphere_centres, axis=1)
+    assert cosang.min() >= math.cos(math.radians(70.0)) - 1e-12
+
+
+def test_session_is_deterministic(tmp_path):
+    rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nnoise = 0.01\n')
+    kw = dict(frames=2, supersample=1, perturb_position_m=0.001, perturb_rotation_deg=0.1,
+              perturb_focal_frac=0.01)
+    synth_session(rig, tmp_path / "a", seed=7, **kw)
+    synth_session(rig, tmp_path / "b", seed=7, **kw)
+    synth_session(rig, tmp_path / "c", seed=8, **kw)
+
+    def pngs(d):
+        return {p.relative_to(d): p.read_bytes() for p in sorted(d.rglob("*.png"))}
+
+    a, b, c = pngs(tmp_path / "a"), pngs(tmp_path / "b"), pngs(tmp_path / "c")
+    assert len(a) == 4 and a == b
+    assert (tmp_path / "a" / "groundtruth.tum").read_text() == (tmp_path / "b" / "groundtruth.tum").read_text()
+    assert [a[k] != c[k] for k in a] == [True] * 4
+
+
+# ----------------------------------------------------------------------------- ray caster
+
+
+def test_grid_traversal_matches_brute_force(rng):
+    """The uniform-grid DDA finds exactly the hits of testing every sphere."""
+    import dataclasses
+
+    sc = spheres_scene(3.0, seed=2, thickness=3.0)
+    brute = dataclasses.replace(sc, grid=SphereGrid.empty())
+    n = 4000
+    o = rng.uniform(-2.0, 2.0, size=(n, 3))
+    o[: n // 2] = 0.0
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    rays = RayBundle(o, d, "world")
+    g, b = trace_rays(sc, rays), trace_rays(brute, rays)
+    np.testing.assert_array_equal(g.primitive, b.primitive)
+    np.testing.assert_array_equal(g.distance, b.distance)
+    np.testing.assert_array_equal(g.radiance, b.radiance)
+    assert np.all((g.radiance >= 0) & (g.radiance <= 1))
+
+
+def test_radiance_depends_only_on_the_ray(rng):
+    """Brightness constancy: one world ray traced from two rig poses, and from origins
+    moved along itself, has one radiance."""
+    sc = room_scene(4.0, seed=3)
+    n = 3000
+    o_w = rng.uniform(-0.5, 0.5, size=(n, 3))
+    d_w = rng.normal(size=(n, 3))
+    d_w /= np.linalg.norm(d_w, axis=1, keepdims=True)
+    base = trace_rays(sc, RayBundle(o_w, d_w, "world"))
+    for T_world_rig in (T_from_rt(np.array([0.1, -0.2, 0.3, 0.2, 0.1, -0.4])),
+                        T_from_rt(np.array([-1.0, 0.5, 2.0, -0.3, 0.6, 0.1]))):
+        T_rig_world = T_inverse(T_world_rig)
+        rays_rig = RayBundle(o_w, d_w, "world").transformed(T_rig_world, "rig")
+        res = trace_rays(sc, rays_rig, T_world_rig)
+        assert np.abs(res.radiance - base.radiance).max() <= RENDER_CONSTANCY_ATOL
+    # slide each origin a random part of the way towards its hit
+    s = rng.uniform(0.0, 0.9, size=n) * base.distance
+    moved = trace_rays(sc, RayBundle(o_w + s[:, None] * d_w, d_w, "world"))
+    assert np.abs(moved.radiance - base.radiance).max() <= RENDER_CONSTANCY_ATOL
+
+
+@pytest.mark.parametrize("face", ["+z", "-x"])
+def test_lightfield_translation_shifts_samples(face):
+    """Moving the rig by exactly one x (or y) spacing along the face's x (y) axis
+    reproduces the neighbouring viewpoint's samples."""
+    sc = spheres_scene(4.0, seed=1)
+    grid = _tiny_grid((face,))
+    R = grid.faces[0].R_rig_face
+    L0 = render_lightfield(sc, grid, np.eye(4), supersample=2)
+    Lx = render_lightfield(sc, grid, T_from_Rt(np.eye(3), grid.x.step * R[:, 0]), supersample=2)
+    Ly = render_lightfield(sc, grid, T_from_Rt(np.eye(3), grid.y.step * R[:, 1]), supersample=2)
+    assert np.abs(Lx[:, :, :-1] - L0[:, :, 1:]).max() <= RENDER_SHIFT_ATOL
+    assert np.abs(Ly[:, :-1] - L0[:, 1:]).max() <= RENDER_SHIFT_ATOL
+    assert np.abs(L0[:, :, :-1] - L0[:, :, 1:]).max() > 0.01     # and the views do differ
+
+
+def test_supersampling_is_a_box_filter_over_the_uv_cell():
+    sc = spheres_scene(4.0, seed=1)
+    grid = _tiny_grid(("+z",))
+    L = render_lightfield(sc, grid, supersample=2)
+    du, dv = grid.u.step, grid.v.step
+    acc = np.zeros_like(L, dtype=np.float64)
+    for ou in (-du / 4, du / 4):
+        for ov in (-dv / 4, dv / 4):
+            g = LightFieldGrid(grid.faces, grid.x, grid.y, Axis(grid.u.min + ou, grid.u.max + ou, grid.u.count),
+                               Axis(grid.v.min + ov, grid.v.max + ov, grid.v.count))
+            acc += render_lightfield(sc, g, supersample=1)
+    assert np.abs(acc / 4 - L).max() <= RENDER_SUPERSAMPLE_ATOL
+
+
+def test_lightfield_face_rays_match_grid():
+    grid = _tiny_grid(("+z", "-y"))
+    for k in range(2):
+        o, d = lightfield_face_rays(grid, k, 1)
+        ref = grid.face_rays(k)
+        np.testing.assert_allclose(o, ref.origins[:, :, 0, 0].reshape(-1, 3), atol=1e-12)
+        dn = d[:, 0] / np.linalg.norm(d[:, 0], axis=1, keepdims=True)
+        np.testing.assert_allclose(dn, ref.directions[0, 0].reshape(-1, 3), atol=1e-6)
+
+
+def test_spheres_fill_the_horizon_on_all_faces():
+    sc = spheres_scene(8.0, seed=0)
+    grid = default_lightfield_grid("all", views=1, directions=24)
+    for k, face in enumerate(grid.faces):
+        o, d = lightfield_face_rays(grid, k, 1)
+        sky = np.mean(trace_outer(sc, o, d, np.eye(4)).primitive == -1)
+        assert sky <= SYNTH_BACKGROUND_MAX, (face.name, sky)
+
+
+# ----------------------------------------------------------------------------- cameras
+
+
+@pytest.mark.parametrize("lens", ["cam0.opencv8.cameramodel", "cam1.splined.cameramodel"])
+def test_rendered_hits_project_onto_their_pixels(tmp_path, lens):
+    """Where a pixel's central ray hits the scene, mrcal.project through the true model
+    (world → rig → camera) lands on that pixel."""
+    import mrcal
+
+    lens_path = shared_data("mrcal-models") / lens
+    if not lens_path.is_file():
+        pytest.skip(f"{lens_path} not found")
+    rig = _small_rig(tmp_path, 40, 30, lens=lens_path)
+    models = true_cameramodels(rig, seed=3, perturb_position_m=0.003, perturb_rotation_deg=0.5,
+                               perturb_focal_frac=0.02)
+    T_world_rig = T_from_rt(np.array([0.05, -0.1, 0.02, 0.1, -0.05, 0.2]))
+    renderer = CameraArrayRenderer(rig, models, room_scene(4.0, seed=3), supersample=1)
+    for cam_id, m in models.items():
+        dist, prim = renderer.distances(cam_id, T_world_rig)
+        assert np.all(np.isfinite(dist)) and np.all(prim >= 0)
+        W, H = m.imagersize()
+        q = pixel_grid(int(W), int(H))[:, :, 0]
+        rays = camera_rays(m, q)
+        p_world = (rays.origins + dist[..., None] * rays.directions) @ T_world_rig[:3, :3].T + T_world_rig[:3, 3]
+        T_cam_world = T_inverse(T_rig_cam_of(m)) @ T_inverse(T_world_rig)
+        p_cam = p_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+        err = np.linalg.norm(mrcal.project(p_cam, *m.intrinsics()) - q, axis=-1)
+        assert err.max() <= RENDER_PROJECTION_PX
+
+
+def test_true_models_are_perturbed_and_seeded(tmp_path):
+    rig = _small_rig(tmp_path)
+    nominal = true_cameramodels(rig, seed=1)
+    a = true_cameramodels(rig, seed=1, perturb_position_m=0.002, perturb_rotation_deg=0.3, perturb_focal_frac=0.01)
+    b = true_cameramodels(rig, seed=1, perturb_position_m=0.002, perturb_rotation_deg=0.3, perturb_focal_frac=0.01)
+    for cam in rig.cameras:
+        np.testing.assert_array_equal(a[cam.id].rt_cam_ref(), b[cam.id].rt_cam_ref())
+        np.testing.assert_allclose(T_rig_cam_of(nominal[cam.id]), cam.T_rig_cam, atol=1e-12)
+        dT = T_inverse(T_rig_cam_of(nominal[cam.id])) @ T_rig_cam_of(a[cam.id])
+        assert 1e-4 < np.linalg.norm(dT[:3, 3]) < 0.02
+        assert 1e-4 < np.linalg.norm(r_from_R(dT[:3, :3])) < math.radians(3.0)
+        assert a[cam.id].intrinsics()[1][0] != nominal[cam.id].intrinsics()[1][0]
+
+
+def test_quantize():
+    x = np.array([-0.1, 0.0, 0.5, 1.0, 1.2])
+    np.testing.assert_array_equal(quantize(x, 8), [0, 0, 128, 255, 255])
+    assert quantize(x, 16).dtype == np.uint16 and quantize(x, 16)[3] == 65535
+    with pytest.raises(ValueError):
+        quantize(x, 8, noise=0.1)
+
+
+# ----------------------------------------------------------------------------- motion
+
+
+def test_smooth_trajectory_steps_and_determinism():
+    tr = smooth_trajectory(40, step_t=0.01, step_r_deg=0.5, fps=20.0, seed=3)
+    np.testing.assert_array_equal(tr.T_world_rig[0], np.eye(4))
+    assert np.all(np.diff(tr.timestamps_ns) == 50_000_000)
+    rel = tr.relative()
+    st = np.linalg.norm(rel[:, :3, 3], axis=1)
+    sr = np.linalg.norm(r_from_R(rel[:, :3, :3]), axis=1)
+    assert math.sqrt(np.mean(st**2)) == pytest.approx(0.01, rel=SYNTH_STEP_RTOL)
+    assert math.sqrt(np.mean(sr**2)) == pytest.approx(math.radians(0.5), rel=SYNTH_STEP_RTOL)
+    assert st.std() > 0 and sr.std() > 0
+    np.testing.assert_array_equal(tr.T_world_rig, smooth_trajectory(40, step_t=0.01, step_r_deg=0.5,
+                                                                    fps=20.0, seed=3).T_world_rig)
+    assert not np.array_equal(tr.T_world_rig, smooth_trajectory(40, step_t=0.01, step_r_deg=0.5,
+                                                                fps=20.0, seed=4).T_world_rig)
+    st = static_trajectory(3)
+    np.testing.assert_array_equal(st.T_world_rig, np.tile(np.eye(4), (3, 1, 1)))
+    with pytest.raises(ValueError):
+        make_trajectory("wobbly", 3)
+
+
+# ----------------------------------------------------------------------------- files on disk
+
+
+def test_session_files_and_ground_truth(tmp_path):
+    from polycam.session import open_session
+
+    rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nmotion = "smooth"\nstep_t = 0.02\n')
+    out = synth_session(rig, tmp_path / "s", frames=3, seed=2, supersample=1, bit_depth=16,
+                        perturb_position_m=0.002, perturb_rotation_deg=0.2, perturb_focal_frac=0.01)
+    s = open_session(out)
+    assert s.status == "complete" and len(s) == 3
+    img = s.read_frame(1)["cam01"]
+    assert img.dtype == np.uint16 and img.shape == (24, 32)
+    gt = s.groundtruth()
+    ref = smooth_trajectory(3, step_t=0.02, step_r_deg=0.2, fps=30.0, seed=2)
+    np.testing.assert_allclose(gt.T_world_rig, ref.T_world_rig, atol=1e-8)
+    calib = s.calibration()
+    true = true_cameramodels(rig, seed=2, perturb_position_m=0.002, perturb_rotation_deg=0.2,
+                             perturb_focal_frac=0.01)
+    for cam in rig.cameras:
+        np.testing.assert_allclose(calib[cam.id].rt_cam_ref(), true[cam.id].rt_cam_ref(), atol=1e-9)
+    # the images are the true models' renders
+    renderer = CameraArrayRenderer(rig, true, room_scene(4.0, seed=2), supersample=1)
+    expect = quantize(renderer.render_camera("cam01", ref.T_world_rig[1]), 16)
+    np.testing.assert_array_equal(img, expect)
+
+
+def test_lightfield_store_and_ground_truth(tmp_path):
+    from polycam.lfstore import open_lightfield
+
+    grid = _tiny_grid(("+z", "+x"), n_uv=6)
+    out = synth_lightfield(tmp_path / "lf.zarr", grid=grid, scene="spheres", distance=4.0, frames=2, seed=1,
+                           supersample=1, step_t=0.02, step_r_deg=0.5)
+    lf = open_lightfield(out)
+    assert len(lf) == 2 and lf.grid.shape == grid.shape
+    gt = lf.groundtruth()
+    ref = smooth_trajectory(2, step_t=0.02, step_r_deg=0.5, fps=30.0, seed=1)
+    np.testing.assert_allclose(gt.T_world_rig, ref.T_world_rig, atol=1e-8)
+    np.testing.assert_array_equal(lf.frame(1), render_lightfield(spheres_scene(4.0, seed=1), grid,
+                                                                  ref.T_world_rig[1], supersample=1))
+
+
+def test_board_session_is_detectable(tmp_path):
+    """A rendered ChArUco board is found by OpenCV with its corners where mrcal projects them."""
+    import cv2
+    import mrcal
+
+    from polycam.board import load_board
+    from polycam.session import open_session
+
+    board = load_board(_rig_file(tmp_path, BOARD_TOML, "board.toml"))
+    rig = load_rig(_rig_file(tmp_path, """[rig]
+name = "one"
+[defaults]
+width = 480
+height = 360
+fov_deg = 60
+[[camera]]
+id = "cam00"
+position = [0.0, 0.0, 0.0]
+[[camera]]
+id = "cam01"
+position = [0.04, 0.0, 0.0]
+"""))
+    out = synth_board_session(rig, tmp_path / "b", board=board, frames=3, seed=5, supersample=2,
+                              perturb_position_m=0.001, perturb_rotation_deg=0.2, perturb_focal_frac=0.005)
+    s = open_session(out)
+    poses = read_tum(out / "board_poses.tum")
+    assert len(poses) == 3 and (out / "board.toml").is_file()
+    np.testing.assert_allclose(poses.T_world_rig, board_poses(board, s.calibration(), 3, seed=5,
+                                                              cam_ids=["cam00", "cam01"]), atol=1e-8)
+    detector = cv2.aruco.CharucoDetector(board.cv2_board())
+    P = board.object_points()
+    for i in range(3):
+        for cam_id, m in s.calibration().items():
+            corners, ids, _, _ = detector.detectBoard(s.read_frame(i)[cam_id])
+            aimed = cam_id == ("cam00", "cam01")[i % 2]      # the pose was chosen to fit this view
+            assert ids is not None
+            assert len(ids) >= (SYNTH_BOARD_DETECTED_MIN * board.num_corners if aimed else 4)
+            T_cam_board = T_inverse(T_rig_cam_of(m)) @ poses.T_world_rig[i]
+            q = mrcal.project(P @ T_cam_board[:3, :3].T + T_cam_board[:3, 3], *m.intrinsics())
+            err = np.linalg.norm(corners.reshape(-1, 2) - q[ids.ravel()], axis=1)
+            assert err.max() <= SYNTH_BOARD_CORNER_MAX_PX
+            assert math.sqrt(np.mean(err**2)) <= SYNTH_BOARD_CORNER_RMS_PX
+
+
+def test_board_poses_are_varied_and_in_view(tmp_path):
+    from polycam.board import load_board
+
+    board = load_board(_rig_file(tmp_path, BOARD_TOML, "board.toml"))
+    rig = _small_rig(tmp_path, 320, 240)
+    models = true_cameramodels(rig)
+    poses = board_poses(board, models, 12, seed=1, tilt_deg=40.0)
+    tilt = np.degrees(np.arccos(np.clip(poses[:, 2, 2], -1, 1)))     # board z vs rig z
+    assert tilt.max() > 20.0 and tilt.max() < 60.0
+    assert np.ptp(poses[:, 0, 3]) > 0.05 and np.all(poses[:, 2, 3] > 0.1)
+
+
+def test_pattern_scene_is_refused(tmp_path):
+    from polycam.errors import InputError
+
+    rig = _small_rig(tmp_path, extra='[mock]\nscene = "pattern"\n')
+    with pytest.raises(InputError, match="pattern"):
+        synth_session(rig, tmp_path / "s", frames=1)
