@@ -374,10 +374,11 @@ class LightFieldStore:
         """Frame t of L: float32 (F, Ny, Nx, Nv, Nu[, C]); reads only that frame's chunks."""
         return np.asarray(self.L[self._index(t)], dtype=np.float32)
 
-    def weights(self, t: int) -> np.ndarray:
-        """Frame t of W: float32 (F, Ny, Nx, Nv, Nu). InputError if the store has no W."""
+    def weights(self, t: int) -> np.ndarray | None:
+        """Frame t of W: float32 (F, Ny, Nx, Nv, Nu), or None if the store has no W
+        (every sample then has full confidence)."""
         if self.W is None:
-            raise InputError(f"{self.path}: the light field has no weights (array W)")
+            return None
         return np.asarray(self.W[self._index(t)], dtype=np.float32)
 
     def __iter__(self) -> Iterator[np.ndarray]:

@@ -8,7 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from tolerances import DEMO_MOTION_REL
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -77,3 +80,19 @@ def test_readme_starts_with_the_two_commands():
     makefile = (REPO / "Makefile").read_text()
     assert "polycam demo" in makefile
     assert "make test" in (REPO / ".ci" / "run").read_text()
+
+
+def test_demo_runs_end_to_end(tmp_path):
+    """The README's main job (`make demo` runs `polycam demo`), on the built-in mock rig."""
+    res = polycam("demo", "--out", str(tmp_path / "demo"), timeout=900)
+    assert res.returncode == 0, res.stderr
+    assert "0 failed" in res.stdout
+    for rel in ("session/session.toml", "session/calib/cam12.cameramodel", "lightfield.zarr/zarr.json",
+                "trajectory.tum"):
+        assert (tmp_path / "demo" / rel).exists(), rel
+    from polycam.evaluate import pair_errors
+    from polycam.trajectory import read_tum
+
+    err = pair_errors(read_tum(tmp_path / "demo" / "trajectory.tum"),
+                      read_tum(tmp_path / "demo" / "lightfield.zarr" / "groundtruth.tum"))
+    assert np.median(err.t_rel) < DEMO_MOTION_REL and np.median(err.w_rel) < DEMO_MOTION_REL

@@ -19,3 +19,14 @@ SYNTH_STEP_RTOL = 1e-9        # RMS per-frame step of a smooth trajectory vs the
 SYNTH_BOARD_CORNER_MAX_PX = 0.75  # [px] worst ChArUco corner detected in a rendered 480x360 view vs mrcal.project
 SYNTH_BOARD_CORNER_RMS_PX = 0.35  # [px] RMS of the same
 SYNTH_BOARD_DETECTED_MIN = 0.75   # fraction of the board's corners detected in each rendered view
+# plenoptic motion (tests/test_motion.py, analytic light fields, tiny grids)
+MOTION_PURE_REL = 0.01        # relative error of the moving component of a pure motion
+MOTION_PURE_LEAK = 0.05       # leakage into the other components, as a fraction of the step size
+MOTION_COMBINED_REL = 0.02    # relative error per component of a combined motion, six faces
+MOTION_COMBINED_REL_ONE_FACE = 0.06  # the same with one face (t / ω coupling, narrow baseline)
+MOTION_SPHERES_REL = 0.05     # relative error per component with occluding spheres
+MOTION_COV_RATIO_MIN = 0.4    # empirical std / predicted std under noise (10 seeds)
+MOTION_COV_RATIO_MAX = 2.5
+DERIV_LINEAR_ATOL = 1e-4      # derivative of a linear light field (relative to its slope)
+DERIV_SINE_REL_FS5 = 0.01     # fs5 derivative of a 0.5 rad/sample sinusoid, relative
+DEMO_MOTION_REL = 0.02        # median relative per-pair motion error of `polycam demo` (spheres, 6 faces)

@@ -1,0 +1,68 @@
+"""Trajectory errors against ground truth (numerics only, no I/O).
+
+Relative pose error per frame pair (RPE) and absolute trajectory error (ATE)
+on ``T_world_rig`` trajectories with the same timestamps; both are in the rig
+frame of the first frame (docs/conventions.md), so no alignment is needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .geometry import T_inverse, r_from_R
+from .trajectory import Trajectory
+
+__all__ = ["PairErrors", "pair_errors", "ate_rmse"]
+
+
+@dataclass(frozen=True)
+class PairErrors:
+    """Per frame pair errors of an estimated against a true trajectory."""
+
+    t_true: np.ndarray
+    """(N-1,) [m] true translation length per pair."""
+    w_true: np.ndarray
+    """(N-1,) [rad] true rotation angle per pair."""
+    t_err: np.ndarray
+    """(N-1,) [m] norm of the translation error per pair."""
+    w_err: np.ndarray
+    """(N-1,) [rad] angle of the rotation error per pair."""
+
+    @property
+    def t_rel(self) -> np.ndarray:
+        """(N-1,) translation error relative to the true translation."""
+        return self.t_err / np.maximum(self.t_true, 1e-300)
+
+    @property
+    def w_rel(self) -> np.ndarray:
+        """(N-1,) rotation error relative to the true rotation angle."""
+        return self.w_err / np.maximum(self.w_true, 1e-300)
+
+
+def _check_same_frames(est: Trajectory, true: Trajectory) -> None:
+    if len(est) != len(true) or not np.array_equal(est.timestamps_ns, true.timestamps_ns):
+        raise InputError(f"the estimated trajectory ({len(est)} poses) and the ground truth "
+                         f"({len(true)} poses) do not have the same timestamps")
+
+
+def pair_errors(est: Trajectory, true: Trajectory) -> PairErrors:
+    """Relative pose errors of consecutive pairs (``T_rig[i]_rig[i+1]``)."""
+    _check_same_frames(est, true)
+    M_est, M_true = est.relative(), true.relative()
+    E = T_inverse(M_true) @ M_est
+    return PairErrors(
+        t_true=np.linalg.norm(M_true[:, :3, 3], axis=1),
+        w_true=np.linalg.norm(r_from_R(M_true[:, :3, :3]), axis=1),
+        t_err=np.linalg.norm(M_est[:, :3, 3] - M_true[:, :3, 3], axis=1),
+        w_err=np.linalg.norm(r_from_R(E[:, :3, :3]), axis=1),
+    )
+
+
+def ate_rmse(est: Trajectory, true: Trajectory) -> float:
+    """[m] RMS of position differences, both trajectories rebased to their first pose."""
+    _check_same_frames(est, true)
+    a, b = est.rebased().T_world_rig[:, :3, 3], true.rebased().T_world_rig[:, :3, 3]
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))

@@ -1,0 +1,37 @@
+import numpy as np
+import pytest
+
+from polycam.errors import InputError
+from polycam.evaluate import ate_rmse, pair_errors
+from polycam.geometry import T_from_rt
+from polycam.trajectory import Trajectory
+
+
+def traj(rts):
+    ts = np.arange(len(rts), dtype=np.int64) * 33_000_000
+    return Trajectory.from_relative(ts, T_from_rt(np.asarray(rts[1:], float)))
+
+
+def test_identical_trajectories_have_zero_error():
+    rts = [[0] * 6] + [[0.01, -0.002, 0.003, 0.001, 0.0, 0.004]] * 4
+    a = traj(rts)
+    e = pair_errors(a, a)
+    assert np.allclose(e.t_err, 0) and np.allclose(e.w_err, 0, atol=1e-7)
+    assert ate_rmse(a, a) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_known_errors():
+    # mrcal rt order: rotation vector, then translation
+    true = traj([[0] * 6] + [[0, 0, 0, 0, 0, 0.01]] * 3)
+    est = traj([[0] * 6] + [[0, 0, 0.001, 0, 0, 0.0101]] * 3)
+    e = pair_errors(est, true)
+    assert np.allclose(e.t_rel, 0.01, atol=1e-9)
+    assert np.allclose(e.w_err, 0.001, atol=1e-9)
+    assert ate_rmse(est, true) > 0
+
+
+def test_mismatched_lengths_are_an_input_error():
+    a = traj([[0] * 6] * 3)
+    b = traj([[0] * 6] * 4)
+    with pytest.raises(InputError, match="same timestamps"):
+        pair_errors(a, b)
