@@ -14,7 +14,10 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "STAGE_CLIS"]
+
+STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli")
+"""Modules whose ``add_parsers(subparsers)`` add the pipeline stages' verbs."""
 
 log = logging.getLogger("polycam")
 
@@ -225,6 +228,19 @@ def build_parser() -> argparse.ArgumentParser:
     pd = sub.add_parser("demo", help="the main job on the built-in mock rig, end to end")
     pd.add_argument("--out", default="demo-out", help="output folder (default demo-out)")
     pd.set_defaults(func=cmd_demo)
+
+    # The stages register their own verbs (capture, replay, devices, calibrate, resample).
+    # Each STAGE/cli.py defines add_parsers(sub) and imports nothing heavy at module level.
+    import importlib
+
+    for modname in STAGE_CLIS:
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as e:
+            if e.name != modname:
+                raise
+            continue  # stage not built yet
+        mod.add_parsers(sub)
     return p
 
 
