@@ -233,6 +233,16 @@ def test_rendered_hits_project_onto_their_pixels(tmp_path, lens):
         assert err.max() <= RENDER_PROJECTION_PX
 
 
+def test_all_cameras_in_one_call_match_per_camera_renders(tmp_path):
+    rig = _small_rig(tmp_path)
+    r = CameraArrayRenderer(rig, None, room_scene(4.0, seed=1), supersample=2)
+    T = T_from_rt(np.array([0.01, 0.02, -0.03, 0.1, 0.0, 0.05]))
+    both = r.render(T)
+    for cam in rig.cameras:
+        assert both[cam.id].shape == (cam.height, cam.width)
+        np.testing.assert_array_equal(both[cam.id], r.render_camera(cam.id, T))
+
+
 def test_true_models_are_perturbed_and_seeded(tmp_path):
     rig = _small_rig(tmp_path)
     nominal = true_cameramodels(rig, seed=1)

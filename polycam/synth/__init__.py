@@ -7,7 +7,7 @@ docs/conventions.md for frames and units.
 """
 
 from .motion import frame_timestamps, make_trajectory, smooth_trajectory, static_trajectory
-from .raycast import TraceResult, trace_outer, trace_rays
+from .raycast import TraceResult, trace_indexed, trace_outer, trace_rays
 from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, lightfield_face_rays,
                      quantize, render_lightfield)
 from .scenes import SCENE_NAMES, Scene, SphereGrid, TextureBuilder, Textures, make_scene, room_scene, spheres_scene
@@ -19,7 +19,7 @@ __all__ = [
     "SCENE_NAMES", "Scene", "SphereGrid", "Textures", "TextureBuilder",
     "spheres_scene", "room_scene", "make_scene",
     # ray casting
-    "trace_rays", "trace_outer", "TraceResult",
+    "trace_rays", "trace_outer", "trace_indexed", "TraceResult",
     # motion
     "frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory",
     # rendering

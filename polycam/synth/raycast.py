@@ -8,14 +8,15 @@ viewpoint, so plenoptic brightness constancy holds exactly.
 
 Rays come in the rig frame and are moved into the world by ``T_world_rig``
 inside the kernel, so per-camera / per-face ray sets can be cached and reused
-for every frame. Two layouts are accepted (dims documented on
-:func:`trace_outer` and :func:`trace_rays`):
+for every frame. Rays are given as origins ``(A, 3)`` and direction sets
+``(B, S, 3)`` — S sub-sample directions whose radiance is averaged (box-filter
+anti-aliasing) — in one of two layouts (dims documented on :func:`trace_outer`,
+:func:`trace_indexed` and :func:`trace_rays`):
 
-- outer: every origin ``a`` of ``(A, 3)`` combined with every direction set
-  ``b`` of ``(B, S, 3)`` — S sub-sample directions whose radiance is averaged
-  (box-filter anti-aliasing). Cameras (A = 1) and light-field faces
-  (A = Ny*Nx viewpoints, B = Nv*Nu directions) both fit.
-- paired: ray ``k`` is ``(origins[k], directions[k])``.
+- outer: every origin ``a`` combined with every direction set ``b`` (light-field
+  faces: A = Ny*Nx viewpoints, B = Nv*Nu directions);
+- indexed: direction set ``b`` starts at origin ``origin_index[b]`` (all cameras of
+  a rig in one call; one ray per origin for :func:`trace_rays`).
 
 See docs/conventions.md for frames.
 """
@@ -24,12 +25,13 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from ..rays import RayBundle
 
-__all__ = ["trace_rays", "trace_outer", "TraceResult"]
+__all__ = ["trace_rays", "trace_outer", "trace_indexed", "TraceResult"]
 
 _EPS_T = 1e-9          # [m] smallest accepted hit distance (avoids self-hits at origins on surfaces)
 _TWO_PI = 2.0 * math.pi
@@ -73,11 +75,12 @@ def _texture(ti, p0, p1, p2, s, t, tex_kind, tex_param, wave_start, waves, tmp,
     if ti < 0:
         return 0.5
     if tex_kind[ti] == 0:
-        w0 = wave_start[ti]
-        nw = wave_start[ti + 1] - w0
+        # unsigned indices: no negative-index wraparound, so the loop vectorises
+        w0 = np.uint64(wave_start[ti])
+        nw = np.uint64(wave_start[ti + 1] - wave_start[ti])
         for w in range(nw):
-            tmp[w] = waves[4, w0 + w] * _fcos(waves[0, w0 + w] * p0 + waves[1, w0 + w] * p1
-                                              + waves[2, w0 + w] * p2 + waves[3, w0 + w])
+            j = w0 + np.uint64(w)
+            tmp[w] = waves[4, j] * _fcos(waves[0, j] * p0 + waves[1, j] * p1 + waves[2, j] * p2 + waves[3, j])
         acc = 0.0
         for w in range(nw):
             acc += tmp[w]
@@ -135,34 +138,22 @@ def _hit_sphere(o0, o1, o2, d0, d1, d2, c0, c1, c2, r):
 
 
 @njit(inline="always", fastmath=False, cache=True)
-def _slab_axis(o, d, inv, lo, hi, tn, tf, an, af, ax):
-    """One axis of the slab test (inv = 1/d); returns the updated (tn, tf, an, af);
-    tn > tf means a miss."""
-    if d == 0.0:
-        if o < lo or o > hi:
-            return _INF, -_INF, an, af
-        return tn, tf, an, af
-    ta = (lo - o) * inv
-    tb = (hi - o) * inv
-    if ta > tb:
-        ta, tb = tb, ta
-    if ta > tn:
-        tn = ta
-        an = ax
-    if tb < tf:
-        tf = tb
-        af = ax
-    return tn, tf, an, af
-
-
-@njit(inline="always", fastmath=False, cache=True)
-def _slab(o0, o1, o2, d0, d1, d2, i0, i1, i2, lo0, lo1, lo2, hi0, hi1, hi2):
-    """Ray/axis-aligned-box entry and exit (t_near, t_far, axis_near, axis_far); t_near > t_far:
-    miss. (i0, i1, i2) = 1/d (any value where d = 0)."""
-    tn, tf, an, af = _slab_axis(o0, d0, i0, lo0, hi0, -_INF, _INF, -1, -1, 0)
-    tn, tf, an, af = _slab_axis(o1, d1, i1, lo1, hi1, tn, tf, an, af, 1)
-    tn, tf, an, af = _slab_axis(o2, d2, i2, lo2, hi2, tn, tf, an, af, 2)
-    return tn, tf, an, af
+def _slab(o0, o1, o2, i0, i1, i2, lo0, lo1, lo2, hi0, hi1, hi2):
+    """Branch-free ray/axis-aligned-box entry and exit distances (t_near, t_far); a miss
+    when t_near > t_far. (i0, i1, i2) = 1/d, with 1e300 standing in for 1/0."""
+    ta = (lo0 - o0) * i0
+    tb = (hi0 - o0) * i0
+    tn = min(ta, tb)
+    tf = max(ta, tb)
+    ta = (lo1 - o1) * i1
+    tb = (hi1 - o1) * i1
+    tn = max(tn, min(ta, tb))
+    tf = min(tf, max(ta, tb))
+    ta = (lo2 - o2) * i2
+    tb = (hi2 - o2) * i2
+    tn = max(tn, min(ta, tb))
+    tf = min(tf, max(ta, tb))
+    return tn, tf
 
 
 @njit(inline="always", fastmath=False, cache=True)
@@ -181,7 +172,7 @@ def _dda_init(o, d, lo, h, n, tn):
 
 
 @njit(fastmath=False, cache=True)
-def _trace_range(k0, k1, orig, dirs, paired, R, tr,
+def _trace_range(k0, k1, orig, dirs, oidx, outer, R, tr,
                  sph_c, sph_r, sph_tex, g_lo, g_cell, g_dims, g_start, g_items,
                  box_lo, box_hi, box_tex,
                  rect_o, rect_ex, rect_ey, rect_bounds, rect_uv, rect_tex,
@@ -194,13 +185,9 @@ def _trace_range(k0, k1, orig, dirs, paired, R, tr,
     B = dirs.shape[0]
     S = dirs.shape[1]
     tmp = np.empty(max(max_waves, 1))
+    a = k0 // B if outer else oidx[k0]      # origin and direction indices of ray k0
+    b = k0 - a * B if outer else k0
     for ray in range(k0, k1):
-        if paired:
-            a = ray
-            b = ray
-        else:
-            a = ray // B
-            b = ray - a * B
         o0 = R[0, 0] * orig[a, 0] + R[0, 1] * orig[a, 1] + R[0, 2] * orig[a, 2] + tr[0]
         o1 = R[1, 0] * orig[a, 0] + R[1, 1] * orig[a, 1] + R[1, 2] * orig[a, 2] + tr[1]
         o2 = R[2, 0] * orig[a, 0] + R[2, 1] * orig[a, 1] + R[2, 2] * orig[a, 2] + tr[2]
@@ -220,13 +207,12 @@ def _trace_range(k0, k1, orig, dirs, paired, R, tr,
                 d0 /= nn
                 d1 /= nn
                 d2 /= nn
-                i0 = 1.0 / d0 if d0 != 0.0 else 0.0
-                i1 = 1.0 / d1 if d1 != 0.0 else 0.0
-                i2 = 1.0 / d2 if d2 != 0.0 else 0.0
+                i0 = 1.0 / d0 if d0 != 0.0 else 1e300
+                i1 = 1.0 / d1 if d1 != 0.0 else 1e300
+                i2 = 1.0 / d2 if d2 != 0.0 else 1e300
                 best = _INF
                 kind = -1      # 0 sphere, 1 box, 2 rectangle
                 idx = -1
-                bax = -1
                 nsph = sph_c.shape[0]
                 nbox = box_lo.shape[0]
                 nrect = rect_o.shape[0]
@@ -255,21 +241,13 @@ def _trace_range(k0, k1, orig, dirs, paired, R, tr,
 
                 # Axis-aligned boxes (few; brute force). Seen from outside: entry face; from inside: exit face.
                 for k in range(nbox):
-                    tn, tf, an, af = _slab(o0, o1, o2, d0, d1, d2, i0, i1, i2, box_lo[k, 0], box_lo[k, 1], box_lo[k, 2],
-                                           box_hi[k, 0], box_hi[k, 1], box_hi[k, 2])
-                    if tn > tf:
-                        continue
-                    if tn > _EPS_T:
-                        if tn < best:
-                            best = tn
-                            kind = 1
-                            idx = k
-                            bax = an
-                    elif tf > _EPS_T and tf < best:
-                        best = tf
+                    tn, tf = _slab(o0, o1, o2, i0, i1, i2, box_lo[k, 0], box_lo[k, 1], box_lo[k, 2],
+                                   box_hi[k, 0], box_hi[k, 1], box_hi[k, 2])
+                    t = tn if tn > _EPS_T else tf
+                    if tn <= tf and t > _EPS_T and t < best:
+                        best = t
                         kind = 1
                         idx = k
-                        bax = af
 
                 # Spheres: uniform grid walked by 3-D DDA, or brute force when there is no grid.
                 ncell = g_dims[0] * g_dims[1] * g_dims[2]
@@ -285,8 +263,8 @@ def _trace_range(k0, k1, orig, dirs, paired, R, tr,
                     nx = g_dims[0]
                     ny = g_dims[1]
                     nz = g_dims[2]
-                    tn, tf, an, af = _slab(o0, o1, o2, d0, d1, d2, i0, i1, i2, g_lo[0], g_lo[1], g_lo[2],
-                                           g_lo[0] + nx * h, g_lo[1] + ny * h, g_lo[2] + nz * h)
+                    tn, tf = _slab(o0, o1, o2, i0, i1, i2, g_lo[0], g_lo[1], g_lo[2],
+                                   g_lo[0] + nx * h, g_lo[1] + ny * h, g_lo[2] + nz * h)
                     if tn < 0.0:
                         tn = 0.0
                     if tn <= tf and tn < best:
@@ -345,6 +323,16 @@ def _trace_range(k0, k1, orig, dirs, paired, R, tr,
                         ti = sph_tex[idx]
                         pid = idx
                     elif kind == 1:
+                        # the face hit: the box plane nearest to the hit point
+                        bax = 0
+                        gap = min(abs(p0 - box_lo[idx, 0]), abs(p0 - box_hi[idx, 0]))
+                        g = min(abs(p1 - box_lo[idx, 1]), abs(p1 - box_hi[idx, 1]))
+                        if g < gap:
+                            gap = g
+                            bax = 1
+                        g = min(abs(p2 - box_lo[idx, 2]), abs(p2 - box_hi[idx, 2]))
+                        if g < gap:
+                            bax = 2
                         n0 = 1.0 if bax == 0 else 0.0
                         n1 = 1.0 if bax == 1 else 0.0
                         n2 = 1.0 if bax == 2 else 0.0
@@ -387,13 +375,20 @@ def _trace_range(k0, k1, orig, dirs, paired, R, tr,
         rad_out[ray] = acc / S
         t_out[ray] = t0
         id_out[ray] = pid0
+        b += 1
+        if outer:
+            if b == B:
+                b = 0
+                a += 1
+        elif b < B:
+            a = oidx[b]
 
 
 _CHUNK = 256   # rays per task of the parallel loop
 
 
 @njit(parallel=True, fastmath=False, cache=True)
-def _trace_kernel(orig, dirs, paired, R, tr,
+def _trace_kernel(orig, dirs, oidx, outer, R, tr,
                   sph_c, sph_r, sph_tex, g_lo, g_cell, g_dims, g_start, g_items,
                   box_lo, box_hi, box_tex,
                   rect_o, rect_ex, rect_ey, rect_bounds, rect_uv, rect_tex,
@@ -401,12 +396,12 @@ def _trace_kernel(orig, dirs, paired, R, tr,
                   sky_tex, light, shade,
                   rad_out, t_out, id_out):
     """Trace all rays, in parallel over chunks of :data:`_CHUNK` rays (see :func:`_trace_range`)."""
-    n = dirs.shape[0] if paired else orig.shape[0] * dirs.shape[0]
+    n = orig.shape[0] * dirs.shape[0] if outer else dirs.shape[0]
     nchunk = (n + _CHUNK - 1) // _CHUNK
     for c in prange(nchunk):
         k0 = np.int64(c) * _CHUNK
         k1 = min(k0 + _CHUNK, n)
-        _trace_range(k0, k1, orig, dirs, paired, R, tr,
+        _trace_range(k0, k1, orig, dirs, oidx, outer, R, tr,
                      sph_c, sph_r, sph_tex, g_lo, g_cell, g_dims, g_start, g_items,
                      box_lo, box_hi, box_tex,
                      rect_o, rect_ex, rect_ey, rect_bounds, rect_uv, rect_tex,
@@ -431,22 +426,41 @@ class TraceResult:
         -2 unprojectable."""
 
 
-def _run(scene, orig, dirs, paired, T_world_rig):
+def _run(scene, orig, dirs, oidx, T_world_rig):
+    """Checks, one compiled signature (C-contiguous writable arrays of fixed dtypes), and
+    the kernel call. ``oidx`` None: outer layout; else (B,) origin index per direction set."""
     T = np.asarray(T_world_rig, dtype=np.float64)
     if T.shape != (4, 4):
         raise ValueError("T_world_rig must be (4, 4)")
-    # One compiled signature: C-contiguous, writable arrays of fixed dtypes everywhere.
     R = np.require(T[:3, :3], np.float64, ["C", "W"])
     tr = np.require(T[:3, 3], np.float64, ["C", "W"])
     orig = np.require(orig, np.float64, ["C", "W"])
     dirs = np.require(dirs, np.float32, ["C", "W"])
+    if orig.ndim != 2 or orig.shape[1] != 3:
+        raise ValueError("origins must be (A, 3)")
+    if dirs.ndim != 3 or dirs.shape[2] != 3:
+        raise ValueError("directions must be (B, S, 3)")
+    outer = oidx is None
+    if outer:
+        oidx = np.zeros(0, np.int64)
+        n = orig.shape[0] * dirs.shape[0]
+    else:
+        oidx = np.require(oidx, np.int64, ["C", "W"])
+        n = dirs.shape[0]
+        if oidx.shape != (n,) or (n and (oidx.min() < 0 or oidx.max() >= orig.shape[0])):
+            raise ValueError("origin_index must be (B,) indices into the origins")
     args = tuple(np.require(a, a.dtype, ["C", "W"]) if isinstance(a, np.ndarray) else a
                  for a in scene.kernel_args())
-    n = dirs.shape[0] if paired else orig.shape[0] * dirs.shape[0]
     rad = np.empty(n, np.float32)
     dist = np.empty(n, np.float64)
     pid = np.empty(n, np.int32)
-    _trace_kernel(orig, dirs, bool(paired), R, tr, *args, rad, dist, pid)
+    # Dynamic scheduling (a few chunks per grab) keeps both cores busy even when ray costs
+    # vary across the image or another process holds a core.
+    prev = numba.set_parallel_chunksize(4)
+    try:
+        _trace_kernel(orig, dirs, oidx, outer, R, tr, *args, rad, dist, pid)
+    finally:
+        numba.set_parallel_chunksize(prev)
     return rad, dist, pid
 
 
@@ -462,12 +476,21 @@ def trace_outer(scene, origins_rig: np.ndarray, directions_rig: np.ndarray,
     Returns a :class:`TraceResult` with dims (A, B).
     """
     origins_rig = np.asarray(origins_rig, dtype=np.float64).reshape(-1, 3)
-    directions_rig = np.asarray(directions_rig, dtype=np.float32)
-    if directions_rig.ndim != 3 or directions_rig.shape[2] != 3:
-        raise ValueError("directions_rig must be (B, S, 3)")
-    rad, dist, pid = _run(scene, origins_rig, directions_rig, False, T_world_rig)
-    A, B = origins_rig.shape[0], directions_rig.shape[0]
+    rad, dist, pid = _run(scene, origins_rig, directions_rig, None, T_world_rig)
+    A, B = origins_rig.shape[0], np.shape(directions_rig)[0]
     return TraceResult(rad.reshape(A, B), dist.reshape(A, B), pid.reshape(A, B))
+
+
+def trace_indexed(scene, origins_rig: np.ndarray, directions_rig: np.ndarray, origin_index: np.ndarray,
+                  T_world_rig: np.ndarray) -> TraceResult:
+    """Trace direction set ``b`` from origin ``origin_index[b]``.
+
+    origins_rig: (A, 3) [m] ray origins in the rig frame (e.g. camera centres).
+    directions_rig: (B, S, 3) as for :func:`trace_outer`.
+    origin_index: (B,) int index into ``origins_rig`` per direction set.
+    Returns a :class:`TraceResult` with dims (B,).
+    """
+    return TraceResult(*_run(scene, origins_rig, directions_rig, origin_index, T_world_rig))
 
 
 def trace_rays(scene, rays: RayBundle, T_world_rig: np.ndarray | None = None) -> TraceResult:
@@ -483,5 +506,5 @@ def trace_rays(scene, rays: RayBundle, T_world_rig: np.ndarray | None = None) ->
     o = np.broadcast_to(rays.origins, shape + (3,)).reshape(-1, 3)
     d = np.broadcast_to(rays.directions, shape + (3,)).reshape(-1, 1, 3)
     T = np.eye(4) if T_world_rig is None else T_world_rig
-    rad, dist, pid = _run(scene, o, d, True, T)
+    rad, dist, pid = _run(scene, o, d, np.arange(o.shape[0]), T)
     return TraceResult(rad.reshape(shape), dist.reshape(shape), pid.reshape(shape))

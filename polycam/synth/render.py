@@ -21,7 +21,7 @@ import numpy as np
 from ..cameras import camera_rays, nominal_cameramodel, pixel_grid
 from ..lightfield import Axis, LightFieldGrid
 from ..rig import Rig
-from .raycast import trace_outer
+from .raycast import trace_indexed, trace_outer
 from .scenes import Scene
 
 __all__ = [
@@ -136,10 +136,21 @@ class CameraArrayRenderer:
         for cam in rig.cameras:
             if cam.id not in self.models:
                 self.models[cam.id] = nominal_cameramodel(cam)
-        self._rays: dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int]]] = {}
         self._centre_rays: dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int]]] = {}
-        for cam in rig.cameras:
-            self._rays[cam.id] = self._camera_rays(cam.id, self.supersample)
+        # All cameras' rays in one array, so a frame is one kernel call.
+        origins, dirs, index, self._slices, self._sizes = [], [], [], {}, {}
+        start = 0
+        for i, cam in enumerate(rig.cameras):
+            o, d, (H, W) = self._camera_rays(cam.id, self.supersample)
+            origins.append(o[0])
+            dirs.append(d)
+            index.append(np.full(d.shape[0], i, np.int64))
+            self._slices[cam.id] = slice(start, start + d.shape[0])
+            self._sizes[cam.id] = (H, W)
+            start += d.shape[0]
+        self._origins = np.stack(origins)                              # (N_cam, 3)
+        self._dirs = np.ascontiguousarray(np.concatenate(dirs))         # (sum H*W, S, 3) float32
+        self._index = np.concatenate(index)                            # (sum H*W,)
 
     @property
     def ids(self) -> list[str]:
@@ -154,23 +165,30 @@ class CameraArrayRenderer:
         o = np.asarray(rays.origins, float).reshape(-1, 3)[:1].copy()  # one centre per camera
         return o, d, (H, W)
 
-    def render_camera(self, cam_id: str, T_world_rig: np.ndarray, scene: Scene | None = None) -> np.ndarray:
-        """(H, W) float32 radiance in [0, 1] of one camera at rig pose ``T_world_rig`` (4, 4)."""
+    def _scene(self, scene):
         sc = self.scene if scene is None else scene
         if sc is None:
             raise ValueError("no scene to render")
-        o, d, (H, W) = self._rays[cam_id]
-        return trace_outer(sc, o, d, T_world_rig).radiance.reshape(H, W)
+        return sc
+
+    def render_camera(self, cam_id: str, T_world_rig: np.ndarray, scene: Scene | None = None) -> np.ndarray:
+        """(H, W) float32 radiance in [0, 1] of one camera at rig pose ``T_world_rig`` (4, 4)."""
+        i = self.ids.index(cam_id)
+        sl = self._slices[cam_id]
+        res = trace_outer(self._scene(scene), self._origins[i:i + 1], self._dirs[sl], T_world_rig)
+        return res.radiance.reshape(self._sizes[cam_id])
 
     def render(self, T_world_rig: np.ndarray, scene: Scene | None = None) -> dict[str, np.ndarray]:
-        """Camera id → (H, W) float32 radiance image in [0, 1] at rig pose ``T_world_rig``."""
-        return {cid: self.render_camera(cid, T_world_rig, scene) for cid in self.ids}
+        """Camera id → (H, W) float32 radiance image in [0, 1] at rig pose ``T_world_rig``
+        (all cameras in one parallel kernel call)."""
+        rad = trace_indexed(self._scene(scene), self._origins, self._dirs, self._index, T_world_rig).radiance
+        return {cid: rad[self._slices[cid]].reshape(self._sizes[cid]) for cid in self.ids}
 
     def distances(self, cam_id: str, T_world_rig: np.ndarray, scene: Scene | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Ground truth of one camera through its pixel centres: ``(distance, primitive)``,
         (H, W) float64 [m] along the unit ray (inf: sky) and (H, W) int32 primitive ids."""
-        sc = self.scene if scene is None else scene
+        sc = self._scene(scene)
         if cam_id not in self._centre_rays:
             self._centre_rays[cam_id] = self._camera_rays(cam_id, 1)
         o, d, (H, W) = self._centre_rays[cam_id]
@@ -185,13 +203,14 @@ def quantize(radiance: np.ndarray, bit_depth: int = 8, noise: float = 0.0,
     noise: std of additive Gaussian noise in [0, 1] units, drawn from ``rng``
         (required when noise > 0), added before clipping and rounding.
     """
-    x = np.asarray(radiance, np.float64)
+    x = np.array(radiance, np.float64)                  # a copy, worked on in place
     if noise > 0:
         if rng is None:
             raise ValueError("quantize: noise needs an rng")
-        x = x + rng.normal(0.0, noise, size=x.shape)
-    if bit_depth == 8:
-        return np.round(np.clip(x, 0.0, 1.0) * 255.0).astype(np.uint8)
-    if bit_depth == 16:
-        return np.round(np.clip(x, 0.0, 1.0) * 65535.0).astype(np.uint16)
-    raise ValueError(f"bit_depth must be 8 or 16, got {bit_depth}")
+        x += rng.normal(0.0, noise, size=x.shape)
+    if bit_depth not in (8, 16):
+        raise ValueError(f"bit_depth must be 8 or 16, got {bit_depth}")
+    np.clip(x, 0.0, 1.0, out=x)
+    x *= 255.0 if bit_depth == 8 else 65535.0
+    np.rint(x, out=x)
+    return x.astype(np.uint8 if bit_depth == 8 else np.uint16)

@@ -222,8 +222,8 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
             w.write_calibration(cam.id, models[cam.id])
         for i in range(n):
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
-            images = {cam.id: _image_for(cam, renderer.render_camera(cam.id, trajectory.T_world_rig[i]),
-                                         bit_depth, noise, rng) for cam in rig.cameras}
+            rad = renderer.render(trajectory.T_world_rig[i])
+            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng) for cam in rig.cameras}
             w.add_frame(int(trajectory.timestamps_ns[i]), images)
             if progress is not None:
                 progress(i + 1, n)
@@ -346,8 +346,8 @@ def synth_board_session(rig: Rig, out: str | os.PathLike, *, board, frames: int 
         for i in range(frames):
             sc = scene.with_rect_pose(rect, poses[i])
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
-            images = {cam.id: _image_for(cam, renderer.render_camera(cam.id, traj.T_world_rig[i], sc),
-                                         bit_depth, noise, rng) for cam in rig.cameras}
+            rad = renderer.render(traj.T_world_rig[i], sc)
+            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng) for cam in rig.cameras}
             w.add_frame(int(traj.timestamps_ns[i]), images)
             if progress is not None:
                 progress(i + 1, frames)
