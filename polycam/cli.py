@@ -140,10 +140,13 @@ def cmd_info(args: argparse.Namespace) -> int:
         s = open_session(path)
         print(f"session {path}: rig {s.rig.name!r}, {len(s.cameras)} cameras, {len(s)} frames, "
               f"status {s.status}")
-        for cam in s.cameras:
-            ts = s.image_timestamps(cam)
-            w, h = s.image_size(cam)
-            print(f"  {cam}: {len(ts)} images {w}x{h}")
+        groups: dict[tuple, list[str]] = {}
+        for cam in s.cameras:  # cameras with the same image count and size on one line
+            groups.setdefault((len(s.image_timestamps(cam)), *s.image_size(cam)), []).append(cam)
+        for (count, w, h), cams in groups.items():
+            names = cams[0] if len(cams) == 1 else f"{len(cams)} cameras ({', '.join(cams[:3])}" + \
+                (", ...)" if len(cams) > 3 else ")")
+            print(f"  {names}: {count} images of {w}x{h} each")
         print(f"  calibration: {'yes' if s.calibration() is not None else 'no'}; "
               f"ground truth: {'yes' if s.groundtruth() is not None else 'no'}")
     else:
