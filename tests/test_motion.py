@@ -1,0 +1,322 @@
+"""Plenoptic motion: recovery of known motions from analytic light fields, sign convention,
+unobservable cases, input errors and covariance vs scatter.
+
+The light fields here are analytic (numpy, this file only): the rig sits inside a large
+sphere with a smooth solid texture (no occlusions), optionally with a few textured
+unit spheres in front of it. Sample (x, y, u, v) averages 2 x 2 rays over its (u, v) cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from polycam.errors import InputError
+from polycam.geometry import T_from_rt, T_inverse, rt_from_T
+from polycam.lightfield import Axis, LightFieldGrid
+from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory,
+                            ray_motion_coefficients, warp_lightfield)
+from polycam.derivatives import plenoptic_derivatives
+from polycam.trajectory import Trajectory
+
+from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
+                        MOTION_COV_RATIO_MIN, MOTION_PURE_LEAK, MOTION_PURE_REL, MOTION_SPHERES_REL)
+
+ROOM_RADIUS = 6.0
+
+
+class Scene:
+    """Inside a textured sphere of radius ROOM_RADIUS, plus optional unit spheres."""
+
+    def __init__(self, seed: int = 0, spheres: int = 0):
+        rng = np.random.default_rng(seed)
+        k = rng.normal(size=(16, 3))
+        self.k = k / np.linalg.norm(k, axis=1, keepdims=True) * rng.uniform(0.4, 1.0, (16, 1))
+        self.ph = rng.uniform(0, 2 * np.pi, 16)
+        d = rng.normal(size=(spheres, 3))
+        self.centres = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(3.0, 4.0, (spheres, 1))
+        self.sk = rng.normal(size=(spheres, 6, 3)) * 1.5
+        self.sph = rng.uniform(0, 2 * np.pi, (spheres, 6))
+
+    def shade(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Radiance of world rays o, d (..., 3) (d unit)."""
+        b = np.sum(o * d, -1)
+        cc = np.sum(o * o, -1) - ROOM_RADIUS**2
+        s = -b + np.sqrt(b * b - cc)
+        p = o + s[..., None] * d
+        out = 0.5 + 0.3 / np.sqrt(len(self.ph)) * np.sum(np.cos(p @ self.k.T + self.ph), -1)
+        best = s
+        for i, c in enumerate(self.centres):
+            oc = o - c
+            bb = np.sum(d * oc, -1)
+            disc = bb * bb - (np.sum(oc * oc, -1) - 1.0)
+            si = -bb - np.sqrt(np.maximum(disc, 0.0))
+            hit = (disc > 0) & (si > 0) & (si < best)
+            if np.any(hit):
+                q = o[hit] + si[hit, None] * d[hit] - c
+                out[hit] = 0.5 + 0.1 * np.sum(np.cos(q @ self.sk[i].T + self.sph[i]), -1)
+                best = np.where(hit, si, best)
+        return out
+
+    def render(self, grid: LightFieldGrid, T_world_rig: np.ndarray, ss: int = 2) -> np.ndarray:
+        out = np.zeros(grid.shape)
+        R, t = T_world_rig[:3, :3], T_world_rig[:3, 3]
+        for k, face in enumerate(grid.faces):
+            for a in range(ss):
+                for b in range(ss):
+                    du = ((a + 0.5) / ss - 0.5) * grid.u.step
+                    dv = ((b + 0.5) / ss - 0.5) * grid.v.step
+                    y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values + dv,
+                                             grid.u.values + du, indexing="ij")
+                    o = np.stack([x, y, np.full_like(x, face.z_pi)], -1) @ face.R_rig_face.T
+                    d = np.stack([u, v, np.full_like(u, face.f)], -1) @ face.R_rig_face.T
+                    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+                    out[k] += self.shade(o @ R.T + t, d @ R.T)
+        return (out / ss**2).astype(np.float32)
+
+
+def make_grid(faces=("+z",), views: int = 5, directions: int = 24, spacing: float = 0.015,
+              f: float = 60.0) -> LightFieldGrid:
+    half = spacing * (views - 1) / 2
+    du = 2 * f / directions
+    uv = Axis(-f + du / 2, f - du / 2, directions)
+    xy = Axis(-half, half, views) if views > 1 else Axis(0.0, 0.0, 1)
+    return LightFieldGrid.cube(list(faces), f=f, z_pi=max(half, 0.01), x=xy, y=xy, u=uv, v=uv)
+
+
+ALL = ("+z", "-z", "+x", "-x", "+y", "-y")
+T_STEP = 0.006          # [m] typical translation between frames
+R_STEP = 0.005          # [rad] typical rotation (0.29 deg)
+
+
+def rel_errors(T_est: np.ndarray, rt_true: np.ndarray) -> np.ndarray:
+    """(6,) |est - true| / |true| per (r, t) component (nonzero components only)."""
+    e = rt_from_T(T_est)
+    nz = np.abs(rt_true) > 0
+    return np.abs(e[nz] - rt_true[nz]) / np.abs(rt_true[nz])
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    return Scene(seed=3)
+
+
+@pytest.mark.parametrize("faces", [("+z",), ALL], ids=["one-face", "six-faces"])
+@pytest.mark.parametrize("axis", range(6), ids=["tx", "ty", "tz", "rx", "ry", "rz"])
+def test_pure_motion_is_recovered(scene, faces, axis):
+    grid = make_grid(faces, directions=24 if len(faces) == 1 else 16)
+    rt = np.zeros(6)                  # mrcal order: r (rad) then t (m)
+    if axis < 3:
+        rt[3 + axis] = T_STEP
+    else:
+        rt[axis - 3] = R_STEP
+    T = T_from_rt(rt)
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
+    assert res, res.reason
+    e = rt_from_T(res.T_prev_next)
+    k = axis - 3 if axis >= 3 else 3 + axis
+    assert abs(e[k] / rt[k] - 1) < MOTION_PURE_REL
+    others = np.delete(np.arange(6), k)
+    assert np.all(np.abs(e[others][others < 3]) < MOTION_PURE_LEAK * R_STEP)
+    assert np.all(np.abs(e[others][others >= 3]) < MOTION_PURE_LEAK * T_STEP)
+
+
+@pytest.mark.parametrize("faces", [("+z",), ALL], ids=["one-face", "six-faces"])
+def test_combined_motion_is_recovered(scene, faces):
+    grid = make_grid(faces, directions=24 if len(faces) == 1 else 16)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    T = T_from_rt(rt)
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
+    assert res, res.reason
+    tol = MOTION_COMBINED_REL if len(faces) > 1 else MOTION_COMBINED_REL_ONE_FACE
+    assert np.all(rel_errors(res.T_prev_next, rt) < tol)
+    assert res.inlier_fraction > 0.5
+    assert np.isfinite(res.condition) and res.num_rays > 1000
+
+
+def test_occluding_spheres_six_faces():
+    sc = Scene(seed=5, spheres=12)
+    grid = make_grid(ALL, views=5, directions=32)
+    rt = np.array([0.003, -0.004, 0.002, 0.008, 0.006, -0.007])
+    res = estimate_motion(sc.render(grid, np.eye(4)), sc.render(grid, T_from_rt(rt)), grid)
+    assert res, res.reason
+    assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_SPHERES_REL)
+
+
+def test_sign_convention_rig_moving_plus_x(scene):
+    """The rig moves +x (T_world_rig1 = translation +x): the output has +t_x."""
+    grid = make_grid(("+z",))
+    T_world_rig1 = T_from_rt(np.array([0, 0, 0, T_STEP, 0, 0]))
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T_world_rig1), grid)
+    assert res.t[0] > 0.9 * T_STEP
+    # and it matches the ground-truth convention Trajectory.relative()
+    traj = Trajectory(np.array([0, 1]), np.stack([np.eye(4), T_world_rig1]))
+    assert np.allclose(res.T_prev_next, traj.relative()[0], atol=MOTION_PURE_REL * T_STEP)
+
+
+def test_rotation_sign_about_y(scene):
+    grid = make_grid(("+z",))
+    T = T_from_rt(np.array([0, R_STEP, 0, 0, 0, 0]))
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
+    assert res.r[1] > 0.9 * R_STEP
+
+
+def test_initial_estimate_and_pose_not_at_origin(scene):
+    """Relative motion does not depend on where the pair starts; T_init is only a start."""
+    grid = make_grid(("+z", "-x"))
+    T0 = T_from_rt(np.array([0.1, -0.2, 0.05, 0.3, -0.1, 0.2]))
+    M = T_from_rt(np.array([0.003, 0.002, -0.004, 0.004, 0.003, -0.005]))
+    L0, L1 = scene.render(grid, T0), scene.render(grid, T0 @ M)
+    a = estimate_motion(L0, L1, grid)
+    b = estimate_motion(L0, L1, grid, T_init=T_from_rt(rt_from_T(M) * 1.3))
+    for res in (a, b):
+        assert np.all(rel_errors(res.T_prev_next, rt_from_T(M)) < MOTION_COMBINED_REL_ONE_FACE)
+
+
+def test_constant_lightfield_is_unobservable():
+    grid = make_grid(("+z",))
+    L = np.full(grid.shape, 0.5, np.float32)
+    res = estimate_motion(L, L, grid)
+    assert not res
+    assert "usable rays" in res.reason or "unobservable" in res.reason
+    assert np.allclose(res.T_prev_next, np.eye(4))
+
+
+def test_one_viewpoint_translation_is_unobservable(scene):
+    """A face with a single viewpoint is a pinhole camera: no translation without depth."""
+    grid = make_grid(("+z",), views=1, directions=32)
+    T = T_from_rt(np.array([0.0, R_STEP, 0.0, 0.0, 0.0, 0.0]))
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
+    assert not res
+    assert set(res.unobservable) == {"t_x", "t_y", "t_z"}
+    assert "unobservable" in res.reason and "t_x" in res.reason
+    # the rotation is still estimated in the observable subspace
+    assert abs(res.r[1] / R_STEP - 1) < 0.05
+    assert np.allclose(res.t, 0.0)
+
+
+def test_input_errors(scene):
+    grid = make_grid(("+z",))
+    L = scene.render(grid, np.eye(4))
+    bad = L.copy()
+    bad[0, 2, 2, 5, 5] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        estimate_motion(L, bad, grid)
+    with pytest.raises(InputError, match="dims"):
+        estimate_motion(L, L[:, :, :, :-1], grid)
+    other = make_grid(("+z", "-z"))
+    with pytest.raises(InputError, match="dims"):
+        estimate_motion(L, L, other)
+
+
+class FakeStore:
+    """The part of the light-field store interface that estimate_trajectory uses."""
+
+    def __init__(self, grid, frames, weights=None):
+        self.grid = grid
+        self._frames = frames
+        self._weights = weights
+        self.timestamps_ns = np.arange(len(frames), dtype=np.int64) * 33_333_333
+        self.reads = 0
+
+    def frame(self, i):
+        self.reads += 1
+        return self._frames[i]
+
+    def weights(self, i):
+        return None if self._weights is None else self._weights[i]
+
+
+def test_single_frame_store_is_an_input_error(scene):
+    grid = make_grid(("+z",))
+    with pytest.raises(InputError, match="at least 2"):
+        estimate_trajectory(FakeStore(grid, [scene.render(grid, np.eye(4))]))
+
+
+def test_trajectory_from_store(scene):
+    grid = make_grid(("+z", "+x"), directions=16)
+    steps = [np.array([0.003, 0.002, -0.002, 0.004, -0.003, 0.002]),
+             np.array([0.004, 0.001, -0.003, 0.005, -0.002, 0.003])]
+    T = [np.eye(4)]
+    for s in steps:
+        T.append(T[-1] @ T_from_rt(s))
+    truth = Trajectory(np.arange(3, dtype=np.int64), np.stack(T))
+    W = [np.ones(grid.shape, np.float32)] * 3
+    store = FakeStore(grid, [scene.render(grid, Ti) for Ti in T], W)
+    calls = []
+    traj, results = estimate_trajectory(store, progress=lambda d, n: calls.append((d, n)))
+    assert calls == [(1, 2), (2, 2)]
+    assert store.reads == 3                       # streamed: every frame read once
+    assert len(results) == 2 and all(isinstance(r, PairResult) and r for r in results)
+    assert np.array_equal(traj.timestamps_ns, store.timestamps_ns)
+    assert np.allclose(traj.T_world_rig[0], np.eye(4))
+    for est, tru in zip(traj.relative(), truth.relative()):
+        assert np.all(rel_errors(est, rt_from_T(tru)) < MOTION_COMBINED_REL_ONE_FACE)
+
+
+def test_confidence_zero_region_is_ignored(scene):
+    """Garbage where W = 0 changes nothing: the same answer as with clean data there."""
+    grid = make_grid(("+z", "-x"), directions=24)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    W = np.ones(grid.shape, np.float32)
+    W[..., :8] = 0.0
+    W[..., 8:12] = 0.5
+    clean = estimate_motion(L0, L1, grid, W0=W, W1=W)
+    rng = np.random.default_rng(0)
+    L0[W == 0] = rng.random(np.count_nonzero(W == 0))
+    L1[W == 0] = rng.random(np.count_nonzero(W == 0))
+    res = estimate_motion(L0, L1, grid, W0=W, W1=W)
+    assert res, res.reason
+    assert np.allclose(res.T_prev_next, clean.T_prev_next, atol=1e-9)
+    assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL_ONE_FACE)
+
+
+def test_covariance_matches_scatter_under_noise(scene):
+    grid = make_grid(("+z",), directions=24)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(42)
+    est, std = [], []
+    opts = MotionOptions(levels=1, iterations=3)
+    for _ in range(10):
+        n0 = (L0 + rng.normal(0, 0.01, L0.shape)).astype(np.float32)
+        n1 = (L1 + rng.normal(0, 0.01, L1.shape)).astype(np.float32)
+        res = estimate_motion(n0, n1, grid, options=opts)
+        est.append(np.concatenate([res.t, res.r]))
+        std.append(res.std)
+    scatter = np.std(np.array(est), axis=0, ddof=1)
+    predicted = np.mean(np.array(std), axis=0)
+    ratio = scatter / predicted
+    assert np.all(ratio > MOTION_COV_RATIO_MIN) and np.all(ratio < MOTION_COV_RATIO_MAX), ratio
+
+
+def test_warp_by_true_motion_predicts_frame_two(scene):
+    grid = make_grid(("+z", "-y"), directions=24)
+    M = T_from_rt(np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
+    # L1(ρ) = L0(M ρ): warping L0 by M gives L1
+    warped, ok = warp_lightfield(L0[None], grid, M)
+    err = np.abs(warped[0] - L1)[ok]
+    still = np.abs(L0 - L1)[ok]
+    assert np.median(err) < 0.05 * np.median(still)
+    # the identity warp is exact
+    same, ok_id = warp_lightfield(L0[None], grid, np.eye(4))
+    assert ok_id.all() and np.allclose(same[0], L0, atol=1e-6)
+
+
+def test_coefficients_predict_temporal_difference(scene):
+    """Row · (t, ω) of the ray motion G = M⁻¹ ≈ −L_t (paper Eq. 5) for a tiny motion."""
+    grid = make_grid(("+z", "+y"), directions=24)
+    M = T_from_rt(np.array([0.0004, -0.0003, 0.0002, 0.0006, 0.0004, -0.0005]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
+    der = plenoptic_derivatives(L0, L1, grid)
+    G = rt_from_T(T_inverse(M))
+    p = np.concatenate([G[3:], G[:3]])                # (t, ω)
+    for k in range(len(grid.faces)):
+        pred = ray_motion_coefficients(der, grid, k) @ p
+        lt = der.Lt[k]
+        m = der.valid
+        corr = np.corrcoef(pred[m], -lt[m])[0, 1]
+        assert corr > 0.95
+        assert 0.9 < np.sum(pred[m] * -lt[m]) / np.sum(pred[m] ** 2) < 1.1
