@@ -320,3 +320,22 @@ def test_coefficients_predict_temporal_difference(scene):
         corr = np.corrcoef(pred[m], -lt[m])[0, 1]
         assert corr > 0.95
         assert 0.9 < np.sum(pred[m] * -lt[m]) / np.sum(pred[m] ** 2) < 1.1
+
+
+def test_pair_report_csv(scene, tmp_path):
+    import csv
+
+    from polycam.motion_report import PAIR_REPORT_COLUMNS, write_pair_report
+
+    grid = make_grid(("+z",))
+    rt = np.array([0.0, 0.0, 0.0, T_STEP, 0.0, 0.0])
+    good = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt)), grid)
+    L = np.full(grid.shape, 0.5, np.float32)
+    bad = estimate_motion(L, L, grid, index=1)
+    path = tmp_path / "pairs.csv"
+    write_pair_report([good, bad], path, timestamps_ns=np.array([0, 10, 20]))
+    rows = list(csv.DictReader(path.open()))
+    assert tuple(rows[0]) == PAIR_REPORT_COLUMNS
+    assert rows[0]["pair"] == "0" and rows[0]["timestamp_ns"] == "10" and rows[0]["ok"] == "1"
+    assert abs(float(rows[0]["t_x"]) - good.t[0]) < 1e-9
+    assert rows[1]["ok"] == "0" and rows[1]["reason"] == bad.reason and rows[1]["timestamp_ns"] == "20"

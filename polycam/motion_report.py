@@ -1,0 +1,50 @@
+"""Per-pair motion diagnostics as a CSV file (the I/O beside :mod:`polycam.motion`).
+
+One row per frame pair ``(i, i+1)``::
+
+    pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
+    sigma,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
+
+``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
+the square roots of the covariance diagonal; ``timestamp_ns`` is frame i+1's (empty
+when not given); ``unobservable`` lists direction names separated by ``;``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from typing import Sequence
+
+import numpy as np
+
+from .motion import PairResult
+from .tomlio import atomic_write_text
+
+__all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report"]
+
+PAIR_REPORT_COLUMNS = (
+    "pair", "timestamp_ns", "t_x", "t_y", "t_z", "r_x", "r_y", "r_z",
+    "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
+    "sigma", "condition", "inlier_fraction", "num_rays", "iterations", "ok", "unobservable", "reason",
+)
+
+
+def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike,
+                      timestamps_ns: np.ndarray | None = None) -> None:
+    """Write the per-pair results atomically as CSV (columns: :data:`PAIR_REPORT_COLUMNS`).
+
+    ``timestamps_ns``: optional (N,) frame timestamps; pair i gets frame i+1's.
+    """
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(PAIR_REPORT_COLUMNS)
+    for r in results:
+        ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
+        std = r.std
+        w.writerow([r.index, ts, *(f"{v:.9g}" for v in r.t), *(f"{v:.9g}" for v in r.r),
+                    *(f"{v:.6g}" for v in std), f"{r.sigma:.6g}", f"{r.condition:.6g}",
+                    f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
+                    ";".join(r.unobservable), r.reason])
+    atomic_write_text(path_csv, buf.getvalue())
