@@ -334,7 +334,8 @@ def test_pair_report_csv(scene, tmp_path):
     bad = estimate_motion(L, L, grid, index=1)
     path = tmp_path / "pairs.csv"
     write_pair_report([good, bad], path, timestamps_ns=np.array([0, 10, 20]))
-    rows = list(csv.DictReader(path.open()))
+    with path.open() as fh:
+        rows = list(csv.DictReader(fh))
     assert tuple(rows[0]) == PAIR_REPORT_COLUMNS
     assert rows[0]["pair"] == "0" and rows[0]["timestamp_ns"] == "10" and rows[0]["ok"] == "1"
     assert abs(float(rows[0]["t_x"]) - good.t[0]) < 1e-9
