@@ -96,3 +96,49 @@ def test_demo_runs_end_to_end(tmp_path):
     err = pair_errors(read_tum(tmp_path / "demo" / "trajectory.tum"),
                       read_tum(tmp_path / "demo" / "lightfield.zarr" / "groundtruth.tum"))
     assert np.median(err.t_rel) < DEMO_MOTION_REL and np.median(err.w_rel) < DEMO_MOTION_REL
+
+
+def _tiny_session(path: Path) -> Path:
+    from polycam.rig import load_rig
+    from polycam.session import SessionWriter
+
+    rig_file = path.parent / "tiny.toml"
+    rig_file.write_text('[rig]\nname = "tiny"\n[defaults]\nwidth = 8\nheight = 6\n'
+                        '[grid]\nrows = 1\ncols = 2\npitch = 0.05\n')
+    with SessionWriter(path, load_rig(rig_file)) as w:
+        for i in range(3):
+            w.add_frame(1_000 + i * 33_000_000, {"cam00": np.full((6, 8), i, np.uint8),
+                                                 "cam01": np.full((6, 8), 2 * i, np.uint8)})
+        w.close()
+    return path
+
+
+def test_info_on_a_session(tmp_path):
+    s = _tiny_session(tmp_path / "s")
+    res = polycam("info", str(s))
+    assert res.returncode == 0, res.stderr
+    assert "2 cameras" in res.stdout and "3 frames" in res.stdout
+
+
+def test_info_names_a_missing_camera_folder(tmp_path):
+    import shutil
+
+    s = _tiny_session(tmp_path / "s")
+    shutil.rmtree(s / "cam01")
+    assert_one_line_error(polycam("info", str(s)), "cam01")
+
+
+def test_info_names_non_monotonic_timestamps(tmp_path):
+    s = _tiny_session(tmp_path / "s")
+    csv = s / "frames.csv"
+    lines = csv.read_text().splitlines()
+    row = lines[3].split(",")
+    row[1] = "0"  # frame 2's timestamp before frame 1's
+    lines[3] = ",".join(row)
+    csv.write_text("\n".join(lines) + "\n")
+    assert_one_line_error(polycam("info", str(s)), "frames.csv", "increasing")
+
+
+def test_info_on_something_that_is_neither(tmp_path):
+    (tmp_path / "junk").mkdir()
+    assert_one_line_error(polycam("info", str(tmp_path / "junk")), "junk")
