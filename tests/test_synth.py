@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from polycam.cameras import T_rig_cam_of, camera_rays, pixel_grid
-from polycam.geometry import R_from_r, T_from_Rt, T_from_rt, T_inverse, r_from_R
+from polycam.geometry import T_from_Rt, T_from_rt, T_inverse, r_from_R
 from polycam.lightfield import Axis, LightFieldGrid
 from polycam.rays import RayBundle
 from polycam.rig import load_rig

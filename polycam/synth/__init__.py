@@ -10,9 +10,10 @@ from .motion import frame_timestamps, make_trajectory, smooth_trajectory, static
 from .raycast import TraceResult, trace_indexed, trace_outer, trace_rays
 from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, lightfield_face_rays,
                      quantize, render_lightfield)
-from .scenes import SCENE_NAMES, Scene, SphereGrid, TextureBuilder, Textures, make_scene, room_scene, spheres_scene
-from .sessions import (board_poses, synth_board_session, synth_lightfield, synth_session, true_cameramodels,
-                       tum_text, write_lightfield_sequence)
+from .scenes import (SCENE_NAMES, Scene, SphereGrid, TextureBuilder, Textures, make_scene, room_scene,
+                     spheres_scene)
+from .sessions import (board_poses, scene_for_rig, synth_board_session, synth_lightfield, synth_session,
+                       trajectory_for_rig, true_cameramodels, tum_text, write_lightfield_sequence)
 
 __all__ = [
     # scenes
@@ -26,6 +27,6 @@ __all__ = [
     "default_lightfield_grid", "lightfield_face_rays", "LightFieldRenderer", "render_lightfield",
     "CameraArrayRenderer", "quantize",
     # products on disk
-    "true_cameramodels", "board_poses", "tum_text", "write_lightfield_sequence", "synth_lightfield",
+    "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "tum_text", "write_lightfield_sequence", "synth_lightfield",
     "synth_session", "synth_board_session",
 ]

@@ -49,6 +49,8 @@ __all__ = [
     "synth_lightfield",
     "synth_session",
     "synth_board_session",
+    "scene_for_rig",
+    "trajectory_for_rig",
     "tum_text",
 ]
 
@@ -166,15 +168,35 @@ def synth_lightfield(out: str | os.PathLike, *, grid: LightFieldGrid | None = No
 # ----------------------------------------------------------------------------- sessions
 
 
-def _resolve_scene(rig: Rig, scene: str | Scene | None, distance: float | None, seed: int) -> Scene:
+def scene_for_rig(rig: Rig, scene: str | Scene | None = None, *, distance: float | None = None,
+                  seed: int | None = None) -> Scene:
+    """The scene a rig's ``[mock]`` table asks for (what the mock driver and
+    :func:`synth_session` render): ``scene`` (default the rig's, else ``room``),
+    ``distance`` [m] (default the rig's, else 4) and ``seed`` (default the rig's, else 0).
+    A :class:`Scene` passes through. The mock-only ``pattern`` scene is refused."""
     if isinstance(scene, Scene):
         return scene
-    name = scene if scene is not None else (rig.mock.scene if rig.mock is not None else "room")
+    mock = rig.mock
+    name = scene if scene is not None else (mock.scene if mock is not None else "room")
     if name == "pattern":
         raise InputError(f"{rig.path or rig.name}: [mock] scene 'pattern' is the mock driver's test "
                          "pattern; synthetic sessions need 'room' or 'spheres'")
-    d = distance if distance is not None else (rig.mock.distance if rig.mock is not None else 4.0)
-    return make_scene(name, d, seed)
+    d = distance if distance is not None else (mock.distance if mock is not None else 4.0)
+    sd = seed if seed is not None else (mock.seed if mock is not None else 0)
+    return make_scene(name, d, sd)
+
+
+def trajectory_for_rig(rig: Rig, frames: int, *, seed: int | None = None, start_ns: int = 0) -> Trajectory:
+    """The rig motion its ``[mock]`` table asks for: ``motion`` (``static``/``smooth``,
+    default smooth), ``step_t`` [m] and ``step_r_deg`` [deg] per frame (defaults 5 mm,
+    0.2 deg), seeded by ``seed`` (default the rig's, else 0); frames at the first
+    camera's ``fps``."""
+    mock = rig.mock
+    sd = seed if seed is not None else (mock.seed if mock is not None else 0)
+    return make_trajectory(mock.motion if mock is not None else "smooth", frames,
+                           step_t=mock.step_t if mock is not None else 0.005,
+                           step_r_deg=mock.step_r_deg if mock is not None else 0.2,
+                           fps=float(rig.cameras[0].fps), seed=sd, start_ns=start_ns)
 
 
 def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None = None, frames: int = 10,
@@ -204,19 +226,17 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     mock = rig.mock
     seed = seed if seed is not None else (mock.seed if mock is not None else 0)
     noise = noise if noise is not None else (mock.noise if mock is not None else 0.0)
-    sc = _resolve_scene(rig, scene, distance, seed)
-    fps = float(rig.cameras[0].fps)
+    sc = scene_for_rig(rig, scene, distance=distance, seed=seed)
     if trajectory is None:
-        trajectory = make_trajectory(mock.motion if mock is not None else "smooth", frames,
-                                     step_t=mock.step_t if mock is not None else 0.005,
-                                     step_r_deg=mock.step_r_deg if mock is not None else 0.2,
-                                     fps=fps, seed=seed)
+        trajectory = trajectory_for_rig(rig, frames, seed=seed)
     if models is None:
         models = true_cameramodels(rig, seed=seed, perturb_position_m=perturb_position_m,
                                    perturb_rotation_deg=perturb_rotation_deg,
                                    perturb_focal_frac=perturb_focal_frac)
     renderer = CameraArrayRenderer(rig, models, sc, supersample)
     n = len(trajectory)
+    log.info("synth session %s: %d frames of %d cameras, scene %s (%.3g m), supersample %d", out, n,
+             len(rig.cameras), sc.name, sc.distance, supersample)
     with SessionWriter(out, rig, overwrite=overwrite, threads=threads) as w:
         for cam in rig.cameras:
             w.write_calibration(cam.id, models[cam.id])
@@ -340,6 +360,8 @@ def synth_board_session(rig: Rig, out: str | os.PathLike, *, board, frames: int 
                                         np.asarray(H_image_board)[:2])
 
     renderer = CameraArrayRenderer(rig, models, scene, supersample)
+    log.info("synth board session %s: %d frames of %d cameras, board texture %d px per square", out, frames,
+             len(rig.cameras), pps)
     with SessionWriter(out, rig, overwrite=overwrite, threads=threads) as w:
         for cam in rig.cameras:
             w.write_calibration(cam.id, models[cam.id])
