@@ -134,7 +134,7 @@ def main() -> int:
     o = o[len(o) // 2]
     d = d[:, 0].astype(np.float64)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    sub = d[:: max(1, len(d) // 1024)][:1024]
+    sub = d[:: max(1, len(d) // 4096)][:4096]
     ref = trace_outer(spheres, o[None], sub[:, None, :].astype(np.float32), np.eye(4)).radiance[0]
     base = numpy_spheres(spheres, o, sub)
     agree = np.abs(base - ref).max()

@@ -384,7 +384,8 @@ def _trace_range(k0, k1, orig, dirs, oidx, outer, R, tr,
             a = oidx[b]
 
 
-_CHUNK = 256   # rays per task of the parallel loop
+_CHUNK = 256                # rays per task of the parallel loop
+_SERIAL_MAX_RAYS = 8192     # batches up to this many rays (x sub-samples) run on the calling thread
 
 
 @njit(parallel=True, fastmath=False, cache=True)
@@ -454,6 +455,10 @@ def _run(scene, orig, dirs, oidx, T_world_rig):
     rad = np.empty(n, np.float32)
     dist = np.empty(n, np.float64)
     pid = np.empty(n, np.int32)
+    if n * dirs.shape[1] <= _SERIAL_MAX_RAYS:
+        # Small batches: no parallel region (its start-up latency would dominate).
+        _trace_range(0, n, orig, dirs, oidx, outer, R, tr, *args, rad, dist, pid)
+        return rad, dist, pid
     # Dynamic scheduling (a few chunks per grab) keeps both cores busy even when ray costs
     # vary across the image or another process holds a core.
     prev = numba.set_parallel_chunksize(4)
