@@ -34,6 +34,7 @@ __all__ = [
     "FilterPair",
     "FILTERS",
     "correlate_axis",
+    "min_filter_axis",
     "Derivatives",
     "plenoptic_derivatives",
     "smooth_all",
@@ -151,6 +152,37 @@ def correlate_axis(a: np.ndarray, taps: np.ndarray, axis: int,
         _corr_last(a.reshape(A, n), taps32, out.reshape(A, n))
     else:
         _corr_mid(a.reshape(A, n, B), taps32, out.reshape(A, n, B))
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _min_mid(a, r, out):
+    """out[i, j, k] = min over |d| <= r of a[i, clamp(j + d), k] for a (A, n, B) view."""
+    A, n, B = a.shape
+    for ij in numba.prange(A * n):
+        i = ij // n
+        j = ij - i * n
+        lo = max(j - r, 0)
+        hi = min(j + r, n - 1)
+        for k in range(B):
+            out[i, j, k] = a[i, lo, k]
+        for jj in range(lo + 1, hi + 1):
+            for k in range(B):
+                v = a[i, jj, k]
+                if v < out[i, j, k]:
+                    out[i, j, k] = v
+
+
+def min_filter_axis(a: np.ndarray, radius: int, axis: int) -> np.ndarray:
+    """Minimum of float32 ``a`` over ``±radius`` samples along ``axis`` (window clipped at
+    the borders, like ``scipy.ndimage.minimum_filter1d(mode="nearest")``)."""
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    axis = axis % a.ndim
+    out = np.empty_like(a)
+    n = a.shape[axis]
+    A = int(np.prod(a.shape[:axis], dtype=np.int64))
+    B = int(np.prod(a.shape[axis + 1:], dtype=np.int64))
+    _min_mid(a.reshape(A, n, B), int(radius), out.reshape(A, n, B))
     return out
 
 

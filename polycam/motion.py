@@ -87,7 +87,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, correlate_axis, plenoptic_derivatives
+from .derivatives import FILTERS, Derivatives, correlate_axis, min_filter_axis, plenoptic_derivatives
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
 from .lightfield import Axis, LightFieldGrid
@@ -100,6 +100,7 @@ __all__ = [
     "estimate_motion",
     "estimate_trajectory",
     "ray_motion_coefficients",
+    "solve_ray_motion",
     "warp_lightfield",
 ]
 
@@ -540,6 +541,30 @@ def ray_motion_coefficients(der: Derivatives, grid: LightFieldGrid, k: int) -> n
     return c @ B
 
 
+def solve_ray_motion(der: Derivatives, grid: LightFieldGrid, weights: np.ndarray | None = None,
+                     rcond: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
+    """One weighted linear solve of Eq. 5 over all faces (no warping, no IRLS).
+
+    ``weights``: (F, Ny, Nx, Nv, Nu) or None (the derivatives' valid mask). Returns
+    ``p`` (6,) = (t [m], ω [rad]) of the *ray* motion G in rig coordinates (the rig
+    moved by ``G⁻¹``) and the normal matrix N (6, 6).
+    """
+    w = (np.broadcast_to(der.valid, der.Lx.shape) if weights is None else weights).astype(np.float32)
+    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    N = np.zeros((6, 6))
+    rhs = np.zeros(6)
+    for k, face in enumerate(grid.faces):
+        Ny, Nx, Nv, Nu = der.Lx.shape[1:]
+        acc = np.empty((Ny * Nx * Nv, 29))
+        _normal_kernel(der.Lx[k], der.Ly[k], der.Lu[k], der.Lv[k], der.Lt[k], np.ascontiguousarray(w[k]),
+                       *vals, float(face.z_pi), float(face.f), acc)
+        Nk, rk, _, _ = _unpack_normal(acc.sum(axis=0))
+        B = _face_B(face)
+        N += B.T @ Nk @ B
+        rhs += B.T @ rk
+    return _solve_normal(N, rhs, rcond)["p"], N
+
+
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
                     cubic: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Resample light fields at the grid rays moved by the rigid transform ``T_ray`` (rig frame).
@@ -657,13 +682,11 @@ def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_ra
 
 def _min_filter_support(c: np.ndarray, radius: dict) -> np.ndarray:
     """Separable minimum of c (F, Ny, Nx, Nv, Nu) over ±radius per axis (y x v u)."""
-    from scipy.ndimage import minimum_filter1d
-
     out = c
     for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
         r = radius[name]
         if r > 0 and out.shape[ax] > 1:
-            out = minimum_filter1d(out, 2 * r + 1, axis=ax, mode="nearest")
+            out = min_filter_axis(out, r, ax)
     return out
 
 
@@ -677,15 +700,19 @@ def _robust_weights(res: np.ndarray, scale: float, kind: str, c: float) -> np.nd
     return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
 
 
-def _weighted_mad(res: np.ndarray, w: np.ndarray) -> float:
-    """1.4826 × weighted median of |res| over w > 0."""
-    m = w > 0
-    if not np.any(m):
+def _weighted_mad(res: np.ndarray, w: np.ndarray, max_samples: int = 400_000) -> float:
+    """1.4826 × weighted median of |res| over w > 0 (on a regular subsample of at most
+    ``max_samples`` rays: the scale needs no more precision)."""
+    m = (w > 0).reshape(-1)
+    a = res.reshape(-1)[m]
+    ww = w.reshape(-1)[m]
+    if a.size == 0:
         return 0.0
-    a = np.abs(res[m])
-    ww = w[m]
+    step = max(1, a.size // max_samples)
+    a = np.abs(a[::step])
+    ww = ww[::step]
     order = np.argsort(a)
-    cw = np.cumsum(ww[order])
+    cw = np.cumsum(ww[order], dtype=np.float64)
     i = int(np.searchsorted(cw, 0.5 * cw[-1]))
     return 1.4826 * float(a[order[min(i, len(a) - 1)]])
 

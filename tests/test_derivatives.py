@@ -112,3 +112,15 @@ def test_time_derivative_is_symmetric(rng):
     for name in ("Lx", "Ly", "Lu", "Lv"):
         assert np.allclose(getattr(a, name), getattr(b, name), atol=1e-5)
     assert np.allclose(a.Lt, -b.Lt, atol=1e-6)
+
+
+@pytest.mark.parametrize("axis", range(5))
+def test_min_filter_axis_matches_scipy(rng, axis):
+    from scipy.ndimage import minimum_filter1d
+
+    from polycam.derivatives import min_filter_axis
+
+    a = rng.random((2, 5, 6, 7, 9)).astype(np.float32)
+    for r in (1, 2):
+        assert np.array_equal(min_filter_axis(a, r, axis),
+                              minimum_filter1d(a, 2 * r + 1, axis=axis, mode="nearest"))
