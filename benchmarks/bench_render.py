@@ -82,7 +82,7 @@ def numpy_spheres(scene, o: np.ndarray, d: np.ndarray) -> np.ndarray:
     Wk = tx.waves[:, idx]                                      # (5, Nh, nw)
     S = np.sum(Wk[4] * np.cos(np.einsum("hj,jhw->hw", p, Wk[:3]) + Wk[3]), axis=1)
     sharp = tx.param[ti, 2]
-    S = np.where(sharp > 0, S / np.sqrt(1 + (sharp * S) ** 2), S)
+    S = np.where(sharp > 0, sharp * S / np.sqrt(1 + (sharp * S) ** 2), S)
     alb = np.clip(tx.param[ti, 0] + tx.param[ti, 1] * S, 0, 1)
     nd = np.sum(n * d[hit], axis=1)
     n = np.where(nd[:, None] > 0, -n, n)

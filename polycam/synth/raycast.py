@@ -85,8 +85,8 @@ def _texture(ti, p0, p1, p2, s, t, tex_kind, tex_param, wave_start, waves, tmp,
         for w in range(nw):
             acc += tmp[w]
         sharp = tex_param[ti, 2]
-        if sharp > 0.0:                       # soft threshold: slope 1 at 0, bounded by 1/sharp
-            acc = acc / math.sqrt(1.0 + (sharp * acc) ** 2)
+        if sharp > 0.0:                       # soft threshold into (-1, 1), slope sharp at 0
+            acc = sharp * acc / math.sqrt(1.0 + (sharp * acc) ** 2)
         a = tex_param[ti, 0] + tex_param[ti, 1] * acc
     else:
         # Bilinear image lookup; (s, t) = (column, row) in pixels, centres at integers.

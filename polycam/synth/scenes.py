@@ -15,7 +15,8 @@ viewpoint (plenoptic brightness constancy holds exactly). Values are in [0, 1].
 
 Solid textures are ``albedo = clip(base + contrast * g(S))`` with
 ``S = sum_k a_k cos(w_k . p + phi_k)`` normalised to unit variance and
-``g(S) = tanh(sharp S) / sharp`` (identity for ``sharp = 0``); ``p`` is the point
+``g(S) = sharp S / sqrt(1 + (sharp S)^2)``, a soft threshold into (-1, 1) that
+turns the waves into blobs with soft edges (``g(S) = S`` for ``sharp = 0``); ``p`` is the point
 in the sphere's own frame (centre at 0), in world coordinates for boxes, and in
 the rectangle's (s, t, 0) coordinates for rectangles.
 
