@@ -340,3 +340,25 @@ def test_pair_report_csv(scene, tmp_path):
     assert rows[0]["pair"] == "0" and rows[0]["timestamp_ns"] == "10" and rows[0]["ok"] == "1"
     assert abs(float(rows[0]["t_x"]) - good.t[0]) < 1e-9
     assert rows[1]["ok"] == "0" and rows[1]["reason"] == bad.reason and rows[1]["timestamp_ns"] == "20"
+
+
+def test_trajectory_from_zarr_store_matches_groundtruth(scene, tmp_path):
+    from polycam.lfstore import open_lightfield, write_lightfield
+
+    grid = make_grid(("+z", "-z", "+x"), directions=16)
+    steps = [np.array([0.003, 0.002, -0.002, 0.004, -0.003, 0.002]),
+             np.array([0.004, 0.001, -0.003, 0.005, -0.002, 0.003])]
+    T = [T_from_rt(np.array([0.0, 0.1, 0.0, 0.2, 0.0, -0.1]))]       # not at the world origin
+    for s in steps:
+        T.append(T[-1] @ T_from_rt(s))
+    ts = np.array([0, 33_333_333, 66_666_667], dtype=np.int64)
+    truth = Trajectory(ts, np.stack(T))
+    path = write_lightfield(tmp_path / "lf.zarr", grid, [scene.render(grid, Ti) for Ti in T], ts,
+                            groundtruth=truth)
+    store = open_lightfield(path)
+    traj, results = estimate_trajectory(store)
+    assert all(results)
+    gt = store.groundtruth().rebased()
+    assert np.allclose(traj.T_world_rig[0], np.eye(4))
+    for est, tru in zip(traj.relative(), gt.relative()):
+        assert np.all(rel_errors(est, rt_from_T(tru)) < MOTION_COMBINED_REL_ONE_FACE)
