@@ -1,0 +1,316 @@
+"""The mock driver: a simulated camera array that behaves like real hardware.
+
+It renders the rig's ``[mock]`` table (SPEC.md, rig file):
+
+- ``scene``: ``room`` / ``spheres`` are ray traced with
+  :class:`polycam.synth.CameraArrayRenderer` at the rig's nominal camera models
+  along the ``motion`` trajectory (:func:`polycam.synth.trajectory_for_rig`);
+  ``pattern`` is a cheap moving test pattern for throughput tests: a seeded
+  random-grey checkerboard (40 px squares) that drifts on a circle, seen by
+  each camera with a parallax shift proportional to its position in the rig.
+  In every ``pattern`` image the first 32 pixels of row 0 encode the frame's
+  sequence number in binary (pixel k is 255 when bit k is set, else 0; for
+  ``Y16`` 65535), so tests can check which frame an image is
+  (:func:`pattern_sequence`).
+- ``noise``: Gaussian grey-level noise (std in [0, 1] units), seeded per camera
+  and frame.
+- ``jitter_ms``: Gaussian jitter (std [ms]) of each frame's timestamp around the
+  nominal ``start + i / fps`` (the image stays that of the nominal time).
+- ``drop_rate``: each frame is lost with this probability; its sequence number
+  is used up, so the gap shows as a drop.
+- ``disconnect_after``: camera id → frame count after which that camera
+  reports :class:`~capture.source.CameraLost` and delivers nothing more.
+
+Every random choice comes from a stream seeded by ``[mock] seed``, the camera's
+index and the frame index, so a run is reproducible.
+
+Pacing: in real time (default) frame i of a camera becomes available at
+``start + i / fps`` on ``time.monotonic_ns`` and carries that (jittered)
+timestamp. Like a camera with ``buffers`` kernel buffers, frames not read
+within ``buffers`` frame periods are lost (sequence gap). With
+``realtime=False`` the clock is simulated (timestamps start at
+``start_ns``, default 0) and frames come as fast as they are read, with no loss.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import logging
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from polycam.rig import CameraSpec, MockSpec, Rig
+
+from .source import CameraLost, CaptureError, Frame, FrameSource, Item
+
+__all__ = ["MockSource", "PatternRenderer", "pattern_sequence", "to_pixel_format"]
+
+log = logging.getLogger(__name__)
+
+_SALT_DROP, _SALT_JITTER, _SALT_NOISE, _SALT_PATTERN = 41, 42, 43, 44
+_CODE_BITS = 32
+
+
+def to_pixel_format(grey: np.ndarray, pixel_format: str) -> np.ndarray:
+    """An 8-bit grey image (H, W) in a rig pixel format: ``GREY`` → (H, W) uint8,
+    ``Y16`` → (H, W) uint16 (x 257), ``RGB``/``YUYV``/``MJPG`` → (H, W, 3) uint8 RGB."""
+    if pixel_format == "GREY":
+        return grey
+    if pixel_format == "Y16":
+        return grey.astype(np.uint16) * np.uint16(257)
+    return np.repeat(grey[:, :, None], 3, axis=2)
+
+
+def pattern_sequence(image: np.ndarray) -> int:
+    """The sequence number encoded in a ``pattern`` image (row 0, first 32 pixels)."""
+    row = np.asarray(image)[0, :_CODE_BITS]
+    if row.ndim == 2:
+        row = row[:, 0]
+    half = 32768 if row.dtype == np.uint16 else 128
+    bits = (row >= half).astype(np.int64)
+    return int(np.sum(bits << np.arange(_CODE_BITS)))
+
+
+class PatternRenderer:
+    """The ``pattern`` scene: a drifting random-grey checkerboard with per-camera parallax.
+
+    image(cam index, t [s], sequence) → (H, W) uint8.
+    """
+
+    SQUARE = 40          # [px] checker square
+    DRIFT_PX = 24.0      # [px] radius of the circular drift
+    DRIFT_PERIOD = 4.0   # [s]
+    PARALLAX_PX_PER_M = 400.0  # [px/m] shift per metre of camera offset in the rig
+
+    def __init__(self, cams: list[CameraSpec], seed: int, noise: float):
+        self.cams = cams
+        W = max(c.width for c in cams)
+        H = max(c.height for c in cams)
+        pos = np.stack([c.position for c in cams])
+        self._shift = np.rint(pos[:, :2] * self.PARALLAX_PX_PER_M).astype(int)
+        span = np.abs(self._shift).max(initial=0)
+        m = int(self.DRIFT_PX) + 2 + int(span)
+        self._margin = m
+        rng = np.random.default_rng([seed, _SALT_PATTERN])
+        ny = (H + 2 * m) // self.SQUARE + 2
+        nx = (W + 2 * m) // self.SQUARE + 2
+        levels = rng.integers(30, 226, size=(ny, nx)).astype(np.uint8)
+        tex = np.repeat(np.repeat(levels, self.SQUARE, axis=0), self.SQUARE, axis=1)
+        self._tex = np.ascontiguousarray(tex[:H + 2 * m, :W + 2 * m])
+        self.noise = float(noise)
+        self._noise_field = None
+        if self.noise > 0:
+            nrng = np.random.default_rng([seed, _SALT_NOISE])
+            self._noise_field = np.rint(nrng.normal(0.0, self.noise * 255.0, size=(2 * H, 2 * W))
+                                        ).astype(np.int16)
+        self._seed = seed
+
+    def image(self, k: int, t_s: float, sequence: int) -> np.ndarray:
+        cam = self.cams[k]
+        a = 2.0 * np.pi * t_s / self.DRIFT_PERIOD
+        dx = int(round(self.DRIFT_PX * np.cos(a))) + self._shift[k, 0]
+        dy = int(round(self.DRIFT_PX * np.sin(a))) + self._shift[k, 1]
+        y0, x0 = self._margin + dy, self._margin + dx
+        img = self._tex[y0:y0 + cam.height, x0:x0 + cam.width].copy()
+        if self._noise_field is not None:
+            rng = np.random.default_rng([self._seed, _SALT_NOISE, k, sequence])
+            oy = int(rng.integers(0, cam.height))
+            ox = int(rng.integers(0, cam.width))
+            n = self._noise_field[oy:oy + cam.height, ox:ox + cam.width]
+            img = np.clip(img.astype(np.int16) + n, 0, 255).astype(np.uint8)
+        bits = (int(sequence) >> np.arange(_CODE_BITS)) & 1
+        nb = min(_CODE_BITS, cam.width)
+        img[0, :nb] = (bits[:nb] * 255).astype(np.uint8)
+        return img
+
+
+class _RayTraced:
+    """``room`` / ``spheres``: all cameras rendered at one rig pose per nominal frame time."""
+
+    def __init__(self, rig: Rig, cams: list[CameraSpec], mock: MockSpec, frames: int, supersample: int):
+        from polycam.synth import CameraArrayRenderer, scene_for_rig, trajectory_for_rig
+
+        sub = dataclasses.replace(rig, cameras=tuple(cams))
+        self.trajectory = trajectory_for_rig(sub, frames, seed=mock.seed)
+        self.period_ns = 1e9 / float(cams[0].fps)
+        self.renderer = CameraArrayRenderer(sub, None, scene_for_rig(sub, seed=mock.seed), supersample)
+        self.ids = [c.id for c in cams]
+        self._cache: tuple[int, dict] | None = None
+        self.noise = mock.noise
+        self.seed = mock.seed
+
+    def radiance(self, k: int, t_rel_ns: int) -> np.ndarray:
+        n = len(self.trajectory)
+        i = min(max(int(round(t_rel_ns / self.period_ns)), 0), n - 1)
+        if self._cache is None or self._cache[0] != i:
+            self._cache = (i, self.renderer.render(self.trajectory.T_world_rig[i]))
+        return self._cache[1][self.ids[k]]
+
+
+class MockSource(FrameSource):
+    """Simulated cameras (see the module docstring).
+
+    rig: the rig (its ``[mock]`` table; defaults of :class:`~polycam.rig.MockSpec` without one).
+    cameras: the cameras to simulate (default every camera of the rig).
+    realtime: pace frames on the monotonic clock (else a simulated clock, no loss).
+    frames: stop each camera after this many frames (default: run until stopped).
+    buffers: frames a camera holds before unread ones are lost (real-time only).
+    supersample: rays per pixel side for ``room``/``spheres``.
+    trajectory_frames: length of the ``room``/``spheres`` trajectory when ``frames``
+        is not given (the pose holds still after its end).
+    """
+
+    driver = "mock"
+
+    def __init__(self, rig: Rig, cameras: list[CameraSpec] | None = None, *, realtime: bool = True,
+                 frames: int | None = None, start_ns: int = 0, buffers: int = 4, supersample: int = 1,
+                 trajectory_frames: int = 900, clock: Callable[[], int] = time.monotonic_ns,
+                 sleep: Callable[[float], None] = time.sleep):
+        self.rig = rig
+        self.cams = list(cameras if cameras is not None else rig.cameras)
+        if not self.cams:
+            raise CaptureError(f"{rig.path or rig.name}: no cameras for the mock driver")
+        self.cameras = tuple(c.id for c in self.cams)
+        self.mock = rig.mock if rig.mock is not None else MockSpec()
+        self.realtime = bool(realtime)
+        self.frames = frames
+        self.start_ns = int(start_ns)
+        self.buffers = max(1, int(buffers))
+        self.supersample = supersample
+        self.trajectory_frames = trajectory_frames
+        self._clock = clock
+        self._sleep = sleep
+        self._started = False
+        self.finished = False
+        self._renderer: Any = None
+
+    # -- life cycle
+
+    def start(self) -> None:
+        if self._started:
+            return
+        m = self.mock
+        if m.scene == "pattern":
+            self._renderer = PatternRenderer(self.cams, m.seed, m.noise)
+        else:
+            n = self.frames if self.frames is not None else self.trajectory_frames
+            self._renderer = _RayTraced(self.rig, self.cams, m, max(int(n), 1), self.supersample)
+        self._t0 = self._clock() + 1_000_000 if self.realtime else self.start_ns  # [ns]
+        idx = {c.id: i for i, c in enumerate(self.rig.cameras)}
+        self._rig_index = [idx.get(c.id, i) for i, c in enumerate(self.cams)]
+        self._period = [1e9 / float(c.fps) for c in self.cams]
+        self._next = [0] * len(self.cams)            # next frame index per camera
+        self._last_ts = [-1] * len(self.cams)
+        self._gone = [False] * len(self.cams)
+        self._drop_rng = [np.random.default_rng([m.seed, _SALT_DROP, r]) for r in self._rig_index]
+        self._jit_rng = [np.random.default_rng([m.seed, _SALT_JITTER, r]) for r in self._rig_index]
+        self._started = True
+        log.info("mock: %d cameras, scene %s, %s", len(self.cams), m.scene,
+                 "real time" if self.realtime else "as fast as possible")
+
+    def stop(self) -> None:
+        self._started = False
+
+    def info(self) -> dict[str, Any]:
+        m = self.mock
+        return {"mock": {"scene": m.scene, "motion": m.motion, "seed": m.seed, "noise": m.noise,
+                         "jitter_ms": m.jitter_ms, "drop_rate": m.drop_rate,
+                         "realtime": self.realtime}}
+
+    # -- frames
+
+    def _nominal(self, k: int, i: int) -> int:
+        return self._t0 + int(round(i * self._period[k]))
+
+    def _due(self, now: int | None) -> list[tuple[int, int, int]]:
+        """(nominal time, camera k, frame i) of the frames to deliver now, in time order."""
+        events: list[tuple[int, int, int]] = []
+        for k in range(len(self.cams)):
+            if self._gone[k]:
+                continue
+            i = self._next[k]
+            if self.frames is not None and i >= self.frames:
+                continue
+            events.append((self._nominal(k, i), k, i))
+        if not events:
+            return []
+        if now is None:  # simulated clock: the earliest nominal time, all cameras sharing it
+            t = min(e[0] for e in events)
+            return sorted(e for e in events if e[0] == t)
+        out: list[tuple[int, int, int]] = []
+        for _, k, i in events:
+            # frames whose time has come; those older than `buffers` periods were overwritten
+            last = int((now - self._t0) // self._period[k])
+            if self.frames is not None:
+                last = min(last, self.frames - 1)
+            first = max(i, last - self.buffers + 1)
+            for j in range(first, last + 1):
+                out.append((self._nominal(k, j), k, j))
+            if first > i:
+                self._skip(k, i, first)
+        heapq.heapify(out)
+        return [heapq.heappop(out) for _ in range(len(out))]
+
+    def _skip(self, k: int, i: int, first: int) -> None:
+        """Frames i..first-1 of camera k were never read: lost (their draws still consumed)."""
+        for _ in range(i, first):
+            self._drop_rng[k].random()
+            self._jit_rng[k].normal()
+        self._next[k] = first
+
+    def read(self, timeout: float) -> list[Item]:
+        if not self._started:
+            raise RuntimeError("MockSource.read before start")
+        if self.realtime:
+            due = self._due(self._clock())
+            if not due:
+                nxt = [self._nominal(k, self._next[k]) for k in range(len(self.cams)) if not self._gone[k]
+                       and (self.frames is None or self._next[k] < self.frames)]
+                if not nxt:
+                    self.finished = True
+                    return []
+                wait = (min(nxt) - self._clock()) / 1e9
+                if wait > timeout:
+                    if timeout > 0:
+                        self._sleep(timeout)
+                    return []
+                if wait > 0:
+                    self._sleep(wait)
+                due = self._due(self._clock())
+        else:
+            due = self._due(None)
+            if not due:
+                self.finished = True
+                return []
+        return [it for ev in due if (it := self._make(*ev)) is not None]
+
+    def _make(self, t_nom: int, k: int, i: int) -> Item | None:
+        cam = self.cams[k]
+        m = self.mock
+        self._next[k] = i + 1
+        limit = m.disconnect_after.get(cam.id)
+        if limit is not None and i >= limit:
+            self._gone[k] = True
+            last = self._last_ts[k]
+            return CameraLost(cam.id, "disconnected (mock disconnect_after)", last if last >= 0 else None)
+        drop = self._drop_rng[k].random() < m.drop_rate
+        jit = self._jit_rng[k].normal() * m.jitter_ms * 1e6
+        if drop:
+            return None
+        ts = max(int(round(t_nom + jit)), self._last_ts[k] + 1, 0)
+        self._last_ts[k] = ts
+        t_rel = t_nom - self._t0
+        if isinstance(self._renderer, PatternRenderer):
+            grey = self._renderer.image(k, t_rel / 1e9, i)
+        else:
+            from polycam.synth import quantize
+
+            rad = self._renderer.radiance(k, t_rel)
+            rng = np.random.default_rng([m.seed, _SALT_NOISE, self._rig_index[k], i]) if m.noise > 0 else None
+            if cam.pixel_format == "Y16":
+                return Frame(cam.id, ts, i, quantize(rad, 16, m.noise, rng))
+            grey = quantize(rad, 8, m.noise, rng)
+        return Frame(cam.id, ts, i, to_pixel_format(grey, cam.pixel_format))
