@@ -204,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="scene (default: the rig's [mock] scene, else room)")
     pss.add_argument("--frames", type=_positive_int, default=10)
     pss.add_argument("--out", required=True, help="output session folder")
-    pss.add_argument("--seed", type=int, default=0)
+    pss.add_argument("--seed", type=int, default=None, help="default: the rig's [mock] seed, else 0")
     pss.add_argument("--board", help="BOARD.toml: render a calibration-board session instead")
     pss.add_argument("--supersample", type=_positive_int, default=2, help="k x k rays per pixel (default 2)")
     pss.add_argument("--bit-depth", type=int, choices=(8, 16), default=8)
