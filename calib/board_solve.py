@@ -1,0 +1,383 @@
+"""Board calibration with mrcal: seed, staged joint solve of every camera's intrinsics and
+extrinsics, rig-frame alignment, and cameramodels that keep their ``optimization_inputs``.
+
+Pipeline (:func:`calibrate_board`), all mrcal's own machinery:
+
+1. Camera graph: cameras that saw the board in the same frame (>= 2 shared
+   frames, mrcal's own threshold for a usable link). A camera with no board
+   views, or one not connected to the others, is an :class:`InputError`
+   naming it.
+2. Seed: ``mrcal.seed_stereographic`` (monocular PnP per view with a
+   stereographic core from the rig file's ``fov_deg``, relative camera poses
+   along ``mrcal.traverse_sensor_links``, board poses from
+   ``mrcal.estimate_joint_frame_poses``).
+3. Staged ``mrcal.optimize`` (as ``mrcal-calibrate-cameras`` does): geometry
+   only, then the stereographic core, then the full lens model (OPENCV4/5/8,
+   or splined stereographic with its core locked) with outlier rejection and
+   regularisation, and a last pass that also fits the board's flex
+   (``calobject_warp``) unless disabled.
+4. Rig frame: the solve's reference is camera 0; :func:`calib.align.fit_rig_frame`
+   rigidly maps the solved cameras onto the rig file's nominal poses, and each
+   model stores ``rt_cam_ref = T_cam_rig``. The ``optimization_inputs`` stay in
+   the solve's frame (mrcal's uncertainty and diff tools only need the camera
+   frame), so ``mrcal-show-projection-uncertainty`` etc. work on the files.
+
+Board frames: mrcal's board origin is the first inner corner; OpenCV's (and
+polycam's, :mod:`polycam.board`) is the outer corner of the first square, so a
+point ``p_cv = p_mrcal + (s, s, 0)`` for square length ``s``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from polycam.errors import InputError, PolycamError
+from polycam.geometry import T_from_rt, T_inverse, rt_from_T
+from polycam.rig import Rig
+
+from .align import RigFit, fit_rig_frame
+from .detect import BoardObservations
+
+__all__ = [
+    "LENSMODEL_CHOICES",
+    "lensmodel_name",
+    "camera_graph",
+    "BoardCalibration",
+    "CameraStats",
+    "calibrate_board",
+    "observation_residuals",
+    "board_distance",
+]
+
+log = logging.getLogger(__name__)
+
+LENSMODEL_CHOICES = ("opencv4", "opencv5", "opencv8", "splined")
+"""Short lens-model names accepted by :func:`lensmodel_name` (or a full ``LENSMODEL_...``)."""
+
+MIN_SHARED_FRAMES = 2
+"""Frames two cameras must share for a link in the camera graph (mrcal's seeding needs 2)."""
+
+
+def _mrcal():
+    import mrcal  # lazily: heavy
+
+    return mrcal
+
+
+def lensmodel_name(name: str, fov_x_deg: float = 90.0, spline_knots: tuple[int, int] = (16, 12)) -> str:
+    """Full mrcal lens-model string for a short name (:data:`LENSMODEL_CHOICES`) or a full one.
+
+    ``splined`` → ``LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=<fov_x_deg>``.
+    """
+    n = name.strip()
+    if n.upper().startswith("LENSMODEL_"):
+        try:
+            _mrcal().lensmodel_num_params(n)
+        except Exception:
+            raise InputError(f"unknown mrcal lens model {n!r}") from None
+        return n
+    key = n.lower()
+    if key in ("opencv4", "opencv5", "opencv8"):
+        return f"LENSMODEL_OPENCV{key[-1]}"
+    if key == "splined":
+        Nx, Ny = spline_knots
+        return f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx={Nx}_Ny={Ny}_fov_x_deg={int(math.ceil(fov_x_deg))}"
+    raise InputError(f"unknown lens model {name!r} (choose one of {', '.join(LENSMODEL_CHOICES)} "
+                     "or a full mrcal LENSMODEL_... name)")
+
+
+def camera_graph(indices_frame_camera: np.ndarray, n_cameras: int) -> np.ndarray:
+    """(C, C) int: number of frames in which cameras i and j both saw the board (0 diagonal)."""
+    idx = np.asarray(indices_frame_camera)
+    frames = np.unique(idx[:, 0])
+    seen = np.zeros((frames.size, n_cameras), dtype=np.int64)
+    seen[np.searchsorted(frames, idx[:, 0]), idx[:, 1]] = 1
+    shared = seen.T @ seen
+    np.fill_diagonal(shared, 0)
+    return shared
+
+
+def _components(adjacent: np.ndarray) -> list[list[int]]:
+    """Connected components (lists of indices) of a boolean adjacency matrix, largest first."""
+    n = adjacent.shape[0]
+    label = -np.ones(n, int)
+    comps = []
+    for s in range(n):
+        if label[s] >= 0:
+            continue
+        stack, comp = [s], []
+        label[s] = len(comps)
+        while stack:
+            i = stack.pop()
+            comp.append(i)
+            for j in np.flatnonzero(adjacent[i]):
+                if label[j] < 0:
+                    label[j] = len(comps)
+                    stack.append(j)
+        comps.append(sorted(comp))
+    return sorted(comps, key=lambda c: (-len(c), c[0]))
+
+
+def _check_graph(obs: BoardObservations) -> np.ndarray:
+    """The shared-frames matrix; raises InputError for cameras without views or links."""
+    mrcal = _mrcal()
+    C = len(obs.cameras)
+    n_views = np.bincount(obs.indices_frame_camera[:, 1], minlength=C)
+    blind = [obs.cameras[i] for i in range(C) if n_views[i] == 0]
+    if blind:
+        detail = "; ".join(
+            f"{c}: " + ", ".join(f"{v} {k}" for k, v in obs.counts.get(c, {}).items() if v and k != "used")
+            for c in blind)
+        raise InputError(f"no usable board view in camera(s) {', '.join(blind)} ({detail})")
+    shared = camera_graph(obs.indices_frame_camera, C)
+    if C == 1:
+        return shared
+    links = np.where(shared >= MIN_SHARED_FRAMES, shared, 0).astype(np.uint16)
+    reached = {0}
+    mrcal.traverse_sensor_links(connectivity_matrix=links,
+                                callback_sensor_link=lambda to, frm: reached.add(int(to)) or True)
+    if len(reached) < C:
+        comps = _components(links > 0)
+        groups = " | ".join("{" + ", ".join(obs.cameras[i] for i in c) + "}" for c in comps)
+        lonely = [obs.cameras[i] for i in range(C) if i not in reached]
+        raise InputError(f"cameras not connected through shared board views (>= {MIN_SHARED_FRAMES} frames "
+                         f"seen together): {', '.join(lonely)} cannot be tied to {obs.cameras[0]}; "
+                         f"groups: {groups}")
+    return shared
+
+
+@dataclass(frozen=True)
+class CameraStats:
+    """Residual statistics of one camera after the solve."""
+
+    views: int
+    """Board views used."""
+    corners: int
+    """Corner observations (inliers)."""
+    outliers: int
+    """Corner observations rejected as outliers."""
+    rms_px: float
+    """[px] RMS of the inlier reprojection errors per coordinate (mrcal's convention:
+    sqrt(mean(ex^2 + ey^2) / 2))."""
+    worst_px: float
+    """[px] largest inlier reprojection error."""
+    worst_path: str
+    """Image holding the worst inlier."""
+
+
+@dataclass
+class BoardCalibration:
+    """Result of :func:`calibrate_board`."""
+
+    cameras: list[str]
+    models: dict
+    """Camera id → mrcal.cameramodel (rt_cam_ref = T_cam_rig, with optimization_inputs)."""
+    lensmodel: str
+    optimization_inputs: dict
+    """The final mrcal problem (reference frame = camera 0's)."""
+    rig_fit: RigFit
+    """Alignment of the solve to the rig file's nominal poses."""
+    shared_frames: np.ndarray
+    """(C, C) frames each pair of cameras saw the board in together (the camera graph)."""
+    rms_px: float
+    """[px] overall RMS reprojection error per coordinate (inliers, mrcal's convention)."""
+    stats: dict[str, CameraStats]
+    observations: BoardObservations
+    frames: np.ndarray
+    """(F,) session frame index of each solved board pose."""
+    stages: list[tuple[str, float]] = field(default_factory=list)
+    """(stage name, RMS [px] after it) of the staged solve."""
+
+    @property
+    def T_rig_cam(self) -> dict[str, np.ndarray]:
+        """Camera id → (4, 4) solved pose in the rig frame."""
+        return {c: T_inverse(T_from_rt(m.rt_cam_ref())) for c, m in self.models.items()}
+
+
+def observation_residuals(inputs: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Unweighted reprojection errors of every board corner of a solved mrcal problem.
+
+    Returns (err (N, H, W, 2) [px] projected − observed, weight (N, H, W); < 0 where the
+    corner was not seen or is an outlier).
+    """
+    mrcal = _mrcal()
+    obs = inputs["observations_board"]
+    idx = inputs["indices_frame_camintrinsics_camextrinsics"]
+    H, W = obs.shape[1:3]
+    pts = mrcal.ref_calibration_object(W, H, inputs["calibration_object_spacing"],
+                                       calobject_warp=inputs.get("calobject_warp"))
+    p_ref = mrcal.transform_point_rt(inputs["rt_ref_frame"][idx[:, 0]][:, None, None, :], pts)
+    rt_cam_ref = np.zeros((len(idx), 6))
+    has_ext = idx[:, 2] >= 0
+    if np.any(has_ext):
+        rt_cam_ref[has_ext] = inputs["rt_cam_ref"][idx[has_ext, 2]]
+    p_cam = mrcal.transform_point_rt(rt_cam_ref[:, None, None, :], p_ref)
+    q = np.empty(p_cam.shape[:-1] + (2,))
+    for ci in np.unique(idx[:, 1]):
+        sel = idx[:, 1] == ci
+        q[sel] = mrcal.project(np.ascontiguousarray(p_cam[sel]), inputs["lensmodel"], inputs["intrinsics"][ci])
+    return q - obs[..., :2], obs[..., 2]
+
+
+def _stats(inputs: dict, obs: BoardObservations, initial_weight: np.ndarray) -> tuple[float, dict]:
+    err, w = observation_residuals(inputs)
+    e = np.linalg.norm(err, axis=-1)
+    idx = inputs["indices_frame_camintrinsics_camextrinsics"]
+    inl = w > 0
+    out = {}
+    for ci, cam in enumerate(obs.cameras):
+        sel = idx[:, 1] == ci
+        ei, mi = e[sel], inl[sel]
+        vals = ei[mi]
+        rms = float(np.sqrt(np.mean(vals**2) / 2.0)) if vals.size else float("nan")
+        if vals.size:
+            k = int(np.argmax(np.where(mi, ei, -1).reshape(len(ei), -1).max(axis=1)))
+            worst = float(vals.max())
+            worst_path = obs.paths[int(np.flatnonzero(sel)[k])]
+        else:
+            worst, worst_path = float("nan"), ""
+        outl = int(np.count_nonzero((initial_weight[sel] > 0) & ~mi))
+        out[cam] = CameraStats(views=int(sel.sum()), corners=int(mi.sum()), outliers=outl, rms_px=rms,
+                               worst_px=worst, worst_path=worst_path)
+    allv = e[inl]
+    return float(np.sqrt(np.mean(allv**2) / 2.0)), out
+
+
+def _focal_estimates(obs: BoardObservations, rig: Rig | None) -> np.ndarray:
+    f = []
+    for cam, (W, _H) in zip(obs.cameras, obs.imagersizes):
+        fov = rig.camera(cam).fov_deg if rig is not None else 60.0
+        f.append((W / 2.0) / math.tan(math.radians(fov) / 2.0))
+    return np.array(f)
+
+
+def board_distance(inputs: dict) -> float:
+    """[m] median distance from the reference camera to the solved board poses."""
+    return float(np.median(np.linalg.norm(inputs["rt_ref_frame"][:, 3:], axis=1)))
+
+
+def _valid_region(model, rms_px: float, distance: float):
+    """mrcal's valid-intrinsics region contour (N, 2) of a solved model, or None if unavailable."""
+    try:
+        from mrcal.calibration import _compute_valid_intrinsics_region  # mrcal-calibrate-cameras' own
+    except ImportError:
+        return None
+    try:
+        return _compute_valid_intrinsics_region(model, 1.0 * rms_px, 0.5, 1.5 * rms_px, 3, distance)
+    except Exception as e:  # uncertainty can fail for degenerate solves: report, don't die
+        log.warning("valid-intrinsics region not computed: %s", str(e).strip().splitlines()[0] if str(e) else e)
+        return None
+
+
+def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str = "opencv8",
+                    board_warp: bool = True, outlier_rejection: bool = True, valid_region: bool = True,
+                    seed: int = 0) -> BoardCalibration:
+    """Jointly calibrate every camera of ``obs`` (intrinsics and rig-frame extrinsics) with mrcal.
+
+    obs: detections (:func:`calib.detect.detect_session`).
+    rig: the session's rig (nominal poses define the rig frame; ``fov_deg`` seeds the focal
+        lengths). None: keep camera 0 as the reference frame.
+    lensmodel: a :data:`LENSMODEL_CHOICES` name or a full mrcal lens-model string.
+    board_warp: also fit the board's flex in a last stage.
+    valid_region: store mrcal's valid-intrinsics region in each model (where the projection
+        uncertainty at the median board distance is below the RMS residual and the residuals are unbiased, with
+        ``mrcal-calibrate-cameras``' default thresholds).
+    seed: seeds the tiny random distortion start values (mrcal-calibrate-cameras does the same).
+    """
+    mrcal = _mrcal()
+    C = len(obs.cameras)
+    shared = _check_graph(obs)
+
+    # contiguous frame indices, observations sorted by (frame, camera) as mrcal requires
+    order = np.lexsort((obs.indices_frame_camera[:, 1], obs.indices_frame_camera[:, 0]))
+    obs = obs.subset(np.ones(len(order), bool))
+    obs.observations = np.ascontiguousarray(obs.observations[order])
+    obs.indices_frame_camera = np.ascontiguousarray(obs.indices_frame_camera[order])
+    obs.paths = [obs.paths[i] for i in order]
+    frames, iframe = np.unique(obs.indices_frame_camera[:, 0], return_inverse=True)
+    ifc = np.stack([iframe, obs.indices_frame_camera[:, 1]], axis=1).astype(np.int32)
+    observations = obs.observations.copy()
+    initial_weight = observations[..., 2].copy()
+    imagersizes = np.asarray(obs.imagersizes, np.int32)
+    spacing = obs.object_spacing
+
+    try:
+        intrinsics, rt_cam_ref, rt_ref_frame = mrcal.seed_stereographic(
+            imagersizes=imagersizes, focal_estimate=_focal_estimates(obs, rig), indices_frame_camera=ifc,
+            observations=observations, object_spacing=spacing, paths=obs.paths)
+    except Exception as e:  # mrcal raises bare Exceptions for unusable seeds
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise PolycamError(f"calibration seed failed: {msg}") from None
+    rt_cam_ref = np.ascontiguousarray(np.reshape(rt_cam_ref, (-1, 6)))
+    ifcc = np.concatenate([ifc, ifc[:, 1:2] - 1], axis=1).astype(np.int32)
+
+    inputs = dict(intrinsics=np.ascontiguousarray(intrinsics, dtype=float), rt_cam_ref=rt_cam_ref,
+                  rt_ref_frame=np.ascontiguousarray(rt_ref_frame), points=None,
+                  observations_board=observations, indices_frame_camintrinsics_camextrinsics=ifcc,
+                  observations_point=None, indices_point_camintrinsics_camextrinsics=None,
+                  lensmodel="LENSMODEL_STEREOGRAPHIC", imagersizes=imagersizes, calobject_warp=None,
+                  do_optimize_intrinsics_core=False, do_optimize_intrinsics_distortions=False,
+                  do_optimize_extrinsics=True, do_optimize_frames=True, do_optimize_calobject_warp=False,
+                  calibration_object_spacing=spacing, do_apply_outlier_rejection=False,
+                  do_apply_regularization=False, verbose=False, imagepaths=list(obs.paths))
+    stages: list[tuple[str, float]] = []
+
+    def run(name: str, **changes) -> None:
+        inputs.update(changes)
+        st = mrcal.optimize(**inputs)
+        stages.append((name, float(st["rms_reproj_error__pixels"])))
+        log.info("calibrate: %s: RMS %.3f px, %d outliers", name, stages[-1][1], int(st.get("Noutliers", 0)))
+
+    run("geometry")
+    run("stereographic core", do_optimize_intrinsics_core=True)
+
+    # the full lens model
+    core = inputs["intrinsics"]
+    W0 = float(imagersizes[:, 0].max())
+    fov_x = 2.0 * math.degrees(2.0 * math.atan((W0 / 2.0) / (2.0 * float(np.min(core[:, 0])))))
+    full = lensmodel_name(lensmodel, fov_x_deg=min(fov_x * 1.1 + 2.0, 179.0))
+    nparams = mrcal.lensmodel_num_params(full)
+    rng = np.random.default_rng(seed)
+    extra = (rng.random((C, nparams - 4)) - 0.5) * 2e-6
+    splined = full.startswith("LENSMODEL_SPLINED")
+    m = re.match(r"LENSMODEL_OPENCV(\d+)", full)
+    if m and int(m.group(1)) >= 8:
+        extra[:, 5:8] *= 1e-3        # keep the rational denominator near 1 at the start
+    if splined:
+        extra[:] = 0.0
+    run(f"{full}", intrinsics=np.ascontiguousarray(np.concatenate([core, extra], axis=1)), lensmodel=full,
+        do_optimize_intrinsics_core=not splined, do_optimize_intrinsics_distortions=True,
+        do_apply_outlier_rejection=outlier_rejection, do_apply_regularization=True)
+    if board_warp:
+        run("board warp", calobject_warp=np.zeros(2), do_optimize_calobject_warp=True)
+
+    rms, stats = _stats(inputs, obs, initial_weight)
+
+    # rig frame
+    T_ref_cam = np.stack([np.eye(4)] + [T_inverse(T_from_rt(r)) for r in inputs["rt_cam_ref"]])
+    if rig is not None:
+        nominal = np.stack([rig.camera(c).T_rig_cam for c in obs.cameras])
+        rig_fit = fit_rig_frame(T_ref_cam, nominal)
+    else:
+        rig_fit = fit_rig_frame(T_ref_cam[:1], np.eye(4)[None])
+    T_ref_rig = T_inverse(rig_fit.T_rig_ref)
+    models = {}
+    for ci, cam in enumerate(obs.cameras):
+        model = mrcal.cameramodel(optimization_inputs=inputs, icam_intrinsics=ci)
+        model.rt_cam_ref(rt_from_T(T_inverse(T_ref_cam[ci]) @ T_ref_rig))
+        if valid_region:
+            region = _valid_region(model, rms, board_distance(inputs))
+            if region is not None:
+                model.valid_intrinsics_region(region)
+        models[cam] = model
+    log.info("calibrate: %d cameras, %d views, RMS %.3f px; rig fit residuals %.2f mm / %.3f deg RMS", C,
+             len(ifc), rms, 1e3 * float(np.sqrt(np.mean(rig_fit.position_residuals_m**2))),
+             math.degrees(float(np.sqrt(np.mean(rig_fit.rotation_residuals_rad**2)))))
+    return BoardCalibration(cameras=list(obs.cameras), models=models, lensmodel=full, optimization_inputs=inputs,
+                            rig_fit=rig_fit, shared_frames=shared, rms_px=rms, stats=stats, observations=obs,
+                            frames=frames, stages=stages)
