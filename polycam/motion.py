@@ -654,7 +654,7 @@ class _Level:
 
 
 def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict) -> list[_Level]:
-    """Levels finest first. (u, v) are halved while ≥ 16 samples remain; (x, y) only with
+    """Levels finest first. (u, v) are halved while ≥ 32 samples remain; (x, y) only with
     ``pyramid_xy`` and while the halved axis still leaves valid derivative samples."""
     levels = [_Level(grid, L0, L1, W0, W1)]
     for _ in range(opts.levels - 1):
@@ -700,7 +700,7 @@ def _robust_weights(res: np.ndarray, scale: float, kind: str, c: float) -> np.nd
     return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
 
 
-def _weighted_mad(res: np.ndarray, w: np.ndarray, max_samples: int = 400_000) -> float:
+def _weighted_mad(res: np.ndarray, w: np.ndarray, max_samples: int = 50_000) -> float:
     """1.4826 × weighted median of |res| over w > 0 (on a regular subsample of at most
     ``max_samples`` rays: the scale needs no more precision)."""
     m = (w > 0).reshape(-1)
@@ -940,7 +940,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         finest = li == 0
         for it in range(opts.iterations):
             solver.prepare(M)
-            sol = solver.solve(final=finest)
+            sol = solver.solve(final=True)
             n_solves += 1
             p = sol["p"]
             if not np.all(np.isfinite(p)):        # cannot happen with finite input; be safe
@@ -948,10 +948,11 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
             H = _T_sqrt(M) if opts.symmetric else M
             D = T_from_Rt(R_from_r(p[3:]), p[:3])
             M = H @ T_inverse(D) @ H if opts.symmetric else T_inverse(D) @ M
-            if finest:
-                diag = (sol, _increment_covariance(sol, solver), H)
+            diag = (sol, _increment_covariance(sol, solver), H)
+            if finest or it >= 1:
                 # Stop once the increment is within the noise: re-warping noisy data
-                # only makes the estimate wander (it re-samples the noise).
+                # only makes the estimate wander (it re-samples the noise). Coarse
+                # levels always take two steps.
                 C = diag[1][0]
                 chi2 = float(p @ np.linalg.pinv(C) @ p) if np.all(np.isfinite(C)) else math.inf
                 if chi2 < _CHI2_STOP or np.linalg.norm(p[:3]) + np.linalg.norm(p[3:]) < opts.tol:
