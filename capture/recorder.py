@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import shutil
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -160,17 +161,19 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     sync = Synchronizer(tuple(ids), tol, wait)
     stop_event = stop_event or threading.Event()
 
-    source.start()  # before the session exists: a missing device leaves no empty folder
     session = None
-    try:
-        if out is not None:
-            if writer_factory is None:
-                from polycam.session import SessionWriter
+    if out is not None:
+        if writer_factory is None:
+            from polycam.session import SessionWriter
 
-                writer_factory = SessionWriter
-            session = writer_factory(out, rig, overwrite=overwrite)
+            writer_factory = SessionWriter
+        session = writer_factory(out, rig, overwrite=overwrite)
+    try:
+        source.start()  # after the session exists: no frame is lost to setting it up
     except BaseException:
-        source.stop()
+        if session is not None:  # nothing recorded: leave no empty session behind
+            session.close("incomplete")
+            shutil.rmtree(out, ignore_errors=True)
         raise
     q: queue.Queue = queue.Queue(maxsize=queue_frames)
     failed = threading.Event()

@@ -1,0 +1,99 @@
+"""The live capture display (per-camera fps, drops, sync spread) and the end-of-run summary.
+
+On a terminal, :class:`LiveDisplay` redraws a rich table on stderr; otherwise
+it writes one status line to stderr every ``interval`` seconds. The summary
+is plain text for stdout.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from .stats import CaptureStats
+
+__all__ = ["LiveDisplay", "summary"]
+
+
+def _table(stats: CaptureStats, title: str):
+    from rich.table import Table
+
+    snap = stats.snapshot()
+    sp = snap["spread_ms"]
+    t = Table(title=title, caption=f"multi-frames {snap['multiframes']} (written {snap['written']}, "
+              f"complete {snap['complete']}) · spread p50 {sp['p50']:.2f} ms p99 {sp['p99']:.2f} ms · "
+              f"writer queue {snap['queue']}/{snap['queue_size']} · {snap['duration_s']:.1f} s",
+              title_justify="left", caption_justify="left")
+    for col in ("camera", "fps", "frames", "dropped", "late", "overflow", "missing", "state"):
+        t.add_column(col, justify="left" if col in ("camera", "state") else "right")
+    for cam, c in snap["cameras"].items():
+        bad = c["dropped"] + c["late"] + c["overflow"]
+        t.add_row(cam, f"{c['fps']:.1f}", str(c["received"]), str(c["dropped"]), str(c["late"]),
+                  str(c["overflow"]), str(c["missing"]),
+                  f"[red]lost: {c['lost']}[/red]" if c["lost"] else ("[yellow]drops[/yellow]" if bad else "ok"))
+    return t
+
+
+class LiveDisplay:
+    """Callable for :func:`capture.recorder.record`'s ``on_update``; use as a context manager."""
+
+    def __init__(self, title: str, enabled: bool = True, interval: float = 5.0, stream=None):
+        self.title = title
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = enabled and self.stream.isatty()
+        self.enabled = enabled
+        self.interval = interval
+        self._live = None
+        self._last = 0.0
+
+    def __enter__(self) -> "LiveDisplay":
+        if self.tty:
+            from rich.console import Console
+            from rich.live import Live
+
+            self._live = Live(console=Console(file=self.stream), refresh_per_second=4, transient=False)
+            self._live.__enter__()
+        return self
+
+    def __call__(self, stats: CaptureStats) -> None:
+        if not self.enabled:
+            return
+        if self._live is not None:
+            self._live.update(_table(stats, self.title))
+            return
+        now = time.monotonic()
+        if now - self._last >= self.interval:
+            self._last = now
+            s = stats.snapshot()
+            fps = [c["fps"] for c in s["cameras"].values()]
+            drops = sum(c["dropped"] + c["late"] + c["overflow"] for c in s["cameras"].values())
+            print(f"{self.title}: {s['written']} frames written, fps {min(fps, default=0):.1f}-"
+                  f"{max(fps, default=0):.1f}, drops {drops}, spread p99 {s['spread_ms']['p99']:.2f} ms",
+                  file=self.stream, flush=True)
+
+    def __exit__(self, *exc) -> None:
+        if self._live is not None:
+            self._live.__exit__(*exc)
+            self._live = None
+
+
+def summary(stats: CaptureStats, where: str, status: str) -> str:
+    """End-of-run text: totals, drops, spread percentiles, problem cameras."""
+    sp = stats.spread_percentiles_ms()
+    lines = [f"{where}: {stats.written} multi-frames from {len(stats.cameras)} cameras in "
+             f"{stats.duration_s:.1f} s (stopped by {stats.stopped_by}; status {status})",
+             f"  complete multi-frames {stats.complete}/{stats.multiframes}; sync spread p50 {sp['p50']:.3f} ms, "
+             f"p90 {sp['p90']:.3f} ms, p99 {sp['p99']:.3f} ms, max {sp['max']:.3f} ms "
+             f"(tolerance {stats.tolerance_ns / 1e6:.2f} ms)",
+             f"  frames lost: {stats.total_dropped} (driver drops, late, queue overflow, unwritten)"]
+    for cam, c in stats.per_camera.items():
+        bad = c.dropped + c.late + c.overflow + c.unwritten
+        if bad or c.missing or c.lost:
+            what = [f"{c.received} received", f"{c.recorded} recorded", f"{c.fps:.2f} fps"]
+            for name in ("dropped", "late", "overflow", "unwritten", "missing"):
+                if getattr(c, name):
+                    what.append(f"{getattr(c, name)} {name}")
+            if c.lost:
+                what.append(f"lost after {c.lost_after_frames} frames ({c.lost})")
+            lines.append(f"  {cam}: " + ", ".join(what))
+    return "\n".join(lines)
