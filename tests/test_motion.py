@@ -20,7 +20,8 @@ from polycam.derivatives import plenoptic_derivatives
 from polycam.trajectory import Trajectory
 
 from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
-                        MOTION_COV_RATIO_MIN, MOTION_PURE_LEAK, MOTION_PURE_REL, MOTION_SPHERES_REL)
+                        MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_PURE_LEAK, MOTION_PURE_REL,
+                        MOTION_SPHERES_REL)
 
 ROOM_RADIUS = 6.0
 
@@ -362,3 +363,31 @@ def test_trajectory_from_zarr_store_matches_groundtruth(scene, tmp_path):
     assert np.allclose(traj.T_world_rig[0], np.eye(4))
     for est, tru in zip(traj.relative(), gt.relative()):
         assert np.all(rel_errors(est, rt_from_T(tru)) < MOTION_COMBINED_REL_ONE_FACE)
+
+
+@pytest.mark.parametrize("with_motion", [False, True], ids=["stereo", "stereo+motion"])
+def test_depth_inside_textured_sphere(scene, with_motion):
+    from polycam.depth import depth_from_derivatives
+
+    grid = make_grid(("+z", "-y"), views=5, directions=32)
+    M = T_from_rt(np.array([0.002, -0.003, 0.001, 0.006, 0.004, -0.005]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
+    der = plenoptic_derivatives(L0, L1, grid, filters={"x": "fs3", "y": "fs3"})
+    dm = depth_from_derivatives(der, grid, T_prev_next=M if with_motion else None)
+    # truth: depth along the face z from the focal plane to the room sphere (rig at the origin)
+    truth = np.empty(grid.shape)
+    for k, face in enumerate(grid.faces):
+        rays = grid.face_rays(k)
+        o, d = rays.origins, rays.directions
+        b = np.sum(o * d, -1)
+        s = -b + np.sqrt(b * b - (np.sum(o * o, -1) - ROOM_RADIUS**2))
+        truth[k] = s * (d @ face.R_rig_face)[..., 2]
+    good = np.isfinite(dm.Z) & (dm.confidence > np.nanpercentile(dm.confidence[dm.confidence > 0], 50))
+    rel = np.abs(dm.Z[good] / truth[good] - 1)
+    assert good.sum() > 1000
+    assert np.median(rel) < MOTION_DEPTH_MEDIAN_REL
+    assert np.all(dm.consistency >= 0) and np.all(dm.consistency <= 1)
+    assert np.allclose(dm.range_along_ray(grid)[good] / dm.Z[good],
+                       np.broadcast_to(np.sqrt(1 + (np.meshgrid(grid.v.values, grid.u.values, indexing="ij")[0] ** 2
+                                                    + np.meshgrid(grid.v.values, grid.u.values, indexing="ij")[1] ** 2)
+                                               / 60.0**2), grid.shape)[good], rtol=1e-5)
