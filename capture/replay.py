@@ -68,22 +68,16 @@ class ReplaySource(FrameSource):
         self._sleep = sleep
         self._batch = batch
         self.finished = False
-        self.session = None
-        if self._map is not None:
-            self.cameras = tuple(self._map)
-        elif not isinstance(session, (str, os.PathLike)):
-            self.cameras = tuple(session.cameras)
-        else:
-            self.cameras = ()  # known after start()
+        if isinstance(session, (str, os.PathLike)):
+            from polycam.session import open_session
+
+            session = open_session(session)  # validates the session (a file, not a device)
+        self.session = session
+        if self._map is None:
+            self._map = {c: c for c in session.cameras}
+        self.cameras = tuple(self._map)
 
     def start(self) -> None:
-        from polycam.session import open_session
-
-        s = self._session_arg
-        self.session = open_session(s) if isinstance(s, (str, os.PathLike)) else s
-        if self._map is None:
-            self._map = {c: c for c in self.session.cameras}
-            self.cameras = tuple(self._map)
         events: list[tuple[int, int, str, str, int]] = []
         for k, (rig_cam, src_cam) in enumerate(self._map.items()):
             if src_cam not in self.session.cameras:
@@ -109,7 +103,7 @@ class ReplaySource(FrameSource):
         return self._wall0 + (t_ns - self._t_first) / 1e9 / self.speed
 
     def read(self, timeout: float) -> list[Item]:
-        if self.session is None:
+        if not hasattr(self, "_events"):
             raise RuntimeError("ReplaySource.read before start")
         if self._i >= len(self._events):
             self.finished = True
@@ -142,5 +136,4 @@ class ReplaySource(FrameSource):
         pass
 
     def info(self) -> dict[str, Any]:
-        p = str(self.session.path) if self.session is not None else str(self._session_arg)
-        return {"replay": {"session": p, "realtime": self.realtime, "speed": self.speed}}
+        return {"replay": {"session": str(self.session.path), "realtime": self.realtime, "speed": self.speed}}

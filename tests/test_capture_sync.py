@@ -1,0 +1,116 @@
+"""Synchroniser: grouping by timestamp, missing cameras, late frames, order independence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture.source import Frame
+from capture.sync import Synchronizer, default_tolerance_ns
+
+P = 33_333_333  # [ns] 30 fps
+IMG = np.zeros((2, 2), np.uint8)
+
+
+def frame(cam: str, ts: int, seq: int = 0) -> Frame:
+    return Frame(cam, int(ts), seq, IMG)
+
+
+def run(sync: Synchronizer, frames: list[Frame]):
+    out = []
+    for f in frames:
+        out += sync.add(f)
+    return out + sync.flush()
+
+
+def test_default_tolerance_is_half_the_shortest_period():
+    assert default_tolerance_ns([30.0, 60.0]) == round(0.5e9 / 60)
+
+
+def test_groups_jittered_frames_and_reports_spread(rng):
+    cams = ("a", "b", "c")
+    sync = Synchronizer(cams, P // 2, 2 * P)
+    frames = []
+    true_spread = []
+    for i in range(50):
+        ts = [i * P + 1_000_000_000 + int(rng.normal(0, 2e6)) for _ in cams]
+        true_spread.append(max(ts) - min(ts))
+        frames += [frame(c, t, i) for c, t in zip(cams, ts)]
+    mfs = run(sync, frames)
+    assert len(mfs) == 50
+    assert all(not m.missing and len(m.frames) == 3 for m in mfs)
+    assert [m.spread_ns for m in mfs] == true_spread
+    for m in mfs:  # the multi-frame timestamp is the median member timestamp
+        assert m.timestamp_ns == sorted(f.timestamp_ns for f in m.frames.values())[1]
+    assert np.all(np.diff([m.timestamp_ns for m in mfs]) > 0)
+
+
+def test_missing_camera_and_spread_never_exceeds_tolerance(rng):
+    cams = ("a", "b")
+    tol = P // 2
+    sync = Synchronizer(cams, tol, 2 * P)
+    frames = []
+    for i in range(40):
+        frames.append(frame("a", i * P))
+        if i % 5 != 3:  # b drops every fifth frame
+            frames.append(frame("b", i * P + int(rng.uniform(-0.45, 0.45) * P)))
+    mfs = run(sync, frames)
+    assert all(m.spread_ns <= tol for m in mfs)
+    missing_b = [i for i, m in enumerate(mfs) if "b" in m.missing]
+    assert len(missing_b) >= 8
+    assert sum(len(m.frames) for m in mfs) + sum(sync.late.values()) == len(frames)
+
+
+def test_waits_for_a_slow_camera_until_the_watermark():
+    sync = Synchronizer(("a", "b"), P // 2, 2 * P)
+    assert sync.add(frame("a", 0)) == []
+    assert sync.add(frame("a", P)) == []          # still within the wait
+    assert sync.add(frame("a", 2 * P)) == []
+    out = sync.add(frame("a", 3 * P))             # past t0 + tol + wait: b counts as missing
+    assert len(out) == 1 and out[0].missing == ("b",)
+    assert sync.add(frame("b", 0)) == []          # b's frame for that window is late
+    assert sync.late["b"] == 1
+
+
+def test_lost_camera_is_not_waited_for():
+    sync = Synchronizer(("a", "b"), P // 2, 2 * P)
+    assert sync.add(frame("a", 0)) == []
+    out = sync.lose("b")
+    assert len(out) == 1 and out[0].missing == ("b",)
+    assert len(sync.add(frame("a", P))) == 1
+
+
+def test_non_increasing_timestamps_are_discarded():
+    sync = Synchronizer(("a",), P // 2, 2 * P)
+    sync.add(frame("a", 10))
+    assert sync.add(frame("a", 10)) == []
+    assert sync.late["a"] == 1
+
+
+def test_grouping_does_not_depend_on_arrival_order(rng):
+    """Replay determinism rests on this: the same timestamps give the same multi-frames."""
+    cams = tuple(f"c{i}" for i in range(5))
+    per_cam = {c: [frame(c, i * P + int(rng.normal(0, 3e6)), i) for i in range(30) if rng.random() > 0.1]
+               for c in cams}
+    by_time = sorted((f for fs in per_cam.values() for f in fs), key=lambda f: f.timestamp_ns)
+    by_cam_round_robin = []
+    it = {c: iter(fs) for c, fs in per_cam.items()}
+    while it:
+        for c in list(it):
+            f = next(it[c], None)
+            if f is None:
+                del it[c]
+            else:
+                by_cam_round_robin.append(f)
+
+    def key(mfs):
+        return [(m.timestamp_ns, tuple(sorted((c, f.timestamp_ns) for c, f in m.frames.items()))) for m in mfs]
+
+    a = run(Synchronizer(cams, P // 2, 10 * P), by_time)
+    b = run(Synchronizer(cams, P // 2, 10 * P), by_cam_round_robin)
+    assert key(a) == key(b)
+
+
+def test_unknown_camera_is_an_error():
+    with pytest.raises(KeyError):
+        Synchronizer(("a",), 1, 1).add(frame("z", 0))
