@@ -253,9 +253,11 @@ def make_fake_depthai(oaks: list[FakeOak], start_s: float = 1000.0):
             return ImgFrame(img, self.type, t, t - cam.pipeline.device.oak.boot_offset_ns, k)
 
     class Camera:
+        initialControl = property(lambda self: self._initial_control)
+
         def __init__(self, pipeline):
             self.pipeline = pipeline
-            self.initialControl = CameraControl()
+            self._initial_control = CameraControl()
             self.socket = None
             self.fps = 30.0
             self.outputs: list[Output] = []
