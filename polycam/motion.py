@@ -72,6 +72,17 @@ covariance is a cluster-robust sandwich over tiles of rays (residuals of
 filtered derivatives are correlated over the filter support); the textbook
 ``σ² (AᵀWA)⁻¹`` is kept as ``covariance_iid``.
 
+Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
+9 x 9 views 1 cm apart, 64 x 64 directions, 3 x 3 supersampling, |t| = 1.5 cm,
+|ω| = 0.2°): median relative error per component 0.05–0.3% (t) and 0.04–0.4%
+(ω) at 4–8 m, 1–4% at 12–16 m (where the directions are aliased; the paper
+sees the same growth), against 18–50% / 17–33% for one-shot central-difference
+least squares. Limits: the covariance describes noise, not the systematic
+errors of aliased or occluded data (it can be several times too small on
+noise-free synthetic frames), and under noise the iterated estimate scatters
+about 1.5–3 times more than it predicts (re-warping re-samples the noise); one
+face alone couples t and ω (condition numbers of 10²–10³).
+
 This module does no file I/O; :func:`estimate_trajectory` streams frames from
 a light-field store (anything with ``grid``, ``timestamps_ns``, ``frame(i)``,
 ``weights(i)``).
