@@ -9,14 +9,6 @@ boundaries (:mod:`capture.fake_v4l2`, :mod:`capture.fake_depthai`) let every
 path run without hardware.
 """
 
-from .drivers import rig_source
-from .mock import MockSource, PatternRenderer, pattern_sequence
-from .recorder import CaptureResult, record
-from .replay import ReplaySource
-from .source import CameraLost, CaptureError, CompositeSource, Frame, FrameSource
-from .stats import STATS_FILE, CameraStats, CaptureStats
-from .sync import MultiFrame, Synchronizer, default_tolerance_ns
-
 __all__ = [
     "Frame", "CameraLost", "FrameSource", "CompositeSource", "CaptureError",
     "MultiFrame", "Synchronizer", "default_tolerance_ns",
@@ -24,3 +16,22 @@ __all__ = [
     "MockSource", "PatternRenderer", "pattern_sequence", "ReplaySource", "rig_source",
     "record", "CaptureResult",
 ]
+
+_WHERE = {
+    "Frame": "source", "CameraLost": "source", "FrameSource": "source", "CompositeSource": "source",
+    "CaptureError": "source", "MultiFrame": "sync", "Synchronizer": "sync", "default_tolerance_ns": "sync",
+    "CameraStats": "stats", "CaptureStats": "stats", "STATS_FILE": "stats", "MockSource": "mock",
+    "PatternRenderer": "mock", "pattern_sequence": "mock", "ReplaySource": "replay", "rig_source": "drivers",
+    "record": "recorder", "CaptureResult": "recorder",
+}
+
+
+def __getattr__(name: str):
+    """Lazy imports, so ``polycam --help`` (which imports capture.cli) stays light."""
+    if name in _WHERE:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
