@@ -7,7 +7,8 @@ Heavy dependencies (mrcal, OpenCV, pycolmap) are imported inside the functions.
 
 from .align import RigFit, fit_rig_frame, fit_similarity, rotation_angle
 from .board_solve import (LENSMODEL_CHOICES, BoardCalibration, CameraStats, board_distance, calibrate_board,
-                          camera_graph, lensmodel_name, observation_residuals)
+                          camera_graph, lensmodel_name, observation_residuals, uncertainty_grid,
+                          valid_region_contour)
 from .colmap_text import (ColmapCamera, ColmapImage, colmap_to_mrcal, import_colmap_text, mrcal_to_colmap,
                           read_colmap_text, rig_config, write_colmap_text, write_rig_config)
 from .detect import SKIP_REASONS, BoardObservations, Detection, detect_board, detect_session, sharpness
@@ -21,7 +22,7 @@ __all__ = [
     "SKIP_REASONS", "Detection", "BoardObservations", "detect_board", "detect_session", "sharpness",
     # mrcal board solve
     "LENSMODEL_CHOICES", "lensmodel_name", "camera_graph", "BoardCalibration", "CameraStats", "calibrate_board",
-    "observation_residuals", "board_distance",
+    "observation_residuals", "board_distance", "uncertainty_grid", "valid_region_contour",
     # rig frame
     "RigFit", "fit_rig_frame", "fit_similarity", "rotation_angle",
     # COLMAP text models and rig configs

@@ -52,6 +52,8 @@ __all__ = [
     "calibrate_board",
     "observation_residuals",
     "board_distance",
+    "uncertainty_grid",
+    "valid_region_contour",
 ]
 
 log = logging.getLogger(__name__)
@@ -192,6 +194,9 @@ class BoardCalibration:
     """(F,) session frame index of each solved board pose."""
     stages: list[tuple[str, float]] = field(default_factory=list)
     """(stage name, RMS [px] after it) of the staged solve."""
+    uncertainty: dict[str, np.ndarray] = field(default_factory=dict)
+    """Camera id → (Ny, Nx) [px] worst-direction projection uncertainty at the median board
+    distance on mrcal.sample_imager's 30-wide grid (empty unless computed)."""
 
     @property
     def T_rig_cam(self) -> dict[str, np.ndarray]:
@@ -261,21 +266,59 @@ def board_distance(inputs: dict) -> float:
     return float(np.median(np.linalg.norm(inputs["rt_ref_frame"][:, 3:], axis=1)))
 
 
-def _valid_region(model, rms_px: float, distance: float):
-    """mrcal's valid-intrinsics region contour (N, 2) of a solved model, or None if unavailable."""
+def uncertainty_grid(model, distance: float | None, gridn_width: int = 30) -> np.ndarray:
+    """(Ny, Nx) [px] mrcal worst-direction projection uncertainty on ``mrcal.sample_imager``'s grid.
+
+    distance: [m] range of the points looked at (None: at infinity). NaN where it cannot be computed.
+    """
+    mrcal = _mrcal()
+    W, H = (int(v) for v in model.imagersize())
+    gh = max(2, int(round(H / W * gridn_width)))
+    q = mrcal.sample_imager(gridn_width, gh, W, H)
+    v = mrcal.unproject(np.ascontiguousarray(q, dtype=float), *model.intrinsics(), normalize=True)
     try:
-        from mrcal.calibration import _compute_valid_intrinsics_region  # mrcal-calibrate-cameras' own
-    except ImportError:
-        return None
-    try:
-        return _compute_valid_intrinsics_region(model, 1.0 * rms_px, 0.5, 1.5 * rms_px, 3, distance)
-    except Exception as e:  # uncertainty can fail for degenerate solves: report, don't die
-        log.warning("valid-intrinsics region not computed: %s", str(e).strip().splitlines()[0] if str(e) else e)
-        return None
+        if distance is None:
+            return mrcal.projection_uncertainty(v, model=model, atinfinity=True, what="worstdirection-stdev")
+        return mrcal.projection_uncertainty(v * distance, model=model, atinfinity=False, what="worstdirection-stdev")
+    except Exception as e:  # degenerate solves: report NaN rather than fail the whole run
+        log.warning("projection uncertainty not computed: %s", str(e).strip().splitlines()[0] if str(e) else e)
+        return np.full(q.shape[:2], np.nan)
+
+
+def valid_region_contour(uncertainty: np.ndarray, q_obs: np.ndarray, imagersize, threshold_px: float,
+                 min_count: int = 3) -> np.ndarray:
+    """Valid-intrinsics region (closed contour (N, 2) [px]; (0, 2) if empty), mrcal-style.
+
+    The imager grid cells (of ``uncertainty`` (Ny, Nx), on mrcal.sample_imager's grid) where
+    the projection uncertainty is below ``threshold_px`` and at least ``min_count`` corners
+    q_obs (M, 2) were observed; the largest connected area's outline.
+    """
+    import cv2
+
+    mrcal = _mrcal()
+    W, H = (int(v) for v in imagersize)
+    ny, nx = uncertainty.shape
+    ix = np.clip(np.rint(q_obs[:, 0] / (W - 1) * (nx - 1)).astype(int), 0, nx - 1)
+    iy = np.clip(np.rint(q_obs[:, 1] / (H - 1) * (ny - 1)).astype(int), 0, ny - 1)
+    count = np.zeros((ny, nx), int)
+    np.add.at(count, (iy, ix), 1)
+    u = np.where(np.isfinite(uncertainty), uncertainty, np.inf)
+    mask = (u < threshold_px) & (count >= min_count)
+    contours = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[-2]
+    if not contours:
+        return np.zeros((0, 2))
+    c = max(contours, key=cv2.contourArea)[:, 0, :].astype(float)
+    c = mrcal.close_contour(c)
+    if c.ndim != 2 or c.shape[0] < 4:
+        return np.zeros((0, 2))
+    c[:, 0] *= (W - 1) / (nx - 1)
+    c[:, 1] *= (H - 1) / (ny - 1)
+    return np.rint(c).astype(np.int32)
 
 
 def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str = "opencv8",
                     board_warp: bool = True, outlier_rejection: bool = True, valid_region: bool = True,
+                    region_threshold_px: float | None = None, regularization: bool = True,
                     seed: int = 0) -> BoardCalibration:
     """Jointly calibrate every camera of ``obs`` (intrinsics and rig-frame extrinsics) with mrcal.
 
@@ -284,9 +327,12 @@ def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str =
         lengths). None: keep camera 0 as the reference frame.
     lensmodel: a :data:`LENSMODEL_CHOICES` name or a full mrcal lens-model string.
     board_warp: also fit the board's flex in a last stage.
-    valid_region: store mrcal's valid-intrinsics region in each model (where the projection
-        uncertainty at the median board distance is below the RMS residual and the residuals are unbiased, with
-        ``mrcal-calibrate-cameras``' default thresholds).
+    valid_region: compute each camera's projection uncertainty (:func:`uncertainty_grid`, at the
+        median board distance) and store the valid-intrinsics region (:func:`valid_region_contour`: uncertainty
+        below ``region_threshold_px``, default the camera's RMS residual, and >= 3 observed corners per
+        grid cell) in each model. This is the slow part of a large solve.
+    regularization: mrcal's regularisation of the lens parameters (on by default, as in
+        mrcal-calibrate-cameras; it biases noise-free solves by ~0.01 px).
     seed: seeds the tiny random distortion start values (mrcal-calibrate-cameras does the same).
     """
     mrcal = _mrcal()
@@ -352,7 +398,7 @@ def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str =
         extra[:] = 0.0
     run(f"{full}", intrinsics=np.ascontiguousarray(np.concatenate([core, extra], axis=1)), lensmodel=full,
         do_optimize_intrinsics_core=not splined, do_optimize_intrinsics_distortions=True,
-        do_apply_outlier_rejection=outlier_rejection, do_apply_regularization=True)
+        do_apply_outlier_rejection=outlier_rejection, do_apply_regularization=regularization)
     if board_warp:
         run("board warp", calobject_warp=np.zeros(2), do_optimize_calobject_warp=True)
 
@@ -366,13 +412,19 @@ def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str =
     else:
         rig_fit = fit_rig_frame(T_ref_cam[:1], np.eye(4)[None])
     T_ref_rig = T_inverse(rig_fit.T_rig_ref)
-    models = {}
+    models, uncertainty = {}, {}
     for ci, cam in enumerate(obs.cameras):
         model = mrcal.cameramodel(optimization_inputs=inputs, icam_intrinsics=ci)
         model.rt_cam_ref(rt_from_T(T_inverse(T_ref_cam[ci]) @ T_ref_rig))
         if valid_region:
-            region = _valid_region(model, rms, board_distance(inputs))
-            if region is not None:
+            unc = uncertainty_grid(model, board_distance(inputs))
+            uncertainty[cam] = unc
+            sel = ifc[:, 1] == ci
+            o = inputs["observations_board"][sel].reshape(-1, 3)
+            region = valid_region_contour(unc, o[o[:, 2] > 0, :2], model.imagersize(),
+                                  max(region_threshold_px if region_threshold_px is not None else 0.0,
+                                      stats[cam].rms_px if region_threshold_px is None else 0.0))
+            if len(region):
                 model.valid_intrinsics_region(region)
         models[cam] = model
     log.info("calibrate: %d cameras, %d views, RMS %.3f px; rig fit residuals %.2f mm / %.3f deg RMS", C,
@@ -380,4 +432,4 @@ def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str =
              math.degrees(float(np.sqrt(np.mean(rig_fit.rotation_residuals_rad**2)))))
     return BoardCalibration(cameras=list(obs.cameras), models=models, lensmodel=full, optimization_inputs=inputs,
                             rig_fit=rig_fit, shared_frames=shared, rms_px=rms, stats=stats, observations=obs,
-                            frames=frames, stages=stages)
+                            frames=frames, stages=stages, uncertainty=uncertainty)

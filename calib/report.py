@@ -22,31 +22,11 @@ import numpy as np
 from polycam.geometry import r_from_R
 from polycam.tomlio import atomic_write_bytes, atomic_write_text
 
-from .board_solve import BoardCalibration, board_distance, observation_residuals
+from .board_solve import BoardCalibration, board_distance, observation_residuals, uncertainty_grid
 
-__all__ = ["uncertainty_grid", "report_dict", "write_report"]
+__all__ = ["report_dict", "write_report"]
 
 log = logging.getLogger(__name__)
-
-
-def uncertainty_grid(model, distance: float | None, gridn: tuple[int, int] = (16, 12)) -> np.ndarray:
-    """(Ny, Nx) [px] mrcal worst-direction projection uncertainty over an imager grid.
-
-    distance: [m] range of the points looked at (None: at infinity). NaN where it
-    cannot be computed.
-    """
-    import mrcal
-
-    q = mrcal.sample_imager(gridn[0], gridn[1], *model.imagersize())
-    v = mrcal.unproject(np.ascontiguousarray(q, dtype=float), *model.intrinsics(), normalize=True)
-    try:
-        if distance is None:
-            return mrcal.projection_uncertainty(v, model=model, atinfinity=True, what="worstdirection-stdev")
-        return mrcal.projection_uncertainty(v * distance, model=model, atinfinity=False,
-                                            what="worstdirection-stdev")
-    except Exception as e:  # degenerate solves: report NaN rather than fail the whole run
-        log.warning("projection uncertainty not computed: %s", str(e).strip().splitlines()[0] if str(e) else e)
-        return np.full(q.shape[:2], np.nan)
 
 
 def _f(x: float, nd: int = 4) -> float:
@@ -249,8 +229,11 @@ def write_report(cal: BoardCalibration, out: str | os.PathLike, *, plots: bool =
     out.mkdir(parents=True, exist_ok=True)
     unc = None
     if uncertainty:
-        dist = board_distance(cal.optimization_inputs)
-        unc = {cam: uncertainty_grid(cal.models[cam], dist) for cam in cal.cameras}
+        unc = dict(cal.uncertainty)
+        missing = [c for c in cal.cameras if c not in unc]
+        if missing:
+            dist = board_distance(cal.optimization_inputs)
+            unc.update({cam: uncertainty_grid(cal.models[cam], dist) for cam in missing})
     doc = report_dict(cal, uncertainty=unc)
     written = _plots(cal, out, unc) if plots else []
 

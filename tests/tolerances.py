@@ -33,3 +33,18 @@ DEMO_MOTION_REL = 0.02        # median relative per-pair motion error of `polyca
 MOTION_DEPTH_MEDIAN_REL = 0.02  # median relative depth error (Eq. 6-7) on confident rays, room sphere
 # capture (tests/test_capture_*.py)
 CAPTURE_JITTER_STD_REL = 0.15  # measured timestamp-jitter std of the mock vs [mock] jitter_ms (1200 draws)
+# calibration (tests/test_calib*.py; small rendered / synthetic board sessions)
+CALIB_RENDERED_RMS_PX = 0.25          # [px] mrcal RMS residual on a rendered 320x240 board session
+CALIB_RENDERED_POSITION_M = 0.002     # [m] solved vs true camera centres after a rigid alignment (8 board poses)
+CALIB_RENDERED_ROTATION_DEG = 0.2     # [deg] solved vs true camera orientations after the same alignment
+CALIB_RENDERED_PROJECTION_PX = 0.3    # [px] RMS mrcal.projection_diff (implied-rotation fit) vs the true model
+CALIB_EXACT_POSITION_M = 1e-5         # [m] noise-free synthetic observations: recovered centres
+CALIB_EXACT_ROTATION_DEG = 1e-3       # [deg] noise-free: recovered orientations
+CALIB_EXACT_REPROJ_PX = 1e-3          # [px] noise-free: RMS residual
+CALIB_EXACT_PROJECTION_PX = 0.01      # [px] noise-free: RMS projection difference (no fit) inside the observed area
+CALIB_MODEL_ROUNDTRIP_ATOL = 1e-9     # intrinsics / rt after a file or format round trip (relative to 1)
+CALIB_COLMAP_TEXT_ATOL = 1e-8         # COLMAP text written with 12-15 significant digits
+CALIB_RAY_REPROJ_PX = 1e-6            # [px] projecting o + s d of a pixel's ray back into its camera
+CALIB_COLMAP_POSITION_M = 0.005       # [m] COLMAP target-free: camera centres vs truth (2x2 rig, 6 cm pitch)
+CALIB_COLMAP_FOCAL_REL = 0.02         # COLMAP target-free: relative focal-length error
+CALIB_SPLINED_POSITION_M = 0.005     # [m] noise-free but regularised splined solve (3 cameras, 18 poses): centres
