@@ -83,7 +83,7 @@ def _recording(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tolerance-ms", type=_positive_float,
                    help="max timestamp spread of a multi-frame [ms] (default: half a frame period)")
     p.add_argument("--queue", type=_positive_int, default=32, help="writer queue length [multi-frames] (default 32)")
-    p.add_argument("--png-threads", type=_positive_int, default=2, help="PNG encoding threads (default 2)")
+    p.add_argument("--png-threads", type=_positive_int, default=3, help="PNG encoding and writing threads (default 3)")
     p.add_argument("--no-display", action="store_true", help="no live display")
 
 

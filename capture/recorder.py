@@ -88,8 +88,10 @@ class _Writer(threading.Thread):
                     for c in mf.frames:
                         self.stats.per_camera[c].unwritten += 1
                     continue
+                t0 = time.perf_counter()
                 try:
                     self._write(mf)
+                    self.stats.writer_busy_s += time.perf_counter() - t0
                 except BaseException as e:  # noqa: BLE001 - reported by record()
                     self.error = e
                     self.failed.set()
@@ -127,7 +129,7 @@ def _describe(e: BaseException) -> str:
 def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, frames: int | None = None,
            seconds: float | None = None, strict: bool = False, overwrite: bool = False,
            tolerance_ns: int | None = None, wait_ns: int | None = None, queue_frames: int = 32,
-           png_threads: int = 2, stop_event: threading.Event | None = None,
+           png_threads: int = 3, stop_event: threading.Event | None = None,
            on_update: Callable[[CaptureStats], None] | None = None, update_interval: float = 0.5,
            writer_factory: Callable[..., Any] | None = None) -> CaptureResult:
     """Capture from ``source`` into the session folder ``out`` (see the module docstring).

@@ -82,6 +82,8 @@ class CaptureStats:
         self.complete = 0
         """Multi-frames with every camera present."""
         self.spreads_ns: list[int] = []
+        self.writer_busy_s = 0.0
+        """[s] time the writer thread spent writing (the rest it waited for frames)."""
         self.queue_max = 0
         self.queue_size = 1
         self.started = time.monotonic()
@@ -149,6 +151,14 @@ class CaptureStats:
         return (self.ended if self.ended is not None else time.monotonic()) - self.started
 
     @property
+    def writer_headroom(self) -> float:
+        """Wall time over the writer's busy time: how many times faster the writer could go
+        (0 when nothing was written)."""
+        if self.writer_busy_s <= 0:
+            return 0.0
+        return self.duration_s / self.writer_busy_s
+
+    @property
     def total_dropped(self) -> int:
         """Frames lost anywhere: driver drops, late, queue overflow, unwritten."""
         return sum(s.dropped + s.late + s.overflow + s.unwritten for s in self.per_camera.values())
@@ -182,6 +192,8 @@ class CaptureStats:
             "timestamp_span_s": round(span, 6),
             "queue_size": self.queue_size,
             "queue_max": self.queue_max,
+            "writer_busy_s": round(self.writer_busy_s, 3),
+            "writer_headroom": round(self.writer_headroom, 3),
         }
         if self.error:
             cap["error"] = self.error
