@@ -9,6 +9,7 @@ from .align import RigFit, fit_rig_frame, fit_similarity, rotation_angle
 from .board_solve import (LENSMODEL_CHOICES, BoardCalibration, CameraStats, board_distance, calibrate_board,
                           camera_graph, lensmodel_name, observation_residuals, uncertainty_grid,
                           valid_region_contour)
+from .colmap import ColmapCalibration, calibrate_colmap, reconstruct_images, write_colmap_report
 from .colmap_text import (ColmapCamera, ColmapImage, colmap_to_mrcal, import_colmap_text, mrcal_to_colmap,
                           read_colmap_text, rig_config, write_colmap_text, write_rig_config)
 from .detect import SKIP_REASONS, BoardObservations, Detection, detect_board, detect_session, sharpness
@@ -16,6 +17,7 @@ from .export import opencv_intrinsics, read_opencv_yaml, write_colmap_rig, write
 from .io import load_models, prepare_output_dir, write_cameramodel, write_corners_vnl, write_models
 from .pipeline import EXPORT_FORMATS, METHODS, CalibrationRun, calibrate_session, export_calibration
 from .rays import pixel_rays, read_ray_table, rig_rays, write_ray_table
+from .synthetic import coverage_poses, project_board, synthetic_observations
 
 __all__ = [
     # detection
@@ -25,6 +27,8 @@ __all__ = [
     "observation_residuals", "board_distance", "uncertainty_grid", "valid_region_contour",
     # rig frame
     "RigFit", "fit_rig_frame", "fit_similarity", "rotation_angle",
+    # COLMAP target-free calibration
+    "ColmapCalibration", "calibrate_colmap", "reconstruct_images", "write_colmap_report",
     # COLMAP text models and rig configs
     "ColmapCamera", "ColmapImage", "read_colmap_text", "colmap_to_mrcal", "mrcal_to_colmap", "import_colmap_text",
     "write_colmap_text", "rig_config", "write_rig_config",
@@ -34,6 +38,8 @@ __all__ = [
     "prepare_output_dir", "write_cameramodel", "write_models", "load_models", "write_corners_vnl",
     # rays
     "pixel_rays", "rig_rays", "write_ray_table", "read_ray_table",
+    # synthetic ground truth
+    "synthetic_observations", "project_board", "coverage_poses",
     # the whole stage
     "METHODS", "EXPORT_FORMATS", "CalibrationRun", "calibrate_session", "export_calibration",
 ]
