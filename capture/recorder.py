@@ -62,7 +62,7 @@ class CaptureResult:
     stats: CaptureStats
     stopped_by: str
     """``frames``, ``seconds``, ``interrupted``, ``end of source``, ``all cameras lost``,
-    ``camera lost: <id>`` (strict) or ``writer error``."""
+    ``camera lost: <id>`` (strict), ``writer error`` or ``source error``."""
 
 
 class _Writer(threading.Thread):
@@ -142,7 +142,8 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     queue_frames: capacity of the writer queue [multi-frames].
     writer_factory: ``factory(out, rig, overwrite=...)`` → a SessionWriter (tests inject
         failing writers); default :class:`polycam.session.SessionWriter`.
-    on_update: called with the live :class:`CaptureStats` every ``update_interval`` [s].
+    on_update: called with the live :class:`CaptureStats` every ``update_interval`` [s] from a
+        display thread (so a slow display never delays reading frames), and once at the end.
 
     Raises :class:`CaptureError` (after closing the session, with ``.result`` set) when
     writing failed or a camera was lost under ``strict``.
@@ -185,6 +186,7 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
              out if out is not None else "(not recorded)", tol / 1e6)
 
     state = {"stop": ""}
+    failure: Exception | None = None
     lost: set[str] = set()
     overflow_warned = [0.0]
 
@@ -225,7 +227,18 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
             state["stop"] = state["stop"] or "frames"
 
     t_start = time.monotonic()
-    next_update = t_start + update_interval
+    done = threading.Event()
+    ticker = None
+    if on_update is not None:  # the display runs in its own thread: never delays reading frames
+        def tick() -> None:
+            while not done.wait(update_interval):
+                try:
+                    on_update(stats)
+                except Exception:  # noqa: BLE001 - a display problem must not stop a capture
+                    log.exception("live display update failed")
+
+        ticker = threading.Thread(target=tick, name="polycam-display", daemon=True)
+        ticker.start()
     try:
         while not state["stop"]:
             if stop_event.is_set():
@@ -265,11 +278,11 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
                         deliver(mf)
                 if state["stop"] in ("frames", "seconds"):
                     break
-            if on_update is not None and time.monotonic() >= next_update:
-                next_update = time.monotonic() + update_interval
-                on_update(stats)
     except KeyboardInterrupt:
         state["stop"] = "interrupted"
+    except Exception as e:  # a driver failed: finish the session as incomplete, then report
+        failure = e
+        state["stop"] = "source error"
     finally:
         try:
             source.stop()
@@ -282,6 +295,9 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
             q.put(None)
             writer.join()
             stats.ended = time.monotonic()
+            done.set()
+            if ticker is not None:
+                ticker.join()
     stopped_by = state["stop"] or "unknown"
     if writer.error is not None:
         stopped_by = "writer error"
@@ -290,9 +306,11 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     if on_update is not None:
         on_update(stats)
 
+    if failure is not None:
+        stats.error = _describe(failure)
     status = "none"
     if session is not None:
-        status = "incomplete" if writer.error is not None else "complete"
+        status = "incomplete" if writer.error is not None or failure is not None else "complete"
         try:
             session.write_extra(STATS_FILE, stats.to_toml(source.info()))
         except OSError as e:
@@ -303,6 +321,8 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
             status = "incomplete"
             log.warning("closing the session failed: %s", _describe(e))
     result = CaptureResult(Path(out) if out is not None else None, status, stats, stopped_by)
+    if failure is not None:
+        raise failure
     if writer.error is not None:
         err = CaptureError(f"capture stopped: writing {out} failed: {stats.error}; the session is readable "
                            f"up to frame {stats.written} (status {status})")

@@ -195,7 +195,7 @@ def test_stop_event_ends_a_capture_cleanly(tmp_path):
             stop.set()
 
     res = record(MockSource(rig, realtime=False), rig, tmp_path / "s", stop_event=stop, on_update=on_update,
-                 update_interval=0.0)
+                 update_interval=0.01)
     assert res.stopped_by == "interrupted" and res.status == "complete"
     assert open_session(tmp_path / "s").status == "complete"
 
@@ -295,3 +295,19 @@ def test_items_types():
     f = Frame("a", 1, 0, np.zeros((1, 1), np.uint8))
     lost = CameraLost("a", "gone")
     assert f.cam_id == lost.cam_id
+
+
+def test_a_failing_driver_leaves_an_incomplete_readable_session(tmp_path):
+    rig = make_rig(tmp_path)
+
+    class Broken(MockSource):
+        def read(self, timeout):
+            if self._next[0] >= 3:
+                raise CaptureError("camera cam00: OAK delivered 10x10, the rig asks for 64x48")
+            return super().read(timeout)
+
+    with pytest.raises(CaptureError, match="OAK delivered"):
+        record(Broken(rig, realtime=False), rig, tmp_path / "s")
+    s = open_session(tmp_path / "s")
+    assert s.status == "incomplete" and len(s) >= 2
+    assert stats_of(tmp_path / "s")["capture"]["stopped_by"] == "source error"
