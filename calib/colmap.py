@@ -241,6 +241,8 @@ def calibrate_colmap(session, *, board=None, cameras: list[str] | None = None, f
     import mrcal
 
     pycolmap = _pycolmap()
+    if not log.isEnabledFor(logging.INFO):      # COLMAP's glog chatter only with -v
+        pycolmap.logging.minloglevel = 2
     cams = list(cameras) if cameras is not None else list(session.cameras)
     frames = list(range(len(session))) if frames is None else [int(i) for i in frames]
     if len(frames) < 2:
