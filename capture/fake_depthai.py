@@ -35,7 +35,7 @@ from __future__ import annotations
 import datetime as _dt
 import enum
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np

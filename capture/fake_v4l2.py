@@ -44,7 +44,6 @@ from __future__ import annotations
 import ctypes
 import errno
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 

@@ -44,7 +44,7 @@ import logging
 import os
 import select as _select
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -11,7 +10,6 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from polycam.rig import load_rig
 from polycam.session import open_session

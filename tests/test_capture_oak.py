@@ -12,7 +12,7 @@ from capture.fake_depthai import FakeOak, make_fake_depthai
 from capture.mock import pattern_sequence
 from capture.oak import DepthAIControls, DepthAISource, list_depthai_devices, parse_device
 from capture.recorder import record
-from capture.source import CameraLost, CaptureError, Frame
+from capture.source import CaptureError, Frame
 from polycam.rig import CameraSpec, Rig
 from polycam.session import open_session
 
