@@ -69,8 +69,10 @@ motion's ``(t, r)`` (``T_prev_next = [R_from_r(r) | t]``), the Jacobi-scaled
 condition number, the inlier fraction, and the unobservable directions when
 the normal matrix is (near-)singular (no texture, one viewpoint, ...). The
 covariance is a cluster-robust sandwich over tiles of rays (residuals of
-filtered derivatives are correlated over the filter support); the textbook
-``σ² (AᵀWA)⁻¹`` is kept as ``covariance_iid``.
+filtered derivatives are correlated over the filter support) around the
+noise-corrected normal matrix ``AᵀWA − E`` (E = expected energy of sensor noise in
+the derivatives, with the noise level estimated from second differences across
+viewpoints); the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as ``covariance_iid``.
 
 Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 9 x 9 views 1 cm apart, 64 x 64 directions, 3 x 3 supersampling, |t| = 1.5 cm,
@@ -79,9 +81,9 @@ Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 sees the same growth), against 18–50% / 17–33% for one-shot central-difference
 least squares. Limits: the covariance describes noise, not the systematic
 errors of aliased or occluded data (it can be several times too small on
-noise-free synthetic frames), and under noise the iterated estimate scatters
-about 1.5–3 times more than it predicts (re-warping re-samples the noise); one
-face alone couples t and ω (condition numbers of 10²–10³).
+noise-free synthetic frames); under noise it matches the scatter of repeated
+estimates to within about 1.5x (tests/test_motion.py). One face alone couples
+t and ω (condition numbers of 10²–10³).
 
 This module does no file I/O; :func:`estimate_trajectory` streams frames from
 a light-field store (anything with ``grid``, ``timestamps_ns``, ``frame(i)``,
@@ -728,6 +730,31 @@ def _weighted_mad(res: np.ndarray, w: np.ndarray, max_samples: int = 50_000) -> 
     return 1.4826 * float(a[order[min(i, len(a) - 1)]])
 
 
+def _noise_variance(lev: _Level) -> float:
+    """Sensor-noise variance per sample, from the robust spread of second differences
+    across viewpoints (the light field is smooth along x and y; the finest available
+    axis is used): σ² = (1.4826 · median |Δ²L|)² / 6."""
+    for ax in (2, 1, 4, 3):                             # x, y, then u, v
+        if lev.L0.shape[ax] >= 3:
+            break
+    else:
+        return 0.0
+    vals = []
+    for L, W in ((lev.L0, lev.W0), (lev.L1, lev.W1)):
+        d2 = correlate_axis(L, np.array([1.0, -2.0, 1.0], np.float32), ax)
+        sl = [slice(None)] * 5
+        sl[ax] = slice(1, -1)
+        d2 = d2[tuple(sl)]
+        if W is not None:
+            d2 = d2[(W[tuple(sl)] > 0)]
+        v = np.abs(d2.reshape(-1))
+        vals.append(v[:: max(1, v.size // 200_000)])
+    v = np.concatenate(vals)
+    if v.size == 0:
+        return 0.0
+    return float((1.4826 * np.median(v)) ** 2 / 6.0)
+
+
 def _discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) weights in (0, 1]: small near intensity discontinuities.
 
@@ -773,6 +800,7 @@ class _Solver:
                        for k, fp in filters.items()}
         self.scale: float | None = None
         self.smooth = _discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
+        self.noise_var: float | None = None
 
     def prepare(self, M: np.ndarray) -> None:
         """Warp both frames by the estimate M and compute derivatives and base weights."""
@@ -828,6 +856,44 @@ class _Solver:
             _residual_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], d.Lt[k], *self.vals,
                              float(face.z_pi), float(face.f), pk, out[k])
         return out
+
+    def noise_energy(self, w: np.ndarray) -> np.ndarray:
+        """(6, 6) rig-frame E = Σ w Mᵀ diag(var L_x, var L_y, var L_u, var L_v) M: the
+        expected contribution of sensor noise to AᵀWA (M = the Eq. 5 ray matrices)."""
+        if self.noise_var is None:
+            self.noise_var = _noise_variance(self.lev)
+        var_S = 0.5 * self.noise_var                    # noise of the frames' mean
+        if not var_S > 0:
+            return np.zeros((6, 6))
+        d = self.der
+        shape = d.Lx.shape[1:]
+        one = np.ones(shape, np.float32)
+        zero = np.zeros(shape, np.float32)
+        pn = {k: (float(np.sum(fp.prefilter ** 2)) if self.radius[k] > 0 else 1.0)
+              for k, fp in self.filters.items()}
+        step = {"x": self.g.x.step, "y": self.g.y.step, "u": self.g.u.step, "v": self.g.v.step}
+        var = []
+        for k in ("x", "y", "u", "v"):
+            if self.radius[k] == 0 or not step[k] > 0:
+                var.append(0.0)
+                continue
+            others = math.prod(pn[o] for o in "xyuv" if o != k)
+            var.append(var_S * float(np.sum(self.filters[k].derivative ** 2)) * others / step[k] ** 2)
+        E = np.zeros((6, 6))
+        for kf, face in enumerate(self.g.faces):
+            Ek = np.zeros((6, 6))
+            for j in range(4):
+                if var[j] == 0.0:
+                    continue
+                g = [zero, zero, zero, zero]
+                g[j] = one
+                acc = np.empty((shape[0] * shape[1] * shape[2], 29))
+                _normal_kernel(*g, zero, np.ascontiguousarray(w[kf]), *self.vals,
+                               float(face.z_pi), float(face.f), acc)
+                Ek += var[j] * _unpack_normal(acc.sum(axis=0))[0]
+            B = _face_B(face)
+            E += B.T @ Ek @ B
+        return E
 
     def scores(self, w: np.ndarray, res: np.ndarray) -> np.ndarray:
         """(n_blocks, 6) per-tile sums of w a r in rig coordinates (tiles of (u, v), whole (x, y))."""
@@ -976,17 +1042,53 @@ _CHI2_STOP = 12.6
 
 
 def _increment_covariance(sol: dict, solver: _Solver) -> tuple[np.ndarray, np.ndarray, float]:
-    """Covariances (6, 6) of the ray-motion increment: cluster-robust sandwich and
-    ``σ² (AᵀWA)⁺``, and σ²."""
+    """Covariances (6, 6) of the converged estimate: cluster-robust sandwich and
+    ``σ² (AᵀWA)⁺``, and σ².
+
+    Sensor noise in the derivatives inflates AᵀWA (errors in variables): the iteration
+    converges where the noise's pull balances the *noise-free* sensitivity, which is
+    AᵀWA minus the expected noise energy E. Both covariances use ``N − E`` (E shrunk
+    if needed to keep it well inside positive definite); with one face, where t and ω
+    couple, this is a factor of several for the translation.
+    """
     w, res = sol["w"], sol["res"]
     sw = float(np.sum(w, dtype=np.float64))
     chi2 = float(np.sum(w.astype(np.float64) * res.astype(np.float64) ** 2))
     sigma2 = chi2 / max(sw - 6.0, 1.0)
-    Np = sol["N_pinv"]
+    N = sol["N"]
+    E = solver.noise_energy(w)
+    Np = _corrected_pinv(N, E, sol)
     S = solver.scores(w, res)
     G = S.shape[0]
     meat = S.T @ S * (G / max(G - 1, 1))
     return Np @ meat @ Np, sigma2 * Np, sigma2
+
+
+def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
+    """Pseudo-inverse of N − αE on the observable subspace; α is the largest of 1, 1/2,
+    1/4, ... keeping every (Jacobi-scaled) observable eigenvalue above 20% of N's smallest."""
+    d = np.diag(N)
+    live = d > max(float(d.max()), 1e-300) * 1e-14
+    s = np.where(live, 1.0 / np.sqrt(np.where(live, d, 1.0)), 0.0)
+    U = sol["unobs"]                                   # (k, 6) in scaled coordinates
+    P = np.eye(6) - (U.T @ U if len(U) else 0.0)       # projector on the observable part
+    Ns = P @ (N * s[:, None] * s[None, :]) @ P
+    Es = P @ (E * s[:, None] * s[None, :]) @ P
+    n_obs = 6 - len(U)
+    if n_obs == 0:
+        return sol["N_pinv"]
+    floor = 0.2 * np.linalg.eigvalsh(Ns)[-n_obs:].min()
+    alpha = 1.0
+    for _ in range(12):
+        ev, vec = np.linalg.eigh(Ns - alpha * Es)
+        if ev[-n_obs:].min() >= floor:
+            break
+        alpha *= 0.5
+    else:
+        return sol["N_pinv"]
+    inv = np.zeros(6)
+    inv[-n_obs:] = 1.0 / ev[-n_obs:]
+    return ((vec * inv) @ vec.T) * s[:, None] * s[None, :]
 
 
 def _result(index, M, diag, solver: _Solver, opts: MotionOptions, n_solves: int) -> PairResult:
