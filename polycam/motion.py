@@ -153,6 +153,9 @@ class MotionOptions:
     aliased steps, where interpolation and linearisation fail, get little weight."""
     smooth_radius: int = 2
     """Half-width in (u, v) samples of the neighbourhood searched for discontinuities."""
+    eiv: bool = False
+    """Take each step with ``AᵀWA − E`` (E = expected sensor-noise energy in the derivatives):
+    less bias under heavy noise where t and ω couple, but measured more scatter; off."""
     symmetric: bool = False
     """Warp both frames half-way (else frame 2 by the whole estimate; measured equally
     accurate with cubic interpolation, and half the warping cost)."""
@@ -934,7 +937,12 @@ class _Solver:
             w = self.base * wr
             N, rhs, sbb, sw = self.normal(w)
             sol = _solve_normal(N, rhs, opts.rcond)
-        sol.update(N=N, w=w, wr=wr, sw=sw)
+        E = self.noise_energy(w)
+        if opts.eiv and np.any(E):
+            # step with the noise-free sensitivity N − E (errors in variables): with
+            # noisy derivatives N alone under-steps (badly so where t and ω couple)
+            sol["p"] = _corrected_pinv(N, E, sol) @ rhs
+        sol.update(N=N, E=E, w=w, wr=wr, sw=sw)
         if final:
             res = self.residuals(sol["p"])
             sol["res"] = res
@@ -1055,9 +1063,7 @@ def _increment_covariance(sol: dict, solver: _Solver) -> tuple[np.ndarray, np.nd
     sw = float(np.sum(w, dtype=np.float64))
     chi2 = float(np.sum(w.astype(np.float64) * res.astype(np.float64) ** 2))
     sigma2 = chi2 / max(sw - 6.0, 1.0)
-    N = sol["N"]
-    E = solver.noise_energy(w)
-    Np = _corrected_pinv(N, E, sol)
+    Np = _corrected_pinv(sol["N"], sol["E"], sol)
     S = solver.scores(w, res)
     G = S.shape[0]
     meat = S.T @ S * (G / max(G - 1, 1))
