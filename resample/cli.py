@@ -1,0 +1,91 @@
+"""The resampling stage's verb: ``polycam resample SESSION --calib DIR --out LF.zarr [--grid GRID.toml]``.
+
+Registered by :func:`add_parsers` (polycam/cli.py discovers this module). Nothing
+heavy is imported at module level; the handler imports what it needs after the
+user's files have been checked. docs/resample.md documents the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+__all__ = ["add_parsers", "cmd_resample"]
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def add_parsers(sub) -> None:
+    """Add the ``resample`` verb to the ``polycam`` sub-command parsers."""
+    p = sub.add_parser("resample", help="push-pull a session's frames onto the two-plane light field",
+                       description="Resample every frame of a recorded session onto a two-plane light-field "
+                                   "grid (push-pull after Gortler et al. 1996) and write a light-field store "
+                                   "with the confidence W. See docs/resample.md.")
+    p.add_argument("session", metavar="SESSION", help="recorded session folder")
+    p.add_argument("--calib", metavar="CALIB_DIR",
+                   help="folder of <camera>.cameramodel files (default: SESSION/calib)")
+    p.add_argument("--out", required=True, metavar="LF.zarr", help="output light-field store")
+    p.add_argument("--grid", metavar="GRID.toml",
+                   help="sample grid (default: chosen from the rig: views at and between the cameras, "
+                        "directions over their fields of view)")
+    p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
+                   help="automatic grid: direction spacing in camera pixels (default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="dask.distributed scheduler to use (e.g. tcp://host:8786); default: a local "
+                        "cluster of --workers processes (in-process for tiny jobs)")
+    p.add_argument("--workers", type=_nonneg_int, default=None, metavar="N",
+                   help="local worker processes (default: one per core; 0 = resample in this process)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output store")
+    p.set_defaults(func=cmd_resample)
+
+
+def cmd_resample(args: argparse.Namespace) -> int:
+    from polycam.cli import _progress
+    from polycam.errors import InputError
+    from polycam.lightfield import load_grid
+
+    grid = load_grid(args.grid) if args.grid else None   # user files first: fail before heavy work
+    session = Path(args.session)
+    if not (session / "session.toml").is_file():
+        raise InputError(f"{session}: not a session folder (no session.toml)")
+    if args.calib is not None and not Path(args.calib).is_dir():
+        raise InputError(f"{args.calib}: no such calibration folder")
+    if args.scheduler is not None and args.workers is not None:
+        raise InputError("resample: give either --scheduler or --workers, not both")
+    from .pipeline import resample_session
+
+    scheduler = args.scheduler
+    if scheduler is None and args.workers == 0:
+        scheduler = "sync"
+    with _progress(f"resampling {session.name}", None) as advance:   # total: set by the first callback
+        s = resample_session(session, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
+                             scheduler=scheduler, workers=args.workers or None, overwrite=args.overwrite,
+                             progress=advance)
+    F, Ny, Nx, Nv, Nu = s.grid.shape
+    print(f"wrote {s.path}: {s.frames} frames, {F} face(s) ({' '.join(f.name for f in s.grid.faces)}), "
+          f"{Ny}x{Nx} views of {Nv}x{Nu} directions"
+          + (f", {s.channels} channels" if s.channels > 1 else "")
+          + f"; mean confidence W {s.mean_W:.2f}")
+    print(f"  {s.cameras} cameras, {s.rays_per_frame / 1e6:.2f} M rays per frame; geometry "
+          f"{s.seconds_geometry:.1f} s, frames {s.seconds_frames:.1f} s ({s.scheduler})"
+          + (f"; {s.missing_images} missing image(s)" if s.missing_images else "")
+          + (f"; {s.empty_frames} empty frame(s)" if s.empty_frames else ""))
+    return 0

@@ -1,0 +1,217 @@
+"""Resampling camera frames onto a light-field grid: a sparse product plus the pull-push pyramid.
+
+:class:`Resampler` holds everything that depends only on the calibration and
+the grid (the splat geometry, :mod:`resample.geometry`) and the buffers of one
+frame, so resampling a frame costs one sparse matrix product
+(:func:`~resample.geometry.splat`) and one pull-push pass
+(:class:`~resample.pushpull.PushPull`). A frame in which some cameras have no
+image uses a geometry built for the cameras present (built on first use and
+cached), so every cell is still a proper weighted fit of the data it has.
+
+Images are normalised like the light-field store (SPEC.md): 8-bit / 255, 16-bit
+/ 65535, floats as they are. With ``channels = 3`` grey images are repeated
+into three channels; with ``channels = 1`` RGB images are averaged.
+
+No file I/O; not thread-safe (use one per worker).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from polycam.errors import InputError
+from polycam.lightfield import LightFieldGrid
+
+from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
+from .pushpull import SCHEDULES, PushPull
+
+__all__ = ["ResampleOptions", "ResampledFrame", "Resampler", "normalise_image"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ResampleOptions:
+    """Settings of the resampler (defaults are the tuned ones, docs/resample.md)."""
+
+    kernel: KernelOptions = field(default_factory=KernelOptions)
+    """Splat kernel and local-linear correction."""
+    schedule: str = "xy-first"
+    """Pyramid schedule (:data:`~resample.pushpull.SCHEDULES`)."""
+    attenuation: float = 0.5
+    """Confidence a filled cell inherits per pyramid level (:mod:`resample.pushpull`)."""
+    geometry_cache: int = 8
+    """Geometries kept for frames with missing cameras (one per set of cameras present)."""
+
+    def __post_init__(self) -> None:
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
+        if not 0.0 < self.attenuation <= 1.0:
+            raise ValueError("attenuation must be in (0, 1]")
+
+
+@dataclass(frozen=True)
+class ResampledFrame:
+    """One resampled frame."""
+
+    L: np.ndarray
+    """(F, Ny, Nx, Nv, Nu) or (F, Ny, Nx, Nv, Nu, C) float32 intensities."""
+    W: np.ndarray
+    """(F, Ny, Nx, Nv, Nu) float32 confidence in [0, 1]."""
+    cameras: tuple[str, ...]
+    """Cameras that had an image in this frame."""
+
+
+def normalise_image(image: np.ndarray, channels: int) -> np.ndarray:
+    """(H, W) or (H, W, 3) uint8 / uint16 / float image → (H, W, channels) float32 in [0, 1]."""
+    img = np.asarray(image)
+    if img.dtype == np.uint8:
+        scale = np.float32(1.0 / 255.0)
+    elif img.dtype == np.uint16:
+        scale = np.float32(1.0 / 65535.0)
+    elif np.issubdtype(img.dtype, np.floating):
+        scale = np.float32(1.0)
+    else:
+        raise InputError(f"resample: images must be uint8, uint16 or float, got {img.dtype}")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 2:
+        out = (img.astype(np.float32) * scale)[:, :, None]
+        return np.repeat(out, channels, axis=2) if channels > 1 else out
+    if img.ndim == 3 and img.shape[2] == 3:
+        out = img.astype(np.float32) * scale
+        return out.mean(axis=2, keepdims=True) if channels == 1 else out
+    raise InputError(f"resample: images must be (H, W) grey or (H, W, 3) RGB, got {img.shape}")
+
+
+class Resampler:
+    """Resample frames of cameras ``models`` (camera id → mrcal cameramodel, rig frame)
+    onto ``grid``.
+
+    channels: 1 (grey light field) or 3 (RGB). The geometry for all cameras is built
+    here (the expensive part: a few seconds for millions of pixels); pass a prebuilt
+    ``geometry`` for the same models and grid to skip that.
+    """
+
+    def __init__(self, models: dict, grid: LightFieldGrid, *, channels: int = 1,
+                 options: ResampleOptions | None = None, geometry: SplatGeometry | None = None):
+        if channels not in (1, 3):
+            raise ValueError(f"channels must be 1 or 3, got {channels}")
+        self.models = dict(models)
+        self.grid = grid
+        self.channels = int(channels)
+        self.options = options or ResampleOptions()
+        self.cameras = tuple(self.models)
+        if geometry is None:
+            geometry = build_geometry(self.models, grid, kernel=self.options.kernel)
+        elif geometry.grid != grid or geometry.layout.ids != self.cameras:
+            raise ValueError("geometry was built for another grid or camera set")
+        self.geometry = geometry
+        """Splat geometry for all cameras."""
+        self._subsets: OrderedDict[tuple[str, ...], SplatGeometry] = OrderedDict()
+        self._w0c: dict[int, np.ndarray] = {}
+        self._pp: PushPull | None = None
+        self._pixels: np.ndarray | None = None
+        self._L: np.ndarray | None = None
+        self._W: np.ndarray | None = None
+
+    # pickling (dask): drop the per-frame buffers, keep the geometry
+    def __getstate__(self):
+        st = self.__dict__.copy()
+        st.update(_pp=None, _pixels=None, _L=None, _W=None, _w0c={})
+        return st
+
+    @property
+    def num_pixels(self) -> int:
+        """Input rays (camera pixels) per frame."""
+        return self.geometry.layout.num_pixels
+
+    def _geometry_for(self, present: tuple[str, ...]) -> SplatGeometry:
+        if present == self.cameras:
+            return self.geometry
+        geo = self._subsets.get(present)
+        if geo is None:
+            log.info("building the splat geometry for %d of %d cameras", len(present), len(self.cameras))
+            geo = build_geometry(self.models, self.grid, ids=list(present), kernel=self.options.kernel)
+            self._subsets[present] = geo
+            while len(self._subsets) > self.options.geometry_cache:
+                self._subsets.popitem(last=False)
+        else:
+            self._subsets.move_to_end(present)
+        return geo
+
+    def _clamped(self, geo: SplatGeometry) -> np.ndarray:
+        key = id(geo)
+        w = self._w0c.get(key)
+        if w is None:
+            if len(self._w0c) > self.options.geometry_cache + 1:
+                self._w0c.clear()
+            w = np.minimum(geo.w0, np.float32(1.0))
+            self._w0c[key] = w
+        return w
+
+    def _buffers(self):
+        if self._pp is None:
+            C = self.channels
+            self._pp = PushPull(self.grid.shape, C, schedule=self.options.schedule,
+                                attenuation=self.options.attenuation)
+            self._pixels = np.zeros((self.num_pixels, C), np.float32)
+            self._L = np.zeros((*self.grid.shape, C), np.float32)
+            self._W = np.zeros(self.grid.shape, np.float32)
+        return self._pp, self._pixels, self._L, self._W
+
+    def pixels(self, images: dict) -> tuple[np.ndarray, tuple[str, ...]]:
+        """The frame's input vector (P, C) float32 in the layout of all cameras (the
+        resampler's own buffer) and the cameras that had an image."""
+        _, buf, _, _ = self._buffers()
+        unknown = [c for c in images if c not in self.models]
+        if unknown:
+            raise InputError(f"resample: image from camera {unknown[0]!r}, which has no calibration")
+        lay = self.geometry.layout
+        present = []
+        for ci, cam in enumerate(lay.ids):
+            img = images.get(cam)
+            seg = buf[lay.offsets[ci]:lay.offsets[ci + 1]]
+            if img is None:
+                seg[:] = 0.0
+                continue
+            H, W = lay.sizes[ci]
+            if np.shape(img)[:2] != (H, W):
+                raise InputError(f"resample: {cam}: image is {np.shape(img)[1]}x{np.shape(img)[0]} but its "
+                                 f"calibration says {W}x{H}")
+            seg[:] = normalise_image(img, self.channels).reshape(H * W, self.channels)
+            present.append(cam)
+        return buf, tuple(present)
+
+    def resample_into(self, images: dict) -> ResampledFrame:
+        """Resample one frame (camera id → image or None) into the resampler's own buffers.
+
+        The returned arrays are overwritten by the next call: copy them (or use
+        :meth:`resample`) to keep them. A frame without any image raises InputError.
+        """
+        pp, _, L, W = self._buffers()
+        pix, present = self.pixels(images)
+        if not present:
+            raise InputError("resample: the frame has no image from any calibrated camera")
+        geo = self._geometry_for(present)
+        if geo is not self.geometry:
+            sub = np.concatenate([pix[self.geometry.layout.offsets[i]:self.geometry.layout.offsets[i + 1]]
+                                  for i, c in enumerate(self.cameras) if c in present])
+        else:
+            sub = pix
+        if self.channels == 1:
+            splat(geo, sub[:, 0], out=L.reshape(-1))
+        else:
+            splat(geo, sub, out=L.reshape(-1, self.channels))
+        pp.run(L, self._clamped(geo), W)
+        Lv = L[..., 0] if self.channels == 1 else L
+        return ResampledFrame(L=Lv, W=W, cameras=present)
+
+    def resample(self, images: dict) -> ResampledFrame:
+        """Like :meth:`resample_into`, but the arrays are the caller's to keep."""
+        r = self.resample_into(images)
+        return ResampledFrame(L=r.L.copy(), W=r.W.copy(), cameras=r.cameras)
