@@ -21,14 +21,13 @@ across cameras by putting the first corner at the upper left of the image
 
 Images without a usable board are counted per camera under one of the reasons
 :data:`SKIP_REASONS` (``no board``, ``blurred``, ``wrong board``, ``too few
-corners``) and logged as a warning naming the camera and the files.
+corners``: markers or a few corners but no usable view) and logged as a warning naming the camera and the files.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -139,32 +138,35 @@ class _Detector:
     def detect(self, image: np.ndarray, min_corners: int) -> Detection:
         cv2 = _cv2()
         gray = _to_gray8(image)
-        empty = (np.zeros(0, int), np.zeros((0, 2)), np.zeros(0))
+        first = None
         for level in (0, 1):
             g = gray if level == 0 else cv2.resize(gray, (gray.shape[1] // 2, gray.shape[0] // 2),
                                                    interpolation=cv2.INTER_AREA)
-            nm = 0
+            nm, foreign = 0, 0
             if self.board.type == "charuco":
                 q, ids, nm, mids = self._charuco(g)
-                if mids is not None and np.any(np.asarray(mids).ravel() >= self.n_markers):
-                    return Detection(*empty, reason="wrong board", markers=nm)
+                if mids is not None:
+                    foreign = int(np.count_nonzero(np.asarray(mids).ravel() >= self.n_markers))
             else:
                 q, ids = self._chessboard(g)
-            if q is None:
-                if nm >= 4:   # markers of this dictionary but no corners: layout / size mismatch
-                    return Detection(*empty, reason="wrong board", markers=nm)
-                if nm > 0 and level == 0:
-                    return Detection(*empty, reason="too few corners", markers=nm)
-                continue
-            if level == 1:
-                q = (q + 0.5) * 2.0 - 0.5   # half-resolution pixel centres → full resolution
-            order = np.argsort(ids)
-            ids, q = ids[order], q[order]
-            w = np.full(ids.shape, 1.0 / 2**level)
-            if len(ids) < min_corners or not _spans_grid(ids, self.board):
-                return Detection(ids, q, w, reason="too few corners", markers=nm)
-            return Detection(ids, q, w, markers=nm)
-        return Detection(*empty, reason="no board")
+            if q is not None:
+                if level == 1:
+                    q = (q + 0.5) * 2.0 - 0.5   # half-resolution pixel centres → full resolution
+                order = np.argsort(ids)
+                ids, q = ids[order], q[order]
+                if len(ids) >= min_corners and _spans_grid(ids, self.board):
+                    return Detection(ids, q, np.full(ids.shape, 1.0 / 2**level), markers=nm)
+            if level == 0:
+                first = (q, ids, nm, foreign)
+        # nothing usable at either resolution: say why, from the full-resolution attempt
+        q, ids, nm, foreign = first
+        if nm >= 4 and 2 * foreign >= nm:       # mostly markers this board cannot have
+            return Detection(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), reason="wrong board", markers=nm)
+        if q is not None:
+            return Detection(ids, q, np.ones(ids.shape), reason="too few corners", markers=nm)
+        if nm > 0:
+            return Detection(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), reason="too few corners", markers=nm)
+        return Detection(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), reason="no board")
 
 
 def detect_board(image: np.ndarray, board: Board, *, min_corners: int = 8) -> Detection:
