@@ -191,7 +191,7 @@ def _board_scale(session, board, cams: list[str], models_ref: dict, frame_poses:
     W = board.cols - 1
     col = {c: session.cameras.index(c) for c in cams}
     ratios = []
-    for i, T_world_ref in frame_poses.items():        # T_ref_world per frame (rig frame = camera 0's)
+    for i, T_ref_world in frame_poses.items():        # per frame; ref = camera 0
         rays: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         for cam in cams:
             ns = int(session.cam_timestamps[i, col[cam]])
@@ -203,7 +203,7 @@ def _board_scale(session, board, cams: list[str], models_ref: dict, frame_poses:
             m = models_ref[cam]
             T_cam_ref = np.asarray(m[1])
             v = mrcal.unproject(np.ascontiguousarray(d.q), *m[0], normalize=True)
-            T_world_cam = T_inverse(T_cam_ref @ T_world_ref)
+            T_world_cam = T_inverse(T_cam_ref @ T_ref_world)
             for cid, vi in zip(d.ids, v):
                 rays.setdefault(int(cid), []).append((T_world_cam[:3, 3], T_world_cam[:3, :3] @ vi))
         pts = {}

@@ -229,3 +229,32 @@ step_r_deg = 2.0
         f_est, f_true = cal.models[c].intrinsics()[1][0], true[c].intrinsics()[1][0]
         assert abs(f_est / f_true - 1) <= CALIB_COLMAP_FOCAL_REL
     assert math.isfinite(cal.scale) and cal.scale_source == "rig"
+
+
+def test_board_scale_from_triangulated_corners(tmp_path):
+    """The COLMAP path's metric scale from a board: true geometry shrunk by k gives back k."""
+    from calib.colmap import _board_scale
+    from polycam.board import load_board
+    from polycam.geometry import T_inverse
+    from polycam.session import open_session
+    from polycam.synth import synth_board_session
+
+    (tmp_path / "board.toml").write_text('[board]\ntype = "charuco"\nsquares = [5, 7]\nsquare_length = 0.04\n'
+                                         'marker_length = 0.03\ndictionary = "DICT_5X5_100"\n')
+    board = load_board(tmp_path / "board.toml")
+    (tmp_path / "rig.toml").write_text('[rig]\nname = "pair"\n[defaults]\nwidth = 320\nheight = 240\nfov_deg = 60\n'
+                                       '[grid]\nrows = 1\ncols = 2\npitch = 0.08\n')
+    s = open_session(synth_board_session(load_rig(tmp_path / "rig.toml"), tmp_path / "s", board=board, frames=3,
+                                         seed=1))
+    true = s.calibration()
+    k = 3.7
+    T_rig_cam0 = T_rig_cam_of(true["cam00"])
+    models_ref = {}
+    for cam, m in true.items():
+        T_cam_ref = T_inverse(T_rig_cam_of(m)) @ T_rig_cam0
+        T_cam_ref[:3, 3] /= k
+        models_ref[cam] = (m.intrinsics(), T_cam_ref)
+    T_ref_world = T_inverse(T_rig_cam0)            # world = rig (static rig)
+    T_ref_world[:3, 3] /= k
+    scale = _board_scale(s, board, list(true), models_ref, {i: T_ref_world for i in range(len(s))})
+    assert scale == pytest.approx(k, rel=0.01)
