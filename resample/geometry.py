@@ -63,8 +63,10 @@ class KernelOptions:
     """Tent half-width along u and v [grid steps]."""
     linear: bool = True
     """Local-linear correction (exact for light fields linear in x, y, u, v)."""
-    ridge: float = 1e-5
-    """Ridge on the fitted slopes, relative to the cell's kernel sum."""
+    ridge: float = 1e-8
+    """Ridge on the fitted slopes, relative to the cell's kernel sum: it only decides the
+    slopes the samples leave free (e.g. along x when all come from one camera centre on
+    the focal plane), which then come out 0."""
     max_gain: float = 4.0
     """A cell whose local-linear weights have ``Σ |w| >`` this falls back to plain splatting."""
     min_weight: float = 1e-3
@@ -270,9 +272,16 @@ def _solve_spd(N, rhs, n):
     return True, x
 
 
+_MOMENT_TOL = 1e-6
+"""A cell's fit counts as determined when the first moments of its equivalent kernel,
+``Σ w_s (i_s - c) / r`` per axis, are below this (they vanish for an exact linear fit)."""
+
+
 @numba.njit(cache=True, parallel=True)
-def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain, data, wsum, nlinear):
-    """Per cell: kernel sum and the equivalent-kernel weights of its samples."""
+def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain, data, wsum, nlinear,
+                 determined):
+    """Per cell: kernel sum, the equivalent-kernel weights of its samples and whether the
+    local-linear fit is determined (exact for linear light fields)."""
     Ny, Nx, Nv, Nu = dims[1], dims[2], dims[3], dims[4]
     nrows = indptr.shape[0] - 1
     for cell in numba.prange(nrows):
@@ -325,6 +334,8 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
                             dot += gvec[ax + 1] * (coord[s, ax] - centre[ax]) / radii[ax]
                     gain += abs(data[j] * dot)
                 if gain <= max_gain:
+                    for ax in range(4):
+                        phi[ax + 1] = 0.0           # reused: first moments of the equivalent kernel
                     for j in range(j0, j1):
                         s = sample_of[j]
                         dot = gvec[0]
@@ -332,8 +343,16 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
                             if n_ax[ax] > 1:
                                 dot += gvec[ax + 1] * (coord[s, ax] - centre[ax]) / radii[ax]
                         data[j] = data[j] * dot
+                        for ax in range(4):
+                            if n_ax[ax] > 1:
+                                phi[ax + 1] += data[j] * (coord[s, ax] - centre[ax]) / radii[ax]
                     done = True
                     nlinear[cell] = 1
+                    worst = 0.0
+                    for ax in range(4):
+                        worst = max(worst, abs(phi[ax + 1]))
+                    if worst <= _MOMENT_TOL:
+                        determined[cell] = 1
         if not done:
             for j in range(j0, j1):
                 data[j] = data[j] / ksum
@@ -382,6 +401,10 @@ class SplatGeometry:
     """(nnz,) float32 weight of each entry (a row sums to 1 where the cell has samples)."""
     w0: np.ndarray
     """(F, Ny, Nx, Nv, Nu) float32 kernel sum per cell [samples]: the push-pull weight."""
+    determined: np.ndarray
+    """(F, Ny, Nx, Nv, Nu) bool: the cell's local-linear fit is pinned down by its samples (they
+    spread around it in (u, v), and in (x, y) unless they all sit at the cell's (x, y)), so a
+    light field linear in (x, y, u, v) is reproduced exactly there."""
     num_samples: int
     """Scattered samples (pixel, face) that reached the grid."""
     linear_fraction: float
@@ -426,15 +449,16 @@ def _geometry_from_samples(grid: LightFieldGrid, layout: CameraLayout, kernel: K
     data64 = np.empty(nnz, np.float64)
     wsum = np.zeros(ncells, np.float64)
     nlin = np.zeros(ncells, np.int8)
+    det = np.zeros(ncells, np.int8)
     _row_weights(indptr, sample_of, coord, dims, radii, kernel.linear, kernel.ridge, kernel.max_gain,
-                 data64, wsum, nlin)
+                 data64, wsum, nlin, det)
     if layout.num_pixels >= 2**31:
         raise ValueError("more than 2^31 input pixels per frame are not supported")
     indices = smp.pixel[sample_of].astype(np.int32)
     reached = int(np.count_nonzero(counts))
     geo = SplatGeometry(grid=grid, layout=layout, kernel=kernel, indptr=indptr, indices=indices,
                         data=data64.astype(np.float32), w0=wsum.astype(np.float32).reshape(grid.shape),
-                        num_samples=int(smp.pixel.shape[0]),
+                        determined=det.astype(bool).reshape(grid.shape), num_samples=int(smp.pixel.shape[0]),
                         linear_fraction=float(nlin.sum()) / reached if reached else 0.0)
     log.info("splat geometry: %d pixels -> %d samples -> %d cells reached of %d, %d entries "
              "(%.1f per sample), %.1f%% local-linear", layout.num_pixels, geo.num_samples, reached, ncells,

@@ -44,6 +44,11 @@ class ResampleOptions:
     """Pyramid schedule (:data:`~resample.pushpull.SCHEDULES`)."""
     attenuation: float = 0.5
     """Confidence a filled cell inherits per pyramid level (:mod:`resample.pushpull`)."""
+    full_weight: float = 0.5
+    """Kernel sum [samples] at which a cell counts as fully covered: the pull-push weight is
+    ``min(w0 / full_weight, 1)``. With the default one-pixel (u, v) step a cell gets about one
+    sample's kernel weight on average, fluctuating with the sampling pattern; half of that
+    is enough for the local-linear fit to be trusted on its own."""
     geometry_cache: int = 8
     """Geometries kept for frames with missing cameras (one per set of cameras present)."""
 
@@ -52,6 +57,8 @@ class ResampleOptions:
             raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
         if not 0.0 < self.attenuation <= 1.0:
             raise ValueError("attenuation must be in (0, 1]")
+        if not self.full_weight > 0.0:
+            raise ValueError("full_weight must be > 0")
 
 
 @dataclass(frozen=True)
@@ -150,7 +157,7 @@ class Resampler:
         if w is None:
             if len(self._w0c) > self.options.geometry_cache + 1:
                 self._w0c.clear()
-            w = np.minimum(geo.w0, np.float32(1.0))
+            w = np.minimum(geo.w0 * np.float32(1.0 / self.options.full_weight), np.float32(1.0))
             self._w0c[key] = w
         return w
 

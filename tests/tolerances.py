@@ -48,3 +48,7 @@ CALIB_RAY_REPROJ_PX = 1e-6            # [px] projecting o + s d of a pixel's ray
 CALIB_COLMAP_POSITION_M = 0.005       # [m] COLMAP target-free: camera centres vs truth (2x2 rig, 6 cm pitch)
 CALIB_COLMAP_FOCAL_REL = 0.02         # COLMAP target-free: relative focal-length error
 CALIB_SPLINED_POSITION_M = 0.005     # [m] noise-free but regularised splined solve (3 cameras, 18 poses): centres
+# resampling (tests/test_resample*.py)
+RESAMPLE_PUSHPULL_ATOL = 1e-5     # numba pull-push vs the numpy reference (float32, other summation order)
+RESAMPLE_CONSTANT_ATOL = 1e-5     # a constant scene resampled (intensity units)
+RESAMPLE_LINEAR_ATOL = 2e-5       # a light field linear in (x, y, u, v) where covered and the fit is determined (range ~0.3; float32)

@@ -1,0 +1,275 @@
+"""Resampling core: automatic grid, splat geometry, pull-push, per-frame resampling.
+
+Small rigs (a few cameras of a few dozen pixels) with rotated, distorted true models,
+so each test runs in well under a second once numba's cache is warm.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from polycam.errors import InputError
+from polycam.lightfield import FACE_NAMES, Axis, LightFieldGrid
+from polycam.rig import load_rig
+from polycam.synth import true_cameramodels
+from resample import (KernelOptions, ResampleOptions, Resampler, auto_grid, build_geometry, push_pull,
+                      push_pull_reference, ray_samples)
+from resample.geometry import camera_layout
+from resample.pushpull import pyramid_schedule
+from tests.tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL)
+
+
+def _lens(tmp_path: Path) -> Path:
+    """A distorting lens (OPENCV4, barrel) for the rig files."""
+    import mrcal
+
+    p = tmp_path / "lens.cameramodel"
+    mrcal.cameramodel(intrinsics=("LENSMODEL_OPENCV4", np.array([100.0, 100.0, 79.5, 59.5, -0.12, 0.02, 0.001, -0.001])),
+                      imagersize=np.array([160, 120])).write(str(p))
+    return p
+
+
+def _grid_rig(tmp_path: Path, rows=3, cols=3, width=40, height=30, pitch=0.02, lens=True, extra=""):
+    lens_line = f'lens = "{_lens(tmp_path)}"\n' if lens else ""
+    p = tmp_path / "rig.toml"
+    p.write_text(f"""[rig]
+name = "small"
+[defaults]
+driver = "mock"
+width = {width}
+height = {height}
+fps = 30
+fov_deg = 60
+{lens_line}
+[grid]
+rows = {rows}
+cols = {cols}
+pitch = {pitch}
+{extra}""")
+    return load_rig(p)
+
+
+def _models(tmp_path, rot_deg=2.0, **kw):
+    rig = _grid_rig(tmp_path, **kw)
+    return rig, true_cameramodels(rig, seed=4, perturb_rotation_deg=rot_deg, perturb_focal_frac=0.01)
+
+
+def _sample_coords(models, grid):
+    """Per camera: (H, W) arrays of the face-0 light-field coordinates (x, y, u, v) of its pixels."""
+    from polycam.cameras import camera_rays
+
+    out = {}
+    fc = grid.faces[0]
+    R = np.asarray(fc.R_rig_face)
+    for cam, m in models.items():
+        r = camera_rays(m)
+        o = r.origins @ R
+        d = r.directions @ R
+        s = (fc.z_pi - o[..., 2]) / d[..., 2]
+        out[cam] = (o[..., 0] + s * d[..., 0], o[..., 1] + s * d[..., 1],
+                    fc.f * d[..., 0] / d[..., 2], fc.f * d[..., 1] / d[..., 2])
+    return out
+
+
+def _grid_coords(grid):
+    ys, xs, vs, us = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
+    return xs[None], ys[None], us[None], vs[None]
+
+
+# ----------------------------------------------------------------------------- grid
+
+
+def test_auto_grid_puts_viewpoints_at_and_between_the_cameras(tmp_path):
+    rig, models = _models(tmp_path, rows=3, cols=4)
+    g = auto_grid(models)
+    assert [f.name for f in g.faces] == ["+z"]
+    assert (g.y.count, g.x.count) == (5, 7)                 # 2 steps per camera interval
+    np.testing.assert_allclose(g.x.step, 0.01, rtol=1e-6)
+    np.testing.assert_allclose([g.x.min, g.x.max], [-0.03, 0.03], atol=1e-9)
+    assert abs(g.faces[0].z_pi) < 1e-9
+    fx = np.median([m.intrinsics()[1][0] for m in models.values()])
+    np.testing.assert_allclose(g.faces[0].f, fx)            # one (u, v) step = one pixel
+    assert g.u.step == pytest.approx(1.0) and g.v.step == pytest.approx(1.0)
+    # the directions cover the cameras' fields of view: about the image size
+    assert 40 <= g.u.count <= 40 * 1.5 and 30 <= g.v.count <= 30 * 1.5
+    g2 = auto_grid(models, uv_step_px=2.0, xy_oversample=1)
+    assert (g2.y.count, g2.x.count) == (3, 4) and g2.u.step == pytest.approx(1.0)
+    assert g2.faces[0].f == pytest.approx(g.faces[0].f / 2)
+
+
+def test_auto_grid_uses_one_face_per_viewing_direction(tmp_path):
+    p = tmp_path / "cube.toml"
+    cams = []
+    for name, rot in [("front", [0, 0, 0]), ("right", [0, math.pi / 2, 0]), ("back", [0, math.pi, 0])]:
+        cams.append(f'[[camera]]\nid = "{name}"\nposition = [0.0, 0.0, 0.0]\nrotation = {rot}\n')
+    p.write_text('[rig]\nname = "three"\n[defaults]\ndriver = "mock"\nwidth = 32\nheight = 24\nfps = 30\n'
+                 'fov_deg = 60\n' + "\n".join(cams))
+    rig = load_rig(p)
+    models = true_cameramodels(rig)
+    g = auto_grid(models)
+    assert [f.name for f in g.faces] == [n for n in FACE_NAMES if n in ("+z", "+x", "-z")]
+    assert max(abs(g.u.min), abs(g.u.max)) <= g.faces[0].f + 1      # at most 45 deg per face
+    assert (g.x.count, g.y.count) == (1, 1)                         # one viewpoint
+
+
+# ----------------------------------------------------------------------------- pull-push
+
+
+@pytest.mark.parametrize("schedule", ["xy-first", "isotropic"])
+@pytest.mark.parametrize("shape", [(1, 9, 9, 12, 14), (2, 4, 5, 7, 6), (1, 1, 1, 5, 5), (1, 2, 1, 1, 3)])
+def test_pushpull_matches_the_reference(rng, shape, schedule):
+    w0 = rng.uniform(0, 2, shape).astype(np.float32) * (rng.uniform(size=shape) > 0.6)
+    x0 = rng.uniform(size=(*shape, 3)).astype(np.float32)
+    for x in (x0, x0[..., 0]):
+        a = push_pull(x, w0, schedule=schedule)
+        b = push_pull_reference(x, w0, schedule=schedule)
+        assert np.max(np.abs(a.L - b.L)) <= RESAMPLE_PUSHPULL_ATOL
+        assert np.max(np.abs(a.W - b.W)) <= RESAMPLE_PUSHPULL_ATOL
+
+
+def test_pushpull_fills_holes_with_low_confidence(rng):
+    shape = (1, 5, 5, 16, 16)
+    w0 = np.zeros(shape, np.float32)
+    w0[:, ::2, ::2, 4:12, 4:12] = 2.0                    # data at "camera" viewpoints, central directions
+    x0 = np.where(w0 > 0, 0.25, 0).astype(np.float32)
+    r = push_pull(x0, w0)
+    assert np.all(np.isfinite(r.L)) and np.all((r.W >= 0) & (r.W <= 1))
+    np.testing.assert_allclose(r.L, 0.25, atol=RESAMPLE_CONSTANT_ATOL)   # a constant fills as itself
+    assert np.all(r.W[w0 > 0] == 1.0)
+    holes = w0 == 0
+    assert np.all(r.W[holes] <= 0.5)                     # attenuation 0.5 per level
+    # deeper holes (farther from the data) have less confidence
+    assert r.W[0, 1, 1, 0, 0] < r.W[0, 1, 1, 8, 8] <= 0.5
+    assert np.all(push_pull(x0, np.zeros(shape, np.float32)).W == 0.0)   # no data at all: W = 0
+
+
+def test_pyramid_schedule_halves_views_first():
+    s = pyramid_schedule((1, 9, 9, 64, 48))
+    assert s[:4] == [(1, 2)] * 4 and all(a == (3, 4) for a in s[4:]) and len(s) == 4 + 6
+    assert pyramid_schedule((1, 1, 1, 1, 1)) == []
+    with pytest.raises(ValueError):
+        pyramid_schedule((1, 2, 2, 2, 2), "nope")
+
+
+# ----------------------------------------------------------------------------- geometry and frames
+
+
+def test_every_pixel_lands_on_its_own_ray(tmp_path):
+    """A sample's fractional indices, mapped back through the grid, give the pixel's ray."""
+    from polycam.cameras import camera_rays
+
+    _, models = _models(tmp_path)
+    grid = auto_grid(models)
+    lay = camera_layout(models)
+    smp = ray_samples(models, grid, lay, margin=0.0)
+    o = np.concatenate([camera_rays(models[c]).origins.reshape(-1, 3) for c in lay.ids])[smp.pixel]
+    d = np.concatenate([camera_rays(models[c]).directions.reshape(-1, 3) for c in lay.ids])[smp.pixel]
+    fc = grid.faces[0]
+    x = grid.x.min + smp.coord[:, 1] * grid.x.step
+    y = grid.y.min + smp.coord[:, 0] * grid.y.step
+    u = grid.u.min + smp.coord[:, 3] * grid.u.step
+    v = grid.v.min + smp.coord[:, 2] * grid.v.step
+    p = np.stack([x, y, np.full_like(x, fc.z_pi)], 1) @ np.asarray(fc.R_rig_face).T
+    dd = np.stack([u, v, np.full_like(u, fc.f)], 1) @ np.asarray(fc.R_rig_face).T
+    dd /= np.linalg.norm(dd, axis=1, keepdims=True)
+    np.testing.assert_allclose(dd, d, atol=1e-9)
+    # the light-field ray's origin lies on the camera ray
+    off = p - o
+    np.testing.assert_allclose(np.linalg.norm(np.cross(off, d), axis=1), 0, atol=1e-9)
+
+
+def test_constant_scene_gives_a_constant_light_field(tmp_path):
+    _, models = _models(tmp_path)
+    grid = auto_grid(models)
+    rs = Resampler(models, grid)
+    frame = {c: np.full((30, 40), 97, np.uint8) for c in models}
+    r = rs.resample(frame)
+    np.testing.assert_allclose(r.L, 97 / 255, atol=RESAMPLE_CONSTANT_ATOL)
+    assert np.all((r.W >= 0) & (r.W <= 1)) and r.W.max() == 1.0
+    # 16-bit and colour inputs are normalised the same way
+    rs3 = Resampler(models, grid, channels=3)
+    frame16 = {c: np.full((30, 40, 3), 97 * 257, np.uint16) for c in models}
+    r3 = rs3.resample(frame16)
+    assert r3.L.shape == (*grid.shape, 3)
+    np.testing.assert_allclose(r3.L, 97 / 255, atol=RESAMPLE_CONSTANT_ATOL)
+    np.testing.assert_array_equal(r3.W, r.W)
+
+
+@pytest.mark.parametrize("z_pi, radius_xy", [(0.0, 1.0), (0.05, 2.0)])
+def test_a_linear_light_field_is_reproduced_exactly_where_covered(tmp_path, z_pi, radius_xy):
+    """L = a + b . (x, y, u, v) sampled by rotated, distorted cameras comes back exactly
+    wherever a cell has full weight and its samples pin the fit down. With the focal plane
+    5 cm ahead of the cameras each camera's samples slant through (x, y), so the fit is
+    genuinely 4-D (and needs the wider kernel to see two cameras)."""
+    _, models = _models(tmp_path, rows=3, cols=3)
+    g0 = auto_grid(models)
+    fc = g0.faces[0]
+    grid = LightFieldGrid.cube(["+z"], f=fc.f, z_pi=z_pi, x=g0.x, y=g0.y, u=g0.u, v=g0.v)
+    coef = np.array([0.31, 2.0, -1.5, 0.004, 0.003])       # per metre (x, y), per grid pixel (u, v)
+
+    def field(x, y, u, v):
+        return coef[0] + coef[1] * x + coef[2] * y + coef[3] * u + coef[4] * v
+
+    frame = {c: field(*xyuv).astype(np.float32) for c, xyuv in _sample_coords(models, grid).items()}
+    kernel = KernelOptions(radius_xy=radius_xy)
+    rs = Resampler(models, grid, options=ResampleOptions(kernel=kernel))
+    r = rs.resample(frame)
+    truth = field(*_grid_coords(grid))
+    covered = (r.W == 1.0) & rs.geometry.determined      # full weight of its own, fit pinned down
+    assert covered.mean() > 0.15
+    err = np.abs(r.L - truth)[covered]
+    assert err.max() <= RESAMPLE_LINEAR_ATOL, err.max()
+    # plain splatting (no local-linear correction) is not exact: the test has teeth
+    rs0 = Resampler(models, grid, options=ResampleOptions(kernel=KernelOptions(radius_xy=radius_xy, linear=False)))
+    assert np.abs(rs0.resample(frame).L - truth)[covered].max() > 10 * RESAMPLE_LINEAR_ATOL
+
+
+def test_holes_get_low_confidence_and_w_is_a_confidence(tmp_path):
+    _, models = _models(tmp_path)
+    g0 = auto_grid(models)
+    # widen the directions far beyond the cameras' fields of view: a ring of holes
+    wide = Axis(g0.u.min - 20, g0.u.max + 20, g0.u.count + 40)
+    grid = LightFieldGrid.cube(["+z"], f=g0.faces[0].f, z_pi=0.0, x=g0.x, y=g0.y, u=wide, v=g0.v)
+    rs = Resampler(models, grid)
+    frame = {c: np.full((30, 40), 0.6, np.float32) for c in models}
+    r = rs.resample(frame)
+    assert np.all((r.W >= 0) & (r.W <= 1))
+    holes = rs.geometry.w0 == 0
+    assert holes[..., :15].all() and holes[..., -15:].all()
+    assert np.all(r.W[holes] <= 0.5)
+    assert np.median(r.W[~holes]) > 0.9
+    np.testing.assert_allclose(r.L, 0.6, atol=RESAMPLE_CONSTANT_ATOL)
+
+
+def test_missing_cameras_use_a_geometry_of_the_cameras_present(tmp_path, rng):
+    _, models = _models(tmp_path)
+    grid = auto_grid(models)
+    frame = {c: rng.uniform(size=(30, 40)).astype(np.float32) for c in models}
+    rs = Resampler(models, grid)
+    part = dict(frame)
+    part["cam04"] = None
+    r = rs.resample(part)
+    assert r.cameras == tuple(c for c in models if c != "cam04")
+    sub = {c: m for c, m in models.items() if c != "cam04"}
+    ref = Resampler(sub, grid).resample({c: frame[c] for c in sub})
+    np.testing.assert_array_equal(r.L, ref.L)
+    np.testing.assert_array_equal(r.W, ref.W)
+    with pytest.raises(InputError):
+        rs.resample({c: None for c in models})
+    with pytest.raises(InputError):
+        rs.resample({"cam00": np.zeros((5, 5), np.uint8)})
+
+
+def test_geometry_rows_are_normalised(tmp_path):
+    _, models = _models(tmp_path)
+    geo = build_geometry(models, auto_grid(models))
+    S = geo.to_scipy()
+    rows = np.asarray(S.sum(axis=1)).ravel()
+    reached = np.diff(geo.indptr) > 0
+    np.testing.assert_allclose(rows[reached], 1.0, atol=1e-5)
+    assert np.all(rows[~reached] == 0) and geo.linear_fraction > 0.9
+    assert np.array_equal(reached.reshape(geo.w0.shape), geo.w0 > 0)
