@@ -119,6 +119,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+_TEXTURE_FLOOR = 1e-5
+"""RMS intensity change per sample below which a light field has no usable texture."""
+
 _SCALE_FLOOR = 1e-5
 """Smallest robust residual scale [intensity]: ~1/400 of an 8-bit level, far above float32 rounding."""
 
@@ -860,6 +863,18 @@ class _Solver:
                              float(face.z_pi), float(face.f), pk, out[k])
         return out
 
+    def texture(self, w: np.ndarray) -> float:
+        """Weighted RMS of the intensity change per sample, sqrt(Σ w |∇L · h|² / Σ w)."""
+        d = self.der
+        sw = float(np.sum(w, dtype=np.float64))
+        if not sw > 0:
+            return 0.0
+        e = 0.0
+        for arr, h in ((d.Lx, self.g.x.step), (d.Ly, self.g.y.step), (d.Lu, self.g.u.step),
+                       (d.Lv, self.g.v.step)):
+            e += float(np.sum(w * (arr * np.float32(h)) ** 2, dtype=np.float64))
+        return math.sqrt(e / sw)
+
     def noise_energy(self, w: np.ndarray) -> np.ndarray:
         """(6, 6) rig-frame E = Σ w Mᵀ diag(var L_x, var L_y, var L_u, var L_v) M: the
         expected contribution of sensor noise to AᵀWA (M = the Eq. 5 ray matrices)."""
@@ -1114,10 +1129,25 @@ def _result(index, M, diag, solver: _Solver, opts: MotionOptions, n_solves: int)
     cov = J @ C_sand @ J.T
     cov_iid = J @ C_iid @ J.T
     unobs_vecs = sol["unobs"]
+    texture = solver.texture(w)
+    if texture < _TEXTURE_FLOOR:
+        unobs_vecs = np.eye(6)
+    if len(unobs_vecs):
+        # parameters touching the unobservable subspace get infinite variance
+        # (J maps parameters one to one up to a rotation within t and within ω)
+        touched = np.sum(unobs_vecs ** 2, axis=0) > 0.01
+        touched = touched | np.concatenate([[touched[:3].any()] * 3, [touched[3:].any()] * 3])
+        for C in (cov, cov_iid):
+            C[touched, :] = 0.0
+            C[:, touched] = 0.0
+            C[touched, touched] = np.inf
     names = tuple(_name_direction(v) for v in unobs_vecs)
     reason = ""
     if num < opts.min_rays:
         reason = f"only {num} usable rays (need {opts.min_rays}): too little texture or valid data"
+    elif texture < _TEXTURE_FLOOR:
+        reason = (f"unobservable: no texture (RMS gradient {texture:.2g} per sample); "
+                  "all of " + ", ".join(names))
     elif names:
         reason = "unobservable: " + ", ".join(names)
     elif not np.all(np.isfinite(M)):
