@@ -468,11 +468,14 @@ def _jit_pair(fn, fastmath=False):
             numba.njit(cache=True, fastmath=fastmath)(fn))
 
 
+_FAST = {"nnan", "ninf", "nsz", "arcp"}
+"""Fast-math flags for the plane kernels: enough for LLVM to vectorise them, but no
+reassociation or FMA contraction, so results do not depend on the buffers' alignment."""
+
 _PULL = _jit_pair(_pull_any)
 _PUSH = _jit_pair(_push_any)
-# fastmath lets LLVM vectorise the plane loops (values are finite; divisions are guarded)
-_PULL_XY = _jit_pair(_pull_xy_any, fastmath=True)
-_PUSH_XY = _jit_pair(_push_xy_any, fastmath=True)
+_PULL_XY = _jit_pair(_pull_xy_any, fastmath=_FAST)
+_PUSH_XY = _jit_pair(_push_xy_any, fastmath=_FAST)
 
 _PARALLEL_MIN_CELLS = 1 << 17
 """Levels with fewer cells run the serial kernels."""

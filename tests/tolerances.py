@@ -52,3 +52,5 @@ CALIB_SPLINED_POSITION_M = 0.005     # [m] noise-free but regularised splined so
 RESAMPLE_PUSHPULL_ATOL = 1e-5     # numba pull-push vs the numpy reference (float32, other summation order)
 RESAMPLE_CONSTANT_ATOL = 1e-5     # a constant scene resampled (intensity units)
 RESAMPLE_LINEAR_ATOL = 2e-5       # a light field linear in (x, y, u, v) where covered and the fit is determined (range ~0.3; float32)
+RESAMPLE_DIRECT_PSNR_DB = 30.0    # [dB] irregular 3x3 rig (64x48 px) vs the grid rendered directly, at camera viewpoints where W > 0.5
+RESAMPLE_MIDVIEW_PSNR_DB = 50.0   # [dB] a view half-way between cameras vs the mean of its two resampled neighbours
