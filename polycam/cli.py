@@ -127,6 +127,43 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_motion(args: argparse.Namespace) -> int:
+    from .errors import InputError
+
+    src = Path(args.source)
+    if (src / "session.toml").exists():
+        raise InputError(f"{src}: motion straight from a session is not available yet; "
+                         f"run 'polycam resample {src} --out LF.zarr' and then 'polycam motion LF.zarr'")
+    from .lfstore import open_lightfield
+
+    store = open_lightfield(src)  # validates before the heavy solver import
+    from .motion import estimate_trajectory
+    from .trajectory import write_tum
+
+    with _progress(f"motion {src.name}", len(store) - 1) as advance:
+        traj, results = estimate_trajectory(store, progress=advance)
+    write_tum(args.out, traj)
+    failed = [r for r in results if not r]
+    print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"
+          + (f"; {len(failed)} failed (first: pair {failed[0].index}: {failed[0].reason})" if failed else ""))
+    truth = store.groundtruth()
+    if truth is not None:
+        import numpy as np
+
+        from .evaluate import ate_rmse, pair_errors
+
+        err = pair_errors(traj, truth)
+        print(f"against {src / 'groundtruth.tum'}: median per-pair error translation "
+              f"{100 * np.median(err.t_rel):.2f}%, rotation {100 * np.median(err.w_rel):.2f}%; "
+              f"ATE {1e3 * ate_rmse(traj, truth):.3f} mm")
+    if args.report:
+        from .motion_report import write_motion_report
+
+        written = write_motion_report(args.report, results, traj, truth, store.timestamps_ns)
+        print(f"report in {args.report}: {', '.join(written)}")
+    return 0
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if (path / "session.toml").exists():
@@ -218,6 +255,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="std of per-camera relative focal-length offsets")
     pss.add_argument("--overwrite", action="store_true", help="replace an existing output")
     pss.set_defaults(func=cmd_synth_session)
+
+    pm = sub.add_parser("motion", help="plenoptic egomotion per frame pair, integrated into a trajectory")
+    pm.add_argument("source", metavar="LF.zarr", help="light-field store (SPEC.md)")
+    pm.add_argument("--out", required=True, help="output trajectory TRAJ.tum (T_world_rig per frame)")
+    pm.add_argument("--report", metavar="DIR", help="also write per-pair diagnostics (pairs.csv) and plots")
+    pm.set_defaults(func=cmd_motion)
 
     pi = sub.add_parser("info", help="summarise a session folder or a light-field store")
     pi.add_argument("path")

@@ -36,6 +36,7 @@ def run_demo(out: Path, *, rig_path: Path = DEFAULT_RIG, frames: int = 5,
     from .evaluate import ate_rmse, pair_errors
     from .lfstore import open_lightfield
     from .motion import estimate_trajectory
+    from .motion_report import write_motion_report
     from .rig import load_rig
     from .session import open_session
     from .synth import default_lightfield_grid, synth_lightfield, synth_session
@@ -75,6 +76,7 @@ def run_demo(out: Path, *, rig_path: Path = DEFAULT_RIG, frames: int = 5,
         traj, results = estimate_trajectory(lf, progress=adv)
     seconds = time.perf_counter() - t0
     write_tum(out / "trajectory.tum", traj)
+    written = write_motion_report(out / "report", results, traj, lf.groundtruth(), lf.timestamps_ns)
     err = pair_errors(traj, lf.groundtruth())
     summary["motion"] = {
         "pairs": len(results), "failed": sum(1 for r in results if not r),
@@ -87,5 +89,6 @@ def run_demo(out: Path, *, rig_path: Path = DEFAULT_RIG, frames: int = 5,
     echo(f"          median error per pair: translation {100 * m['median_t_rel']:.2f}% of "
          f"{1000 * float(np.median(err.t_true)):.1f} mm, rotation {100 * m['median_w_rel']:.2f}% of "
          f"{np.degrees(float(np.median(err.w_true))):.3f} deg; ATE {1000 * m['ate_m']:.3f} mm")
+    echo(f"          report: {out / 'report'} ({', '.join(written)})")
     echo(f"          compare: evo_ape tum {out / 'lightfield.zarr' / 'groundtruth.tum'} {out / 'trajectory.tum'}")
     return summary

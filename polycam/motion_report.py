@@ -22,7 +22,7 @@ import numpy as np
 from .motion import PairResult
 from .tomlio import atomic_write_text
 
-__all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report"]
+__all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report", "write_motion_report"]
 
 PAIR_REPORT_COLUMNS = (
     "pair", "timestamp_ns", "t_x", "t_y", "t_z", "r_x", "r_y", "r_z",
@@ -48,3 +48,26 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason])
     atomic_write_text(path_csv, buf.getvalue())
+
+
+def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairResult], traj,
+                        truth=None, timestamps_ns: np.ndarray | None = None) -> list[str]:
+    """A report folder: ``pairs.csv``, ``trajectory.png`` and, with a ground truth,
+    ``errors.png``. Returns the names of the files written.
+
+    traj, truth: :class:`~polycam.trajectory.Trajectory` (``truth`` optional, same timestamps).
+    """
+    from pathlib import Path
+
+    from .evaluate import pair_errors
+    from .plots import plot_pair_errors, plot_trajectory
+
+    report = Path(report_dir)
+    report.mkdir(parents=True, exist_ok=True)
+    write_pair_report(results, report / "pairs.csv", timestamps_ns)
+    plot_trajectory(report / "trajectory.png", traj, truth)
+    written = ["pairs.csv", "trajectory.png"]
+    if truth is not None:
+        plot_pair_errors(report / "errors.png", pair_errors(traj, truth))
+        written.append("errors.png")
+    return written

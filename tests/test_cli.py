@@ -142,3 +142,40 @@ def test_info_names_non_monotonic_timestamps(tmp_path):
 def test_info_on_something_that_is_neither(tmp_path):
     (tmp_path / "junk").mkdir()
     assert_one_line_error(polycam("info", str(tmp_path / "junk")), "junk")
+
+
+def _small_lightfield(tmp_path: Path, frames: int) -> Path:
+    grid = tmp_path / "grid.toml"
+    grid.write_text('[grid]\nf = 60\nz_pi = 0.02\nfaces = ["+z", "-x"]\nx = [-0.02, 0.02, 5]\n'
+                    'y = [-0.02, 0.02, 5]\nu = [-45, 45, 32]\nv = [-45, 45, 32]\n')
+    out = tmp_path / "lf.zarr"
+    res = polycam("synth", "lightfield", "--grid", str(grid), "--frames", str(frames), "--distance", "4",
+                  "--step-t", "0.01", "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    return out
+
+
+def test_motion_on_a_lightfield_with_report(tmp_path):
+    lf = _small_lightfield(tmp_path, 3)
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"))
+    assert res.returncode == 0, res.stderr
+    assert "against" in res.stdout  # compared with the store's ground truth
+    from polycam.trajectory import read_tum
+
+    assert len(read_tum(tmp_path / "traj.tum")) == 3
+    for name in ("pairs.csv", "trajectory.png", "errors.png"):
+        assert (tmp_path / "rep" / name).stat().st_size > 0
+    header = (tmp_path / "rep" / "pairs.csv").read_text().splitlines()[0]
+    assert header.startswith("pair,timestamp_ns,t_x")
+
+
+def test_motion_needs_two_frames(tmp_path):
+    lf = _small_lightfield(tmp_path, 1)
+    assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum")), "frame")
+    assert not (tmp_path / "t.tum").exists()
+
+
+def test_motion_on_a_broken_store_names_it(tmp_path):
+    (tmp_path / "bad.zarr").mkdir()
+    assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),
+                          "bad.zarr")

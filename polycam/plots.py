@@ -1,0 +1,71 @@
+"""Plots a person would rather look at than read (matplotlib, written to PNG files).
+
+Only the CLI and report writers call these; the numerics never plot.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .evaluate import PairErrors
+from .trajectory import Trajectory
+
+__all__ = ["plot_trajectory", "plot_pair_errors"]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, never a window
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_trajectory(path_png: str | os.PathLike, est: Trajectory, true: Trajectory | None = None) -> None:
+    """Positions x, y, z [mm] of ``est`` (and ``true``) against time, plus the x–z path seen from above."""
+    plt = _pyplot()
+    t_s = (est.timestamps_ns - est.timestamps_ns[0]) * 1e-9
+    p_est = est.rebased().T_world_rig[:, :3, 3] * 1e3
+    p_true = true.rebased().T_world_rig[:, :3, 3] * 1e3 if true is not None else None
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for i, (name, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
+        axes[0].plot(t_s, p_est[:, i], "-o", ms=3, color=colour, label=f"{name} estimated")
+        if p_true is not None:
+            axes[0].plot(t_s, p_true[:, i], "--", color=colour, alpha=0.6, label=f"{name} true")
+    axes[0].set_xlabel("time [s]")
+    axes[0].set_ylabel("position of the rig [mm] (world = rig at frame 0)")
+    axes[0].legend(fontsize=7, ncol=2)
+    axes[0].grid(alpha=0.3)
+    axes[1].plot(p_est[:, 0], p_est[:, 2], "-o", ms=3, label="estimated")
+    if p_true is not None:
+        axes[1].plot(p_true[:, 0], p_true[:, 2], "--", label="ground truth")
+    axes[1].set_xlabel("x [mm]")
+    axes[1].set_ylabel("z [mm]")
+    axes[1].set_aspect("equal", adjustable="datalim")
+    axes[1].set_title("path seen from above")
+    axes[1].legend(fontsize=8)
+    axes[1].grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path_png, dpi=110)
+    plt.close(fig)
+
+
+def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors) -> None:
+    """Per frame pair translation and rotation errors, absolute and relative to the true motion."""
+    plt = _pyplot()
+    pairs = np.arange(len(err.t_err))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    axes[0].bar(pairs, err.t_err * 1e3, color="tab:blue")
+    axes[0].set_ylabel("translation error [mm]")
+    axes[1].bar(pairs, np.degrees(err.w_err), color="tab:orange")
+    axes[1].set_ylabel("rotation error [deg]")
+    for ax, rel in zip(axes, (err.t_rel, err.w_rel)):
+        ax.set_xlabel("frame pair")
+        ax.set_title(f"median {100 * np.median(rel):.2f}% of the true motion")
+        ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    fig.savefig(path_png, dpi=110)
+    plt.close(fig)
