@@ -26,6 +26,7 @@ with ``mode="nearest"``).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numba
@@ -431,14 +432,28 @@ def _uv_stage(A1, A2, A3, A4, pv, dv, pu, du, sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt
         _filt_u(tmp, pu, np.float32(1.0), Lt[f, j, i])
 
 
+_local = threading.local()
+
+
+def _scratch(shape: tuple, n: int) -> list[np.ndarray]:
+    """n float32 work arrays of ``shape``, reused between calls in this thread (fresh
+    pages cost as much as the filtering itself)."""
+    cache = getattr(_local, "cache", None)
+    if cache is None or cache[0] != shape:
+        _local.cache = cache = (shape, [np.empty(shape, np.float32) for _ in range(n)])
+    return cache[1][:n]
+
+
 def plenoptic_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
-                          filters: str | dict = "fs5") -> Derivatives:
+                          filters: str | dict = "fs5", out: Derivatives | None = None) -> Derivatives:
     """Derivatives of the frame pair ``L0``, ``L1`` (each (F, Ny, Nx, Nv, Nu)) on ``grid``.
 
     ``filters`` names a :data:`FILTERS` pair for all axes, or maps axis names
-    (``x y u v``) to pair names (unnamed axes use ``fs5``). Two fused kernels: the
-    (x, y) stage builds the four view-smoothed / view-differentiated arrays from the
-    frames' mean and difference, the (u, v) stage filters each view image in cache.
+    (``x y u v``) to pair names (unnamed axes use ``fs5``). ``out``: a previous result
+    of the same dims whose arrays are overwritten (saves allocating fresh memory).
+    Two fused kernels: the (x, y) stage builds the four view-smoothed /
+    view-differentiated arrays from the frames' mean and difference, the (u, v) stage
+    filters each view image in cache.
     """
     pairs = _axis_pairs({"x": grid.x.count, "y": grid.y.count, "u": grid.u.count,
                          "v": grid.v.count}, _resolve_filters(filters))
@@ -461,10 +476,13 @@ def plenoptic_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, 
     px, dx, sx = taps("x")
     pv, dv, sv = taps("v")
     pu, du, su = taps("u")
-    A = [np.empty_like(L0) for _ in range(4)]
+    A = _scratch(L0.shape, 4)
     _xy_stage(L0, L1, py, dy, px, dx, *A)
-    out = [np.empty_like(L0) for _ in range(5)]
-    Lx, Ly, Lu, Lv, Lt = out
+    if out is not None and out.Lx.shape == L0.shape:
+        arrays = [out.Lx, out.Ly, out.Lu, out.Lv, out.Lt]
+    else:
+        arrays = [np.empty_like(L0) for _ in range(5)]
+    Lx, Ly, Lu, Lv, Lt = arrays
     _uv_stage(*A, pv, dv, pu, du, sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt)
     valid = _valid_mask(L0.shape[1:], pairs)
     return Derivatives(Lx, Ly, Lu, Lv, Lt, valid, {k: pairs[k] is not None for k in _AX})

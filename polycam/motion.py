@@ -829,7 +829,8 @@ class _Solver:
         for ww in (w0, w1):
             if len(ww) > 1:
                 conf *= np.clip(ww[1], 0, 1) * (np.abs(ww[2]) < 1e-6)
-        der = plenoptic_derivatives(w0[0], w1[0], self.g, filters={k: v.name for k, v in self.filters.items()})
+        der = plenoptic_derivatives(w0[0], w1[0], self.g, filters={k: v.name for k, v in self.filters.items()},
+                                    out=getattr(self, "der", None))
         if not (lev.W0 is None and lev.W1 is None and conf.min() > 0):
             conf = _min_filter_support(conf, self.radius)
         base = conf * der.valid[None].astype(np.float32)
