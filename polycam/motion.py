@@ -78,10 +78,11 @@ viewpoints); the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as ``covariance_i
 
 Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 9 x 9 views 1 cm apart, 64 x 64 directions, 3 x 3 supersampling, |t| = 1.5 cm,
-|ω| = 0.2°): median relative error per component 0.05–0.3% (t) and 0.04–0.4%
-(ω) at 4–8 m, 1–4% at 12–16 m (where the directions are aliased; the paper
-sees the same growth), against 18–50% / 17–33% for one-shot central-difference
-least squares. Limits: the covariance describes noise, not the systematic
+|ω| = 0.2°): median relative error per component 0.01–0.35% (t) and
+0.02–0.12% (ω) at 4–8 m; 3–5% (t) and 0.4–0.6% (ω) at 12–16 m, where the
+directions are aliased and the translation's signal is weak (the paper sees
+the same growth); against 18–49% / 17–33% for one-shot central-difference
+least squares. With 8-bit frames and 3 grey levels of noise at 8 m: 0.7% / 0.3%. Limits: the covariance describes noise, not the systematic
 errors of aliased or occluded data (it can be several times too small on
 noise-free synthetic frames); under noise it matches the scatter of repeated
 estimates to within about 1.5x (tests/test_motion.py). One face alone couples
