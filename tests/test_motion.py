@@ -409,3 +409,27 @@ def test_two_stage_warp_matches_reference(rng, faces, views, directions, taps):
     b, ok_b = warp_lightfield_reference(A, grid, M, uv_taps=taps)
     assert np.array_equal(ok_a, ok_b) and ok_a.any()
     assert np.max(np.abs(a - b)) < 1e-5
+
+
+@pytest.mark.parametrize("options", [MotionOptions(symmetric=True), MotionOptions(pyramid_xy=True, levels=2),
+                                     MotionOptions(uv_taps=4, robust="huber", robust_c=1.345),
+                                     MotionOptions(filters="fs5", smooth_c=0.0, eiv=True)],
+                         ids=["symmetric", "pyramid-xy", "cubic-huber", "fs5-eiv"])
+def test_solver_options(scene, options):
+    grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt)), grid,
+                          options=options)
+    assert res, res.reason
+    assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL)
+
+
+def test_bad_options():
+    with pytest.raises(ValueError, match="uv_taps"):
+        MotionOptions(uv_taps=3)
+    with pytest.raises(ValueError, match="robust"):
+        MotionOptions(robust="cauchy")
+    grid = make_grid(("+z",))
+    L = np.zeros(grid.shape, np.float32)
+    with pytest.raises(InputError, match="filter"):
+        estimate_motion(L, L, grid, options=MotionOptions(filters="sobel"))
