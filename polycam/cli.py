@@ -132,11 +132,22 @@ def cmd_motion(args: argparse.Namespace) -> int:
 
     src = Path(args.source)
     if (src / "session.toml").exists():
-        raise InputError(f"{src}: motion straight from a session is not available yet; "
-                         f"run 'polycam resample {src} --out LF.zarr' and then 'polycam motion LF.zarr'")
-    from .lfstore import open_lightfield
+        if args.calib is not None and not Path(args.calib).is_dir():
+            raise InputError(f"{args.calib}: no such calibration folder")
+        from resample.stream import SessionLightField   # the CLI layer may import stages
 
-    store = open_lightfield(src)  # validates before the heavy solver import
+        store = SessionLightField(src, calib_dir=args.calib, uv_step_px=args.uv_step)
+        F, Ny, Nx, Nv, Nu = store.grid.shape
+        print(f"resampling {src} on the fly: {len(store.resampler.cameras)} calibrated cameras onto "
+              f"{F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions (geometry {store.seconds_geometry:.1f} s)")
+        truth_name = src / "groundtruth.tum"
+    else:
+        if args.calib is not None:
+            raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
+        from .lfstore import open_lightfield
+
+        store = open_lightfield(src)  # validates before the heavy solver import
+        truth_name = src / "groundtruth.tum"
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
@@ -146,6 +157,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
     failed = [r for r in results if not r]
     print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"
           + (f"; {len(failed)} failed (first: pair {failed[0].index}: {failed[0].reason})" if failed else ""))
+    if hasattr(store, "seconds_frames"):
+        print(f"  resampled {store.frames_resampled} frames in {store.seconds_frames:.1f} s; "
+              f"mean confidence W {store.mean_W:.2f}")
     truth = store.groundtruth()
     if truth is not None:
         import numpy as np
@@ -153,7 +167,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from .evaluate import ate_rmse, pair_errors
 
         err = pair_errors(traj, truth)
-        print(f"against {src / 'groundtruth.tum'}: median per-pair error translation "
+        print(f"against {truth_name}: median per-pair error translation "
               f"{100 * np.median(err.t_rel):.2f}%, rotation {100 * np.median(err.w_rel):.2f}%; "
               f"ATE {1e3 * ate_rmse(traj, truth):.3f} mm")
     if args.report:
@@ -257,8 +271,13 @@ def build_parser() -> argparse.ArgumentParser:
     pss.set_defaults(func=cmd_synth_session)
 
     pm = sub.add_parser("motion", help="plenoptic egomotion per frame pair, integrated into a trajectory")
-    pm.add_argument("source", metavar="LF.zarr", help="light-field store (SPEC.md)")
+    pm.add_argument("source", metavar="LF.zarr|SESSION",
+                    help="light-field store, or a recorded session (resampled on the fly, frame by frame)")
     pm.add_argument("--out", required=True, help="output trajectory TRAJ.tum (T_world_rig per frame)")
+    pm.add_argument("--calib", metavar="CALIB_DIR",
+                    help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
+    pm.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
+                    help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
     pm.add_argument("--report", metavar="DIR", help="also write per-pair diagnostics (pairs.csv) and plots")
     pm.set_defaults(func=cmd_motion)
 

@@ -54,3 +54,7 @@ RESAMPLE_CONSTANT_ATOL = 1e-5     # a constant scene resampled (intensity units)
 RESAMPLE_LINEAR_ATOL = 2e-5       # a light field linear in (x, y, u, v) where covered and the fit is determined (range ~0.3; float32)
 RESAMPLE_DIRECT_PSNR_DB = 30.0    # [dB] irregular 3x3 rig (64x48 px) vs the grid rendered directly, at camera viewpoints where W > 0.5
 RESAMPLE_MIDVIEW_PSNR_DB = 50.0   # [dB] a view half-way between cameras vs the mean of its two resampled neighbours
+# end to end (tests/test_end_to_end.py)
+E2E_STREAM_VS_STORE_ATOL = 1e-6   # on-the-fly resampling vs the same frame read back from a store (float32)
+E2E_SMALL_RIG_MOTION_REL = 0.3    # median relative per-pair motion error, 3x3 rig of 64x48 px, 3 frames (measured 18%: tiny images; a sanity bound)
+E2E_RUN_MOTION_REL = 0.25         # median relative per-pair error of `polycam run` on its small mock rig (calibrated models)

@@ -1,0 +1,128 @@
+"""A recorded session seen as a light field, resampled on the fly (``polycam motion SESSION``).
+
+:class:`SessionLightField` offers what :func:`polycam.motion.estimate_trajectory`
+reads from a light-field store — ``grid``, ``timestamps_ns``, ``frame(i)``,
+``weights(i)``, ``groundtruth()`` — but computes each frame when asked: the
+session's images of frame i are read and pushed through one
+:class:`~resample.resampler.Resampler` whose splat geometry is built once. Only
+the last resampled frame is kept (``frame(i)`` then ``weights(i)`` cost one
+resampling), so memory does not grow with the session's length.
+
+The result is the same light field that ``polycam resample`` writes (same grid,
+same resampler), without the store in between.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from polycam.errors import InputError
+from polycam.lightfield import LightFieldGrid
+
+__all__ = ["SessionLightField"]
+
+log = logging.getLogger(__name__)
+
+
+class SessionLightField:
+    """The light field of session ``session_path`` with calibration ``calib_dir``
+    (default ``SESSION/calib``), frame by frame.
+
+    grid: the two-plane grid (default :func:`resample.grid.auto_grid` of the models
+        with ``uv_step_px``); options: :class:`resample.resampler.ResampleOptions`;
+        models: camera id → mrcal cameramodel, overriding ``calib_dir``.
+    Raises InputError for a session without frames or without a calibration.
+    """
+
+    def __init__(self, session_path: str | os.PathLike, *, calib_dir: str | os.PathLike | None = None,
+                 grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, options=None,
+                 models: dict | None = None):
+        from polycam.session import open_session
+
+        from .grid import auto_grid
+        from .pipeline import _channels_of, open_calibration
+        from .resampler import Resampler
+
+        self.session = open_session(session_path)
+        if len(self.session) == 0:
+            raise InputError(f"{self.session.path}: the session has no frames")
+        self.models = dict(models) if models is not None else open_calibration(self.session, calib_dir)
+        missing = [c for c in self.session.cameras if c not in self.models]
+        if missing:
+            log.warning("%s: no calibration for camera(s) %s; their images are ignored",
+                        self.session.path, ", ".join(missing))
+        self.grid = grid if grid is not None else auto_grid(self.models, uv_step_px=uv_step_px)
+        self.channels = _channels_of(self.session)
+        t0 = time.perf_counter()
+        self.resampler = Resampler(self.models, self.grid, channels=self.channels, options=options)
+        self.seconds_geometry = time.perf_counter() - t0
+        """[s] time spent building the splat geometry."""
+        self.seconds_frames = 0.0
+        """[s] time spent resampling frames so far."""
+        self.frames_resampled = 0
+        self.w_sums: dict[int, float] = {}
+        """Frame index → mean confidence W of that frame (filled as frames are resampled)."""
+        self.cameras_present: dict[int, int] = {}
+        """Frame index → number of calibrated cameras that had an image."""
+        self._cached: tuple[int, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def timestamps_ns(self) -> np.ndarray:
+        """(T,) int64 frame timestamps [ns]."""
+        return self.session.timestamps_ns
+
+    @property
+    def path(self) -> Path:
+        return self.session.path
+
+    def __len__(self) -> int:
+        return len(self.session)
+
+    def _resample(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        if self._cached is not None and self._cached[0] == t:
+            return self._cached[1], self._cached[2]
+        if not 0 <= t < len(self):
+            raise IndexError(f"frame {t} out of range (0..{len(self) - 1})")
+        t0 = time.perf_counter()
+        images = {c: img for c, img in self.session.read_frame(t).items() if c in self.models}
+        if not any(img is not None for img in images.values()):
+            shape = self.grid.shape
+            L = np.zeros((*shape, self.channels) if self.channels > 1 else shape, np.float32)
+            W = np.zeros(shape, np.float32)
+            self.cameras_present[t] = 0
+        else:
+            r = self.resampler.resample(images)
+            L, W = r.L, r.W
+            self.cameras_present[t] = len(r.cameras)
+        self.seconds_frames += time.perf_counter() - t0
+        self.frames_resampled += 1
+        self.w_sums[t] = float(np.mean(W, dtype=np.float64))
+        self._cached = (t, L, W)
+        return L, W
+
+    def frame(self, t: int) -> np.ndarray:
+        """(F, Ny, Nx, Nv, Nu) (or with a colour axis) float32 intensities of frame t."""
+        return self._resample(t)[0]
+
+    def weights(self, t: int) -> np.ndarray:
+        """(F, Ny, Nx, Nv, Nu) float32 confidence in [0, 1] of frame t."""
+        return self._resample(t)[1]
+
+    def groundtruth(self):
+        """The session's ``groundtruth.tum`` (:class:`~polycam.trajectory.Trajectory`) when it
+        has one pose per frame, else None."""
+        gt = self.session.groundtruth()
+        if gt is not None and not np.array_equal(gt.timestamps_ns, self.timestamps_ns):
+            log.warning("%s: groundtruth.tum does not have one pose per frame; ignored", self.session.path)
+            return None
+        return gt
+
+    @property
+    def mean_W(self) -> float:
+        """Mean confidence over the frames resampled so far (NaN before any)."""
+        return float(np.mean(list(self.w_sums.values()))) if self.w_sums else float("nan")

@@ -1,0 +1,102 @@
+"""End to end (issue 7): motion straight from a session (resampled on the fly) against motion
+through a written light-field store, the errors of sessions without calibration, and
+`polycam run` on a small mock rig."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from polycam.cli import main
+from polycam.rig import load_rig
+from polycam.synth import synth_session
+from polycam.trajectory import read_tum
+from tolerances import E2E_STREAM_VS_STORE_ATOL, E2E_SMALL_RIG_MOTION_REL
+
+RIG_TEXT = """[rig]
+name = "e2e3x3"
+[defaults]
+driver = "mock"
+width = 64
+height = 48
+fps = 30
+pixel_format = "GREY"
+fov_deg = 60
+[grid]
+rows = 3
+cols = 3
+pitch = 0.02
+[mock]
+scene = "room"
+motion = "smooth"
+seed = 1
+noise = 0.004
+"""
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    """A 3-frame session of a 3x3 rig of 64x48 cameras in the room, with true calib/."""
+    tmp = tmp_path_factory.mktemp("e2e")
+    (tmp / "rig.toml").write_text(RIG_TEXT)
+    return synth_session(load_rig(tmp / "rig.toml"), tmp / "session", frames=3, seed=1)
+
+
+def _one_line_error(capsys, code: int, *fragments: str) -> None:
+    err = capsys.readouterr().err
+    assert code == 1, err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("polycam: error: "), err
+    for frag in fragments:
+        assert frag in lines[0], err
+
+
+def test_session_lightfield_equals_resampled_store(session, tmp_path):
+    from polycam.lfstore import open_lightfield
+    from resample import resample_session
+    from resample.stream import SessionLightField
+
+    resample_session(session, tmp_path / "lf.zarr", scheduler="sync")
+    store = open_lightfield(tmp_path / "lf.zarr")
+    lf = SessionLightField(session)
+    assert lf.grid == store.grid
+    assert np.array_equal(lf.timestamps_ns, store.timestamps_ns)
+    for t in (1, 0, 2):
+        np.testing.assert_allclose(lf.frame(t), store.frame(t), atol=E2E_STREAM_VS_STORE_ATOL)
+        np.testing.assert_allclose(lf.weights(t), store.weights(t), atol=E2E_STREAM_VS_STORE_ATOL)
+    assert lf.frames_resampled == 3          # frame(t) then weights(t): one resampling
+    assert lf.groundtruth() is not None
+
+
+def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys):
+    assert main(["resample", str(session), "--out", str(tmp_path / "lf.zarr"), "--workers", "0"]) == 0
+    assert main(["motion", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "via_store.tum")]) == 0
+    assert main(["motion", str(session), "--out", str(tmp_path / "direct.tum"),
+                 "--report", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    assert "resampling" in out and "against" in out
+    a, b = read_tum(tmp_path / "direct.tum"), read_tum(tmp_path / "via_store.tum")
+    np.testing.assert_array_equal(a.timestamps_ns, b.timestamps_ns)
+    np.testing.assert_allclose(a.T_world_rig, b.T_world_rig, atol=1e-6)
+    assert (tmp_path / "rep" / "pairs.csv").exists() and (tmp_path / "rep" / "errors.png").exists()
+    from polycam.evaluate import pair_errors
+
+    err = pair_errors(a, read_tum(session / "groundtruth.tum"))
+    assert np.median(err.t_rel) < E2E_SMALL_RIG_MOTION_REL
+    assert np.median(err.w_rel) < E2E_SMALL_RIG_MOTION_REL
+
+
+def test_motion_on_a_session_without_calibration_names_it(session, tmp_path, capsys):
+    bare = tmp_path / "bare"
+    shutil.copytree(session, bare)
+    shutil.rmtree(bare / "calib")
+    code = main(["motion", str(bare), "--out", str(tmp_path / "t.tum")])
+    _one_line_error(capsys, code, "no calibration", "--calib")
+    code = main(["motion", str(bare), "--out", str(tmp_path / "t.tum"), "--calib", str(tmp_path / "nope")])
+    _one_line_error(capsys, code, "nope")
+    # with an explicit calibration folder it works
+    assert main(["motion", str(bare), "--out", str(tmp_path / "t.tum"), "--calib", str(session / "calib")]) == 0
+    assert len(read_tum(tmp_path / "t.tum")) == 3
