@@ -94,7 +94,6 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     structure suffices). ``window``: neighbourhood size in (u, v) samples for the
     fusion. Rays with confidence ≤ ``min_confidence`` get ``Z = NaN``.
     """
-    F = len(grid.faces)
     # the equations a λ = b, stacked per ray as sums a², a b, b² (float32 arrays)
     Lx, Ly, Lu, Lv, Lt = der.Lx, der.Ly, der.Lu, der.Lv, der.Lt
     aa = Lx * Lx + Ly * Ly
@@ -127,5 +126,4 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     for k, face in enumerate(grid.faces):
         Z[k] = lam[k] * face.f
     Z = np.where(confidence > min_confidence, Z, np.nan).astype(np.float32)
-    del F
     return DepthMap(Z=Z, confidence=confidence, consistency=consistency)

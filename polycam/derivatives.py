@@ -235,7 +235,6 @@ def _valid_mask(shape4: tuple, pairs: dict) -> np.ndarray:
             continue
         ax = _AX[name] - 1
         n = shape4[ax]
-        sl = [slice(None)] * 4
         keep = np.zeros(n, bool)
         keep[fp.radius:n - fp.radius] = True
         shape = [1, 1, 1, 1]

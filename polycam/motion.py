@@ -82,8 +82,10 @@ Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 0.02–0.12% (ω) at 4–8 m; 3–5% (t) and 0.4–0.6% (ω) at 12–16 m, where the
 directions are aliased and the translation's signal is weak (the paper sees
 the same growth); against 18–49% / 17–33% for one-shot central-difference
-least squares. With 8-bit frames and 3 grey levels of noise at 8 m: 0.7% / 0.3%. Limits: the covariance describes noise, not the systematic
-errors of aliased or occluded data (it can be several times too small on
+least squares. With 8-bit frames and 3 grey levels of noise at 8 m: 0.7% / 0.3%.
+
+Limits: the covariance describes noise, not the systematic errors of aliased
+or occluded data (it can be several times too small on
 noise-free synthetic frames); under noise it matches the scatter of repeated
 estimates to within about 1.5x (tests/test_motion.py). One face alone couples
 t and ω (condition numbers of 10²–10³).
@@ -839,7 +841,9 @@ def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_ra
             break
         ng = replace(g, **kw)
         prev = levels[-1]
-        ds = (lambda a: None if a is None else _downsample(a, tuple(sorted(axes))))
+        def ds(a, axes=tuple(sorted(axes))):
+            return None if a is None else _downsample(a, axes)
+
         levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1)))
     return levels
 
