@@ -1145,16 +1145,23 @@ def _name_direction(vec: np.ndarray) -> str:
     return "(" + " ".join(terms) + ")"
 
 
-def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid) -> np.ndarray:
+def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray | None = None) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) float32 copy of a frame (colour averaged). Non-finite samples
+    are an error unless the confidence ``W`` is 0 there (they are then set to 0)."""
     L = np.asarray(L)
     if L.ndim == 6 and L.shape[:5] == grid.shape:        # colour: average the channels
         L = L.mean(axis=-1)
     if L.shape != grid.shape:
         raise InputError(f"motion: {name} has dims {L.shape}, but the grid is {grid.shape} "
                          "(F, Ny, Nx, Nv, Nu)")
-    if not np.all(np.isfinite(L)):
-        raise InputError(f"motion: {name} contains NaN or infinite samples; mask them with W instead")
-    return np.ascontiguousarray(L, dtype=np.float32)
+    L = np.array(L, dtype=np.float32, order="C")
+    bad = ~np.isfinite(L)
+    if np.any(bad):
+        if W is None or np.any(bad & (W > 0)):
+            raise InputError(f"motion: {name} contains NaN or infinite samples where the "
+                             "confidence W is not 0; mask them with W = 0")
+        L[bad] = 0.0
+    return L
 
 
 def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
@@ -1169,10 +1176,10 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     Raises :class:`InputError` for unusable input (NaNs, mismatched dims).
     """
     opts = options or MotionOptions()
-    L0 = _check_frame("frame 0", L0, grid)
-    L1 = _check_frame("frame 1", L1, grid)
-    W0 = None if W0 is None else _check_frame("weights 0", W0, grid)
-    W1 = None if W1 is None else _check_frame("weights 1", W1, grid)
+    W0 = None if W0 is None else _check_frame(f"weights of frame {index}", W0, grid)
+    W1 = None if W1 is None else _check_frame(f"weights of frame {index + 1}", W1, grid)
+    L0 = _check_frame(f"frame {index}", L0, grid, W0)
+    L1 = _check_frame(f"frame {index + 1}", L1, grid, W1)
     fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
     try:
         filters = {k: FILTERS[fnames.get(k, "fs5")] for k in "xyuv"}
@@ -1331,12 +1338,12 @@ def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = 
     if n < 2:
         raise InputError(f"motion: the light field has {n} frame(s); need at least 2")
     get_w = getattr(store, "weights", None)
-    L_prev = _check_frame("frame 0", store.frame(0), grid)
     W_prev = get_w(0) if get_w else None
+    L_prev = store.frame(0)
     results: list[PairResult] = []
     T_init = None
     for i in range(n - 1):
-        L_next = _check_frame(f"frame {i + 1}", store.frame(i + 1), grid)
+        L_next = store.frame(i + 1)
         W_next = get_w(i + 1) if get_w else None
         res = estimate_motion(L_prev, L_next, grid, W0=W_prev, W1=W_next, T_init=T_init,
                               options=opts, index=i)

@@ -211,6 +211,13 @@ def test_input_errors(scene):
     other = make_grid(("+z", "-z"))
     with pytest.raises(InputError, match="dims"):
         estimate_motion(L, L, other)
+    # NaN is fine where the confidence says "no data", not elsewhere
+    W = np.ones(grid.shape, np.float32)
+    W[0, 2, 2, 5, 5] = 0.0
+    assert estimate_motion(L, bad, grid, W0=W, W1=W).num_rays > 0
+    W[0, 2, 2, 5, 5] = 0.5
+    with pytest.raises(InputError, match="frame 8"):
+        estimate_motion(L, bad, grid, W0=W, W1=W, index=7)
 
 
 class FakeStore:
