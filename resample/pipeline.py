@@ -191,12 +191,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
         empty = 0
         try:
             if client is None:
-                for t in range(n):
-                    _, k, ws = _frame_task(resampler, str(sess.path), t, str(store.partial), None)
-                    wsum += ws
-                    empty += k == 0
-                    if progress is not None:
-                        progress(t + 1, n)
+                wsum, empty = _run_in_process(resampler, sess, n, str(store.partial), progress)
             else:
                 wsum, empty = _run_dask(client, resampler, str(sess.path), n, str(store.partial), threads,
                                         progress)
@@ -218,6 +213,45 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
     log.info("resampled %d frames of %d cameras into %s (%s): geometry %.1f s, frames %.1f s", n,
              summary.cameras, out, label, t_geo, t_frames)
     return summary
+
+
+def _run_in_process(resampler, sess, n: int, partial: str, progress: Progress | None) -> tuple[float, int]:
+    """Frames one after the other in this process, with the reading of frame t+1 and the
+    writing of frame t-1 overlapped with resampling frame t (two threads, two output
+    buffers: PNG decoding and chunk compression release the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .store import write_frame
+
+    bufs = [resampler.new_output(), resampler.new_output()]
+    C = resampler.channels
+    wsum = 0.0
+    empty = 0
+    with ThreadPoolExecutor(2, thread_name_prefix="polycam-resample-io") as pool:
+        reading = pool.submit(sess.read_frame, 0)
+        writing = [None, None]
+        for t in range(n):
+            images = reading.result()
+            if t + 1 < n:
+                reading = pool.submit(sess.read_frame, t + 1)
+            k = t % 2
+            if writing[k] is not None:
+                writing[k].result()                 # buffer k is free again
+            L, W = bufs[k]
+            if any(img is not None for img in images.values()):
+                r = resampler.resample_into(images, out=(L, W))
+                wsum += float(np.sum(r.W, dtype=np.float64))
+            else:
+                L[...] = 0.0
+                W[...] = 0.0
+                empty += 1
+            writing[k] = pool.submit(write_frame, partial, t, L if C > 1 else L[..., 0], W)
+            if progress is not None:
+                progress(t + 1, n)
+        for f in writing:
+            if f is not None:
+                f.result()
+    return wsum, empty
 
 
 def _dask_client(stack, scheduler: str, workers: int | None):

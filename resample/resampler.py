@@ -194,13 +194,26 @@ class Resampler:
             present.append(cam)
         return buf, tuple(present)
 
-    def resample_into(self, images: dict) -> ResampledFrame:
-        """Resample one frame (camera id → image or None) into the resampler's own buffers.
+    def new_output(self) -> tuple[np.ndarray, np.ndarray]:
+        """A pair of output buffers for :meth:`resample_into`: L (F, Ny, Nx, Nv, Nu, C) and
+        W (F, Ny, Nx, Nv, Nu), float32."""
+        return (np.zeros((*self.grid.shape, self.channels), np.float32),
+                np.zeros(self.grid.shape, np.float32))
 
-        The returned arrays are overwritten by the next call: copy them (or use
-        :meth:`resample`) to keep them. A frame without any image raises InputError.
+    def resample_into(self, images: dict, out: tuple[np.ndarray, np.ndarray] | None = None) -> ResampledFrame:
+        """Resample one frame (camera id → image or None) into buffers: ``out`` (from
+        :meth:`new_output`) or the resampler's own.
+
+        The returned arrays are views of those buffers, overwritten by the next call that
+        uses them: copy them (or use :meth:`resample`) to keep them. A frame without any
+        image raises InputError.
         """
         pp, _, L, W = self._buffers()
+        if out is not None:
+            L, W = out
+            if L.shape != (*self.grid.shape, self.channels) or W.shape != self.grid.shape \
+                    or L.dtype != np.float32 or W.dtype != np.float32 or not L.flags.c_contiguous:
+                raise ValueError("out: expected the buffers of new_output()")
         pix, present = self.pixels(images)
         if not present:
             raise InputError("resample: the frame has no image from any calibrated camera")
