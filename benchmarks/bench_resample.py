@@ -43,7 +43,6 @@ The machine has 2 cores and may be shared with other jobs; timings say what this
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
