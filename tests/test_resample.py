@@ -101,19 +101,35 @@ def test_auto_grid_puts_viewpoints_at_and_between_the_cameras(tmp_path):
     assert g2.faces[0].f == pytest.approx(g.faces[0].f / 2)
 
 
-def test_auto_grid_uses_one_face_per_viewing_direction(tmp_path):
+def _three_way_rig(tmp_path):
     p = tmp_path / "cube.toml"
     cams = []
     for name, rot in [("front", [0, 0, 0]), ("right", [0, math.pi / 2, 0]), ("back", [0, math.pi, 0])]:
         cams.append(f'[[camera]]\nid = "{name}"\nposition = [0.0, 0.0, 0.0]\nrotation = {rot}\n')
     p.write_text('[rig]\nname = "three"\n[defaults]\ndriver = "mock"\nwidth = 32\nheight = 24\nfps = 30\n'
                  'fov_deg = 60\n' + "\n".join(cams))
-    rig = load_rig(p)
-    models = true_cameramodels(rig)
+    return true_cameramodels(load_rig(p))
+
+
+def test_auto_grid_uses_one_face_per_viewing_direction(tmp_path):
+    models = _three_way_rig(tmp_path)
     g = auto_grid(models)
     assert [f.name for f in g.faces] == [n for n in FACE_NAMES if n in ("+z", "+x", "-z")]
     assert max(abs(g.u.min), abs(g.u.max)) <= g.faces[0].f + 1      # at most 45 deg per face
     assert (g.x.count, g.y.count) == (1, 1)                         # one viewpoint
+
+
+def test_cameras_looking_three_ways_fill_three_faces(tmp_path):
+    """Each camera feeds the face it looks into (and its neighbours where its field of view
+    crosses the face boundary); every face gets the constant back."""
+    models = _three_way_rig(tmp_path)
+    grid = auto_grid(models)
+    rs = Resampler(models, grid)
+    r = rs.resample({c: np.full((24, 32), 0.3, np.float32) for c in models})
+    np.testing.assert_allclose(r.L, 0.3, atol=RESAMPLE_CONSTANT_ATOL)
+    for k, face in enumerate(grid.faces):
+        assert np.mean(r.W[k] > 0.5) > 0.2, face.name
+        assert rs.geometry.w0[k].sum() > 0
 
 
 # ----------------------------------------------------------------------------- pull-push
