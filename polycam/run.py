@@ -1,0 +1,560 @@
+"""``polycam run RIG.toml --out DIR``: the whole chain on a mock rig, with a report folder.
+
+Capture → calibrate → resample → motion and depth, on synthetic data with exact
+ground truth (docs/end_to_end.md):
+
+1. **board**: a calibration-board session of the rig (ray traced, the same renderer
+   as the mock capture driver) with cameras that deviate from the rig file (the
+   "true" rig: small position, rotation and focal offsets);
+2. **calibrate**: the calibration stage's mrcal board solve (``calib``) into
+   ``DIR/calib`` (models, ``report.md``, residual plots);
+3. **capture**: a motion session of the same true rig moving through the textured
+   room (``DIR/session``, with ``groundtruth.tum``);
+4. **resample**: the resampling stage onto the two-plane light field with the
+   *calibrated* models (``DIR/lightfield.zarr``);
+5. **motion**: plenoptic egomotion of every frame pair (``DIR/trajectory.tum``),
+   compared with the ground truth;
+6. **depth**: per-ray depth of the first frame pair (paper Eq. 6-7) and a point cloud;
+7. **report**: ``DIR/report/`` — ``README.md`` (every number below), ``summary.toml``,
+   ``trajectory.png``, ``errors.png``, ``pairs.csv``, ``calibration_residuals.png``,
+   ``mosaic.png``, ``epi.png``, ``depth.png``, ``points.ply``.
+
+Every stage reports one summary line through ``echo`` (counts, residuals,
+confidence). A stage whose output is unusable stops the chain with
+``run: STAGE: reason`` (a :class:`~polycam.errors.PolycamError`; the CLI exits 1).
+
+Like :mod:`polycam.cli`, this module is CLI-layer orchestration: it is the one place
+besides the CLI allowed to import the pipeline stages (``calib``, ``resample``),
+and it does so lazily, inside functions. The core never imports it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+__all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
+           "write_ply", "UNUSABLE"]
+
+_REPO = Path(__file__).resolve().parents[1]
+DEFAULT_RIG = _REPO / "rigs" / "mock5x5.toml"
+DEFAULT_BOARD = _REPO / "rigs" / "boards" / "charuco_5x7.toml"
+
+UNUSABLE = {
+    "calib_rms_px": 1.0,        # [px] board residual RMS above which the calibration is unusable
+    "resample_mean_W": 0.2,     # mean confidence of the light field below which it is unusable
+    "motion_failed_frac": 0.5,  # more than this fraction of failed frame pairs: motion unusable
+    "depth_min_points": 100,    # fewer confident depth rays than this: depth unusable
+}
+"""Thresholds at which a stage's output stops the chain."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Sizes and settings of :func:`run_chain` (defaults: a few minutes on 2 cores)."""
+
+    board_frames: int = 25
+    """Board poses in the calibration session (each aims at one camera in turn)."""
+    frames: int = 5
+    """Frames of the motion session (frames - 1 pairs)."""
+    seed: int | None = None
+    """Seed of the true rig, board poses, trajectory and noise (default: the rig's [mock] seed)."""
+    perturb_position_m: float = 0.001
+    """Std of the true cameras' position offsets from the rig file [m]."""
+    perturb_rotation_deg: float = 0.3
+    """Std of the true cameras' rotation offsets [deg]."""
+    perturb_focal_frac: float = 0.005
+    """Std of the true cameras' relative focal-length offsets."""
+    lensmodel: str = "opencv4"
+    """mrcal lens model solved for."""
+    uv_step_px: float = 2.0
+    """(u, v) grid step in camera pixels: 2 gives 4x fewer rays than the cameras' resolution
+    (motion 4x faster, the same accuracy on the mock rig: 10.8% / 4.9% vs 9.6% / 6.3% median
+    per-pair error with 1)."""
+    calib_plots: bool = False
+    """Also write the calibration stage's own plots (per-camera residual maps; slow for many cameras)."""
+    depth_views: int = 3
+    """The point cloud takes the central depth_views x depth_views viewpoints."""
+
+
+def _fail(stage: str, reason: str):
+    from .errors import PolycamError
+
+    return PolycamError(f"run: {stage}: {reason}")
+
+
+@contextmanager
+def _stage(name: str):
+    """Re-raise a stage's user-level error (PolycamError) as ``run: STAGE: reason``."""
+    from .errors import PolycamError
+
+    try:
+        yield
+    except PolycamError as e:
+        if str(e).startswith("run: "):
+            raise
+        raise _fail(name, str(e)) from None
+
+
+def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path: str | os.PathLike = DEFAULT_BOARD,
+              options: RunOptions | None = None, progress_factory: Callable | None = None,
+              echo: Callable[[str], None] = lambda s: None) -> dict:
+    """Run the chain (module docstring) for rig file ``rig_path`` into folder ``out``.
+
+    Returns the summary dict (also written to ``out/report/summary.toml``).
+    ``progress_factory(description, total)``: a context manager yielding
+    ``advance(done, total)`` (the CLI's progress bars); ``echo``: one line per stage.
+    """
+    from contextlib import nullcontext
+
+    import numpy as np
+
+    from .board import load_board
+    from .errors import InputError
+    from .rig import load_rig
+
+    opts = options or RunOptions()
+    rig_path, board_path, out = Path(rig_path), Path(board_path), Path(out)
+    if not rig_path.is_file():
+        raise InputError(f"{rig_path}: no such rig file")
+    rig = load_rig(rig_path)
+    board = load_board(board_path)
+    if opts.frames < 2:
+        raise InputError(f"run: need at least 2 motion frames, got {opts.frames}")
+    seed = opts.seed if opts.seed is not None else (rig.mock.seed if rig.mock is not None else 0)
+    noise = rig.mock.noise if rig.mock is not None else 0.0
+    out.mkdir(parents=True, exist_ok=True)
+    report = out / "report"
+    report.mkdir(exist_ok=True)
+    summary: dict = {"rig": rig.name, "cameras": len(rig.cameras), "seed": seed}
+
+    def bar(desc: str, total):
+        return progress_factory(desc, total) if progress_factory else nullcontext(None)
+
+    from .synth import synth_board_session, synth_session, true_cameramodels
+
+    true_models = true_cameramodels(rig, seed=seed, perturb_position_m=opts.perturb_position_m,
+                                    perturb_rotation_deg=opts.perturb_rotation_deg,
+                                    perturb_focal_frac=opts.perturb_focal_frac)
+    W0, H0 = rig.cameras[0].width, rig.cameras[0].height
+
+    # 1. board session
+    t0 = time.perf_counter()
+    with bar(f"1/6 board session ({len(rig.cameras)} cameras)", opts.board_frames) as adv, _stage("board"):
+        synth_board_session(rig, out / "board_session", board=board, frames=opts.board_frames, seed=seed,
+                            noise=noise, models=true_models, overwrite=True, progress=adv)
+    s = time.perf_counter() - t0
+    summary["board"] = {"frames": opts.board_frames, "seconds": s}
+    echo(f"board     {out / 'board_session'}: {len(rig.cameras)} cameras x {opts.board_frames} frames of "
+         f"{W0}x{H0}, board {board.squares[0]}x{board.squares[1]} squares ({s:.1f} s)")
+
+    # 2. calibration
+    from calib.pipeline import calibrate_session
+
+    t0 = time.perf_counter()
+    with bar("2/6 calibrate (mrcal)", None) as adv, _stage("calibrate"):
+        cal = calibrate_session(out / "board_session", out / "calib", board=board, method="mrcal",
+                                lensmodel=opts.lensmodel, uncertainty=False, plots=opts.calib_plots,
+                                overwrite=True, progress=adv)
+    s = time.perf_counter() - t0
+    cal_sum = _calibration_summary(cal, true_models)
+    cal_sum["seconds"] = s
+    summary["calibrate"] = cal_sum
+    echo(f"calibrate {out / 'calib'}: {len(cal.models)} cameras, {cal_sum['views']} board views, RMS "
+         f"{cal.rms_px:.3f} px, {cal_sum['outliers']} outliers; vs truth: centres {1e3 * cal_sum['position_rms_m']:.2f} mm "
+         f"RMS, axes {cal_sum['rotation_rms_deg']:.3f} deg RMS ({s:.1f} s)")
+    missing = [c.id for c in rig.cameras if c.id not in cal.models]
+    if missing:
+        raise _fail("calibrate", f"no model for camera(s) {', '.join(missing)}")
+    if not cal.rms_px <= UNUSABLE["calib_rms_px"]:
+        raise _fail("calibrate", f"residual RMS {cal.rms_px:.2f} px exceeds {UNUSABLE['calib_rms_px']} px "
+                                 f"(see {out / 'calib' / 'report.md'})")
+    _plot_calibration(report / "calibration_residuals.png", cal)
+
+    # 3. motion session
+    t0 = time.perf_counter()
+    with bar("3/6 capture (motion session)", opts.frames) as adv, _stage("capture"):
+        synth_session(rig, out / "session", frames=opts.frames, seed=seed, noise=noise, models=true_models,
+                      overwrite=True, progress=adv)
+    s = time.perf_counter() - t0
+    from .session import open_session
+
+    sess = open_session(out / "session")
+    truth = sess.groundtruth()
+    steps = truth.relative()
+    from .geometry import r_from_R
+
+    step_t = float(np.median(np.linalg.norm(steps[:, :3, 3], axis=1)))
+    step_r = float(np.median(np.linalg.norm(r_from_R(steps[:, :3, :3]), axis=1)))
+    summary["capture"] = {"frames": len(sess), "cameras": len(sess.cameras), "seconds": s,
+                          "median_step_m": step_t, "median_step_deg": math.degrees(step_r)}
+    echo(f"capture   {out / 'session'}: {len(sess.cameras)} cameras x {len(sess)} frames, motion "
+         f"{1e3 * step_t:.1f} mm and {math.degrees(step_r):.2f} deg per frame ({s:.1f} s)")
+
+    # 4. resampling with the calibrated models
+    from resample.pipeline import resample_session
+
+    t0 = time.perf_counter()
+    with bar("4/6 resample", None) as adv, _stage("resample"):
+        rs = resample_session(out / "session", out / "lightfield.zarr", calib_dir=out / "calib",
+                              uv_step_px=opts.uv_step_px, scheduler="sync", overwrite=True, progress=adv)
+    s = time.perf_counter() - t0
+    F, Ny, Nx, Nv, Nu = rs.grid.shape
+    summary["resample"] = {"faces": F, "views": [Ny, Nx], "directions": [Nv, Nu], "mean_W": rs.mean_W,
+                           "missing_images": rs.missing_images, "seconds": s}
+    echo(f"resample  {out / 'lightfield.zarr'}: {F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions, "
+         f"mean confidence W {rs.mean_W:.2f}, {rs.missing_images} missing images ({s:.1f} s)")
+    if not rs.mean_W >= UNUSABLE["resample_mean_W"]:
+        raise _fail("resample", f"mean confidence W {rs.mean_W:.2f} below {UNUSABLE['resample_mean_W']}: "
+                                "the cameras do not cover the grid")
+
+    # 5. motion
+    from .evaluate import ate_rmse, pair_errors
+    from .lfstore import open_lightfield
+    from .motion import estimate_trajectory
+    from .motion_report import write_motion_report
+    from .trajectory import write_tum
+
+    lf = open_lightfield(out / "lightfield.zarr")
+    t0 = time.perf_counter()
+    with bar("5/6 plenoptic motion", len(lf) - 1) as adv, _stage("motion"):
+        traj, results = estimate_trajectory(lf, progress=adv)
+    s = time.perf_counter() - t0
+    write_tum(out / "trajectory.tum", traj)
+    failed = [r for r in results if not r]
+    err = pair_errors(traj, truth)
+    ok = [r for r in results if r]
+    m = {"pairs": len(results), "failed": len(failed), "seconds_per_pair": s / max(len(results), 1),
+         "median_t_rel": float(np.median(err.t_rel)), "median_w_rel": float(np.median(err.w_rel)),
+         "median_t_err_m": float(np.median(err.t_err)), "median_w_err_deg": math.degrees(float(np.median(err.w_err))),
+         "ate_m": ate_rmse(traj, truth),
+         "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
+         "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan")}
+    summary["motion"] = m
+    echo(f"motion    {out / 'trajectory.tum'}: {m['pairs']} frame pairs, {m['failed']} failed, "
+         f"{m['seconds_per_pair']:.1f} s per pair; median error translation {100 * m['median_t_rel']:.1f}%, "
+         f"rotation {100 * m['median_w_rel']:.1f}%; ATE {1e3 * m['ate_m']:.2f} mm; inliers "
+         f"{100 * m['median_inlier_fraction']:.0f}%, predicted std {1e3 * m['median_std_t_m']:.2f} mm")
+    if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
+        raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
+                              f"(first: pair {failed[0].index}: {failed[0].reason})")
+    written = write_motion_report(report, results, traj, truth, lf.timestamps_ns)
+
+    # 6. depth and the pictures of the light field
+    t0 = time.perf_counter()
+    L0, L1, W0f = lf.frame(0), lf.frame(1), lf.weights(0)
+    dsum = _depth(report, lf.grid, L0, L1, W0f, results[0].T_prev_next if results[0] else None, opts)
+    s = time.perf_counter() - t0
+    dsum["seconds"] = s
+    summary["depth"] = dsum
+    echo(f"depth     {report / 'depth.png'}: {100 * dsum['confident_fraction']:.0f}% of the central view's rays "
+         f"confident, median depth {dsum['median_depth_m']:.2f} m; {dsum['points']} points in "
+         f"{report / 'points.ply'} ({s:.1f} s)")
+    if dsum["points"] < UNUSABLE["depth_min_points"]:
+        raise _fail("depth", f"only {dsum['points']} confident depth rays (need {UNUSABLE['depth_min_points']})")
+    _plot_mosaic(report / "mosaic.png", lf.grid, L0)
+    _plot_epi(report / "epi.png", lf.grid, L0)
+    written += ["calibration_residuals.png", "mosaic.png", "epi.png", "depth.png", "points.ply"]
+
+    _write_summary(report, summary, written)
+    echo(f"report    {report}: README.md, summary.toml, {', '.join(written)}")
+    return summary
+
+
+# ----------------------------------------------------------------------------- stage summaries
+
+
+def _calibration_summary(cal, true_models: dict) -> dict:
+    """Counts and residuals of the board solve, and the solved camera poses against the truth."""
+    import numpy as np
+
+    from .cameras import T_rig_cam_of
+    from .geometry import r_from_R
+
+    doc = cal.report.get("calibration", {}) if isinstance(cal.report, dict) else {}
+    ids = [c for c in cal.models if c in true_models]
+    Ts = np.stack([T_rig_cam_of(cal.models[c]) for c in ids])
+    Tt = np.stack([T_rig_cam_of(true_models[c]) for c in ids])
+    # both rig frames are tied to the rig file's nominal poses (the solve fits its frame to
+    # them; the truth deviates from them by the perturbation), so compare directly
+    dp = np.linalg.norm(Ts[:, :3, 3] - Tt[:, :3, 3], axis=1)
+    dr = np.linalg.norm(r_from_R(np.swapaxes(Tt[:, :3, :3], 1, 2) @ Ts[:, :3, :3]), axis=1)
+    return {"cameras": len(cal.models), "rms_px": float(cal.rms_px), "views": int(doc.get("views", 0)),
+            "per_camera_rms_px": {c: float(s.rms_px) for c, s in cal.result.stats.items()},
+            "outliers": int(doc.get("outliers", 0)),
+            "position_rms_m": float(np.sqrt(np.mean(np.square(dp)))) if len(dp) else float("nan"),
+            "rotation_rms_deg": math.degrees(float(np.sqrt(np.mean(np.square(dr))))) if len(dr) else float("nan")}
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _plot_calibration(path: Path, cal) -> None:
+    """Per-camera residual RMS [px] of the board solve and the histogram of all residuals."""
+    import numpy as np
+
+    from calib.board_solve import observation_residuals
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    bc = cal.result                                           # calib.board_solve.BoardCalibration
+    names = list(bc.stats)
+    rms = [float(bc.stats[c].rms_px) for c in names]
+    axes[0].bar(range(len(names)), rms, color="tab:blue")
+    axes[0].set_xticks(range(len(names)), names, rotation=90, fontsize=6)
+    axes[0].set_ylabel("residual RMS [px]")
+    axes[0].set_title(f"board solve: RMS {cal.rms_px:.3f} px over {len(names)} cameras")
+    try:
+        res, weight = observation_residuals(bc.optimization_inputs)
+        r = np.asarray(res, float)[np.asarray(weight) > 0].reshape(-1)
+        axes[1].hist(r, bins=60, color="tab:orange")
+        axes[1].set_xlabel("residual per coordinate [px]")
+        axes[1].set_title("all inlier residuals")
+    except Exception as e:  # noqa: BLE001 -- a plot must not stop the chain
+        axes[1].text(0.5, 0.5, f"residuals unavailable: {e}", ha="center", transform=axes[1].transAxes)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _grey(L):
+    import numpy as np
+
+    return L.mean(axis=-1) if L.ndim == 6 else L
+
+
+def _plot_mosaic(path: Path, grid, L0) -> None:
+    """All perspective views of face 0 tiled as on the array (frame 0)."""
+    import numpy as np
+
+    plt = _pyplot()
+    L = _grey(L0)[0]                                          # (Ny, Nx, Nv, Nu)
+    Ny, Nx, Nv, Nu = L.shape
+    step = max(1, int(math.ceil(max(Nv, Nu) * max(Ny, Nx) / 2400)))  # keep it under ~2400 px
+    tiles = L[:, :, ::step, ::step]
+    h, w = tiles.shape[2:]
+    gap = 2
+    img = np.ones((Ny * (h + gap) - gap, Nx * (w + gap) - gap), np.float32)
+    for j in range(Ny):
+        for i in range(Nx):
+            img[j * (h + gap):j * (h + gap) + h, i * (w + gap):i * (w + gap) + w] = tiles[j, i]
+    plt.imsave(path, np.clip(img, 0, 1), cmap="gray", vmin=0, vmax=1)
+
+
+def _plot_epi(path: Path, grid, L0) -> None:
+    """The central view with the sampled row and column, the horizontal EPI L(x, u) at the
+    central y and v, and the vertical EPI L(y, v) at the central x and u."""
+    import numpy as np
+
+    plt = _pyplot()
+    L = _grey(L0)[0]
+    Ny, Nx, Nv, Nu = L.shape
+    jc, ic, vc, uc = Ny // 2, Nx // 2, Nv // 2, Nu // 2
+    epi_h = L[jc, :, vc, :]                                    # (Nx, Nu)
+    epi_v = L[:, ic, :, uc].T                                  # (Nv, Ny)
+    fig = plt.figure(figsize=(11, 7))
+    gs = fig.add_gridspec(2, 2, width_ratios=(4, 1), height_ratios=(3, 1))
+    ax = fig.add_subplot(gs[0, 0])
+    ax.imshow(L[jc, ic], cmap="gray", vmin=0, vmax=1)
+    ax.axhline(vc, color="tab:red", lw=0.8)
+    ax.axvline(uc, color="tab:blue", lw=0.8)
+    ax.set_title(f"central view (x = {grid.x.values[ic]:.3f} m, y = {grid.y.values[jc]:.3f} m)")
+    ax.axis("off")
+    axh = fig.add_subplot(gs[1, 0])
+    axh.imshow(epi_h, cmap="gray", vmin=0, vmax=1, aspect="auto", interpolation="nearest")
+    axh.set_title("EPI L(x, u) along the red row: slope = depth", fontsize=9)
+    axh.set_xlabel("u")
+    axh.set_ylabel("x (view)")
+    axv = fig.add_subplot(gs[0, 1])
+    axv.imshow(epi_v, cmap="gray", vmin=0, vmax=1, aspect="auto", interpolation="nearest")
+    axv.set_title("EPI L(y, v)\nalong the blue column", fontsize=9)
+    axv.set_xlabel("y (view)")
+    axv.set_ylabel("v")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_ply(path: str | os.PathLike, points, values=None) -> None:
+    """ASCII PLY point cloud: points (N, 3) [m] and optional grey values (N,) in [0, 1]."""
+    import io
+
+    import numpy as np
+
+    from .tomlio import atomic_write_text
+
+    P = np.asarray(points, float).reshape(-1, 3)
+    buf = io.StringIO()
+    buf.write(f"ply\nformat ascii 1.0\ncomment polycam run: rig frame at frame 0 [m]\nelement vertex {len(P)}\n"
+              "property float x\nproperty float y\nproperty float z\n")
+    if values is not None:
+        buf.write("property uchar red\nproperty uchar green\nproperty uchar blue\n")
+    buf.write("end_header\n")
+    if values is None:
+        np.savetxt(buf, P, fmt="%.5f")
+    else:
+        g = np.clip(np.round(np.asarray(values, float).reshape(-1) * 255), 0, 255).astype(int)
+        np.savetxt(buf, np.column_stack([P, g, g, g]), fmt=["%.5f"] * 3 + ["%d"] * 3)
+    atomic_write_text(path, buf.getvalue())
+
+
+def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions) -> dict:
+    """Depth of the first frame pair: depth.png (central view) and points.ply."""
+    import numpy as np
+
+    from .depth import depth_from_derivatives
+    from .derivatives import plenoptic_derivatives
+
+    g0, g1 = _grey(L0).astype(np.float32), _grey(L1).astype(np.float32)
+    der = plenoptic_derivatives(g0, g1, grid, filters={"x": "fs3", "y": "fs3"})
+    dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next)
+    conf = dm.confidence
+    if W0 is not None:
+        conf = conf * (W0 > 0.5)
+    pos = conf[conf > 0]
+    thr = float(np.percentile(pos, 50)) if pos.size else np.inf    # keep the better half
+    good = (conf >= thr) & np.isfinite(dm.Z) & (dm.Z > 0)
+    rng_ray = dm.range_along_ray(grid)
+    F, Ny, Nx, Nv, Nu = grid.shape
+    jc, ic = Ny // 2, Nx // 2
+    # point cloud from the central views
+    h = opts.depth_views // 2
+    rays = grid.face_rays(0)
+    pts, vals = [], []
+    for j in range(max(0, jc - h), min(Ny, jc + h + 1)):
+        for i in range(max(0, ic - h), min(Nx, ic + h + 1)):
+            m = good[0, j, i]
+            o, d = rays.origins[j, i][m], rays.directions[j, i][m]
+            pts.append(o + d * rng_ray[0, j, i][m][:, None])
+            vals.append(g0[0, j, i][m])
+    P = np.concatenate(pts) if pts else np.zeros((0, 3))
+    V = np.concatenate(vals) if vals else np.zeros(0)
+    write_ply(report / "points.ply", P, V)
+    # depth map of the central view
+    Zc = np.where(good[0, jc, ic], dm.Z[0, jc, ic], np.nan)
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    axes[0].imshow(g0[0, jc, ic], cmap="gray", vmin=0, vmax=1)
+    axes[0].set_title("central view, frame 0")
+    finite = Zc[np.isfinite(Zc)]
+    lo, hi = (np.percentile(finite, [2, 98]) if finite.size else (0.0, 1.0))
+    im = axes[1].imshow(Zc, cmap="turbo", vmin=lo, vmax=hi)
+    axes[1].set_title("depth Z [m] (blank: low confidence)")
+    fig.colorbar(im, ax=axes[1], fraction=0.035)
+    for ax in axes:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(report / "depth.png", dpi=110)
+    plt.close(fig)
+    return {"points": int(len(P)), "confident_fraction": float(np.mean(good[0, jc, ic])),
+            "median_depth_m": float(np.median(finite)) if finite.size else float("nan"),
+            "with_motion": T_prev_next is not None}
+
+
+def _write_summary(report: Path, summary: dict, written: list[str]) -> None:
+    """report/summary.toml and report/README.md."""
+    import tomli_w
+
+    from .tomlio import atomic_write_text
+
+    def clean(x):
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, float):
+            return x if math.isfinite(x) else "nan"
+        return x
+
+    atomic_write_text(report / "summary.toml", tomli_w.dumps(clean(summary)))
+    c, r, m, d = summary["calibrate"], summary["resample"], summary["motion"], summary["depth"]
+    cap = summary["capture"]
+    md = f"""# polycam run: {summary['rig']} ({summary['cameras']} cameras)
+
+| stage | result |
+| --- | --- |
+| board | {summary['board']['frames']} frames ({summary['board']['seconds']:.0f} s) |
+| calibrate | RMS {c['rms_px']:.3f} px, {c['views']} views, {c['outliers']} outliers; centres vs truth {1e3 * c['position_rms_m']:.2f} mm RMS, axes {c['rotation_rms_deg']:.3f} deg RMS ([calib/report.md](../calib/report.md)) |
+| capture | {cap['frames']} frames, {1e3 * cap['median_step_m']:.1f} mm and {cap['median_step_deg']:.2f} deg per frame |
+| resample | {r['faces']} face(s), {r['views'][0]}x{r['views'][1]} views, {r['directions'][0]}x{r['directions'][1]} directions, mean W {r['mean_W']:.2f} |
+| motion | {m['pairs']} pairs, {m['failed']} failed; median error translation {100 * m['median_t_rel']:.1f}% ({1e3 * m['median_t_err_m']:.2f} mm), rotation {100 * m['median_w_rel']:.1f}% ({m['median_w_err_deg']:.4f} deg); ATE {1e3 * m['ate_m']:.2f} mm; {m['seconds_per_pair']:.1f} s per pair |
+| depth | {100 * d['confident_fraction']:.0f}% of the central view confident, median {d['median_depth_m']:.2f} m, {d['points']} points |
+
+![trajectory](trajectory.png)
+![per-pair errors](errors.png)
+![calibration residuals](calibration_residuals.png)
+![light-field mosaic](mosaic.png)
+![epipolar-plane images](epi.png)
+![depth](depth.png)
+
+Files: {', '.join(written)}.
+"""
+    atomic_write_text(report / "README.md", md)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text}")
+    return v
+
+
+def add_parsers(sub) -> None:
+    """Add the ``run`` verb (registered through polycam/cli.py's STAGE_CLIS)."""
+    p = sub.add_parser("run", help="the whole chain on a mock rig: board, calibrate, capture, resample, "
+                                   "motion, depth, report",
+                       description="Capture a board session and a motion session of a mock rig, calibrate "
+                                   "(mrcal), resample with the calibrated models, estimate motion and depth, "
+                                   "and write a report folder. See docs/end_to_end.md.")
+    p.add_argument("rig", nargs="?", default=str(DEFAULT_RIG), metavar="RIG.toml",
+                   help="rig file with a [mock] table (default rigs/mock5x5.toml)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--board", default=str(DEFAULT_BOARD), metavar="BOARD.toml",
+                   help="calibration board (default rigs/boards/charuco_5x7.toml)")
+    p.add_argument("--frames", type=_positive_int, default=RunOptions.frames, help="motion frames (default 5)")
+    p.add_argument("--board-frames", type=_positive_int, default=RunOptions.board_frames,
+                   help="board frames (default 25)")
+    p.add_argument("--seed", type=int, default=None, help="default: the rig's [mock] seed")
+    p.add_argument("--uv-step", type=_positive_float, default=RunOptions.uv_step_px, metavar="PX",
+                   help="direction spacing of the light field in camera pixels (default 2)")
+    p.set_defaults(func=cmd_run)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from .cli import _progress
+
+    run_chain(args.rig, args.out, board_path=args.board,
+              options=RunOptions(frames=args.frames, board_frames=args.board_frames, seed=args.seed,
+                                         uv_step_px=args.uv_step),
+              progress_factory=_progress, echo=print)
+    return 0

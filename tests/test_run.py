@@ -1,0 +1,85 @@
+"""`polycam run` (issue 7): the whole chain on a small mock rig, its report folder, and the
+chain stopping with `run: STAGE: reason` when a stage's output is unusable."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polycam.cli import main
+from polycam.trajectory import read_tum
+from tolerances import E2E_RUN_MOTION_REL
+
+RUN_RIG_TEXT = """[rig]
+name = "run3x3"
+[defaults]
+driver = "mock"
+width = 160
+height = 120
+fps = 30
+pixel_format = "GREY"
+fov_deg = 60
+[grid]
+rows = 3
+cols = 3
+pitch = 0.02
+[mock]
+scene = "room"
+motion = "smooth"
+seed = 1
+noise = 0.004
+"""
+
+
+def _one_line_error(capsys, code: int, *fragments: str) -> None:
+    err = capsys.readouterr().err
+    assert code == 1, err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("polycam: error: "), err
+    for frag in fragments:
+        assert frag in lines[0], err
+
+
+def test_run_small_rig_end_to_end(tmp_path, capsys):
+    """`polycam run` on a 3x3 rig of 160x120 cameras: every stage prints its line, the report
+    folder has every picture, the trajectory follows the ground truth."""
+    import tomllib
+
+    (tmp_path / "rig.toml").write_text(RUN_RIG_TEXT)
+    out = tmp_path / "run"
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "3"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    for stage in ("board", "calibrate", "capture", "resample", "motion", "depth", "report"):
+        assert any(line.startswith(stage) for line in cap.out.splitlines()), (stage, cap.out)
+    for rel in ("calib/cam04.cameramodel", "calib/report.md", "session/groundtruth.tum", "lightfield.zarr/zarr.json",
+                "trajectory.tum"):
+        assert (out / rel).exists(), rel
+    rep = out / "report"
+    for name in ("README.md", "summary.toml", "pairs.csv", "trajectory.png", "errors.png",
+                 "calibration_residuals.png", "mosaic.png", "epi.png", "depth.png", "points.ply"):
+        assert (rep / name).stat().st_size > 0, name
+    summary = tomllib.loads((rep / "summary.toml").read_text())
+    assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
+    assert summary["calibrate"]["rms_px"] < 0.5
+    assert summary["resample"]["mean_W"] > 0.3
+    assert summary["depth"]["points"] > 1000
+    header = (rep / "points.ply").read_text().split("end_header")[0]
+    assert header.startswith("ply") and f"element vertex {summary['depth']['points']}" in header
+    from polycam.evaluate import pair_errors
+
+    err = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
+    assert np.median(err.t_rel) < E2E_RUN_MOTION_REL and np.median(err.w_rel) < E2E_RUN_MOTION_REL
+
+
+def test_run_stops_at_an_unusable_stage(tmp_path, capsys):
+    """Two board frames cannot calibrate nine cameras: the chain stops naming the stage."""
+    (tmp_path / "rig.toml").write_text(RUN_RIG_TEXT)
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(tmp_path / "run"), "--board-frames", "2",
+                 "--frames", "2"])
+    _one_line_error(capsys, code, "run: calibrate: ")
+    assert not (tmp_path / "run" / "session").exists()      # later stages did not run
+
+
+def test_run_bad_rig_file_is_one_line(tmp_path, capsys):
+    code = main(["run", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "run")])
+    _one_line_error(capsys, code, "nope.toml")
