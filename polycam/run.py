@@ -341,10 +341,11 @@ def _plot_mosaic(path: Path, grid, L0) -> None:
     """All perspective views of face 0 tiled as on the array (frame 0)."""
     import numpy as np
 
-    plt = _pyplot()
+    from PIL import Image
+
     L = _grey(L0)[0]                                          # (Ny, Nx, Nv, Nu)
     Ny, Nx, Nv, Nu = L.shape
-    step = max(1, int(math.ceil(max(Nv, Nu) * max(Ny, Nx) / 2400)))  # keep it under ~2400 px
+    step = max(1, int(math.ceil(max(Nv, Nu) * max(Ny, Nx) / 1600)))  # keep it under ~1600 px
     tiles = L[:, :, ::step, ::step]
     h, w = tiles.shape[2:]
     gap = 2
@@ -352,7 +353,9 @@ def _plot_mosaic(path: Path, grid, L0) -> None:
     for j in range(Ny):
         for i in range(Nx):
             img[j * (h + gap):j * (h + gap) + h, i * (w + gap):i * (w + gap) + w] = tiles[j, i]
-    plt.imsave(path, np.clip(img, 0, 1), cmap="gray", vmin=0, vmax=1)
+    tmp = path.with_name(path.name + ".tmp.png")
+    Image.fromarray(np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)).save(tmp)
+    os.replace(tmp, path)
 
 
 def _plot_epi(path: Path, grid, L0) -> None:
