@@ -837,8 +837,7 @@ def _sandwich(A_faces: list[np.ndarray], w: np.ndarray, sampling: RigSampling, s
     meat = np.zeros((6, 6))
     for k, sl in enumerate(sampling.face_slices):
         A = A_faces[k]
-        wk = w[k].astype(np.float64)
-        wA = wk[..., None] * A
+        wA = w[k].astype(np.float64)[..., None] * A
         N += wA.reshape(-1, 6).T @ A.reshape(-1, 6)
         if sl.stop == sl.start:
             continue
@@ -948,15 +947,14 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     Lt_noisy = smooth_all(np.ascontiguousarray(w1[1] - L0n, np.float32), pairs)
     scale = max(_weighted_mad(Lt_noisy, base), _SCALE_FLOOR)
     w = base * _robust_weight(Lt_noisy, scale, opts)
-    num = int(np.count_nonzero(w > 0))
 
     A_faces = [ray_motion_coefficients(der, g, k) for k in range(F)]
-    N, meat = _sandwich(A_faces, w, sampling, sigma_src, pairs)
     Jm = _ray_to_rig_jacobian(M)
+    N = sum((w[k].astype(np.float64)[..., None] * A_faces[k]).reshape(-1, 6).T @ A_faces[k].reshape(-1, 6)
+            for k in range(F))
     pinv, bad, good = _observable(N, opts.rcond)
-    solver_unobs = tuple(_component_name(Jm @ b / np.linalg.norm(Jm @ b)) for b in bad)
 
-    # linearised bias from the noise-free residual and the misfit ratio
+    # linearised bias from the noise-free residual (model error) and the misfit ratio
     rhs = sum((w[k].astype(np.float64)[..., None] * A_faces[k]).reshape(-1, 6).T @ der.Lt[k].reshape(-1)
               for k in range(F))
     delta = -(pinv @ rhs)
@@ -964,6 +962,16 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     res0 = np.stack([der.Lt[k] + (A_faces[k] @ delta).astype(np.float32) for k in range(F)])
     noise_scale = _weighted_mad(Lt_noisy - smooth_all(np.ascontiguousarray(w1[0] - L0, np.float32), pairs), base)
     misfit = _weighted_mad(res0, base) / max(noise_scale, 1e-12) if noise_scale > 0 else math.inf
+
+    # the solver's robust weights and scale belong to its residual at convergence: the model
+    # error left at the (linearised) fixed point plus the noise
+    r_fix = res0 + (Lt_noisy - der.Lt)
+    scale = max(_weighted_mad(r_fix, base), _SCALE_FLOOR)
+    w = base * _robust_weight(r_fix, scale, opts)
+    num = int(np.count_nonzero(w > 0))
+    N, meat = _sandwich(A_faces, w, sampling, sigma_src, pairs)
+    pinv, bad, good = _observable(N, opts.rcond)
+    solver_unobs = tuple(_component_name(Jm @ b / np.linalg.norm(Jm @ b)) for b in bad)
 
     model = "plenoptic"
     t_dead = bool(len(bad)) and any(np.linalg.norm(b[:3]) > 0.5 for b in bad)
@@ -981,8 +989,10 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
             r_src = np.where(np.isfinite(dist) & (dist > 0), 1.0 / np.maximum(dist * cosz, 1e-9), 0.0)
             rho[k] = (sampling.P[k] @ r_src.reshape(sl.stop - sl.start, -1)).reshape(Ny, Nx, Nv, Nu)
         p_ray = np.r_[T_ray[:3, 3], r_from_R(T_ray[:3, :3])]
-        A_faces = _depth_coefficients(der, sampling, rho, p_ray, depth_patch, w)
-        N, meat = _sandwich(A_faces, w, sampling, sigma_src, pairs)
+        # no robust weights: the solver's residual holds the parallax it cannot model, the
+        # depth model's does not
+        A_faces = _depth_coefficients(der, sampling, rho, p_ray, depth_patch, base)
+        N, meat = _sandwich(A_faces, base, sampling, sigma_src, pairs)
         pinv, bad, good = _observable(N, opts.rcond)
 
     C_ray = pinv @ meat @ pinv
@@ -1135,7 +1145,10 @@ def evaluate_rig(rig: Rig, options: DesignOptions | None = None, *, renderer: So
     rng = np.random.default_rng([opts.seed, 909])
     pred = predict_pair(sampling, src0, src1s[0], motions[0], sigma, options=opts.solver,
                         rng=rng, depth0=depth0, depth_patch=opts.depth_patch)
-    if pred.misfit > 1.0:
+    if pred.num_rays == 0:
+        warnings.append("no usable rays once frame 2 is warped by the motion (too few viewpoints or directions "
+                        "for the filter supports): the solver cannot work with this rig")
+    elif pred.misfit > 1.0:
         warnings.append(f"model error exceeds the noise (misfit {pred.misfit:.1f}): the solver's error is "
                         "mostly systematic and its scatter may exceed the prediction")
     meas = None

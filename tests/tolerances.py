@@ -58,4 +58,9 @@ RESAMPLE_MIDVIEW_PSNR_DB = 50.0   # [dB] a view half-way between cameras vs the 
 E2E_STREAM_VS_STORE_ATOL = 1e-6   # on-the-fly resampling vs the same frame read back from a store (float32)
 E2E_SMALL_RIG_MOTION_REL = 0.3    # median relative per-pair motion error, 3x3 rig of 64x48 px, 3 frames (measured 18%: tiny images; a sanity bound)
 E2E_RUN_MOTION_REL = 0.6          # median relative per-pair error of `polycam run` on a 3x3 rig of 160x120 px (measured 33% translation: its board calibration puts centres ~5 mm off; 6% with the true models)
+# rig design study (tests/test_design.py)
+DESIGN_RENDER_ATOL = 1e-6         # design renderer vs polycam.synth.render_lightfield on the same rays (float32)
+DESIGN_LINEAR_SIGMA_REL = 0.15    # analytic noise propagation vs Monte Carlo of the same linear estimator (400 draws)
+DESIGN_SCATTER_REL = 0.2          # predicted σ vs the real solver's scatter over noise draws (issue 8; 16 draws)
+DESIGN_AMBIGUITY_MIN_CORR = 0.7   # |corr(t_i, w_j)| of a small-FOV array's reported rotation-translation ambiguity
 E2E_DEMO_MOTION_REL = 0.25        # median relative per-pair error of `polycam demo` (mock5x5, calibrated models, room; measured 10.8% / 4.9%)
