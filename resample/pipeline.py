@@ -90,20 +90,25 @@ def _channels_of(session) -> int:
 
 # ----------------------------------------------------------------------------- per-frame work
 
-_SESSIONS: dict[str, object] = {}
+_SESSIONS: dict[tuple, object] = {}
+"""Per-process cache of opened sessions (a worker serves many frames of one session)."""
 _LOCKS: dict[int, threading.Lock] = {}
 _GLOBAL_LOCK = threading.Lock()
 
 
 def _session(path: str):
-    s = _SESSIONS.get(path)
+    try:   # a session rewritten at the same path (long-lived cluster) is opened afresh
+        key = (path, os.stat(os.path.join(path, "frames.csv")).st_mtime_ns)
+    except OSError:
+        key = (path, None)
+    s = _SESSIONS.get(key)
     if s is None:
         from polycam.session import open_session
 
         s = open_session(path)
         if len(_SESSIONS) > 4:
             _SESSIONS.clear()
-        _SESSIONS[path] = s
+        _SESSIONS[key] = s
     return s
 
 
@@ -183,7 +188,8 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                               "kernel": {"radius_xy": options.kernel.radius_xy,
                                          "radius_uv": options.kernel.radius_uv,
                                          "linear": options.kernel.linear},
-                              "schedule": options.schedule, "attenuation": options.attenuation}}
+                              "schedule": options.schedule, "attenuation": options.attenuation,
+                              "full_weight": options.full_weight}}
         store = FrameStore(out, grid, sess.timestamps_ns, channels=channels if channels > 1 else None,
                            overwrite=overwrite, extra_attrs=attrs)
         t1 = time.perf_counter()
