@@ -20,7 +20,7 @@ from resample import (KernelOptions, ResampleOptions, Resampler, auto_grid, buil
                       push_pull_reference, ray_samples)
 from resample.geometry import camera_layout
 from resample.pushpull import pyramid_schedule
-from tests.tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL)
+from tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL)
 
 
 def _lens(tmp_path: Path) -> Path:

@@ -17,7 +17,7 @@ from polycam.rig import load_rig
 from polycam.session import SessionWriter, open_session
 from polycam.synth import render_lightfield, room_scene, synth_session, true_cameramodels
 from resample import Resampler, auto_grid, resample_session
-from tests.tolerances import RESAMPLE_DIRECT_PSNR_DB, RESAMPLE_MIDVIEW_PSNR_DB
+from tolerances import RESAMPLE_DIRECT_PSNR_DB, RESAMPLE_MIDVIEW_PSNR_DB
 
 REPO = Path(__file__).resolve().parents[1]
 
