@@ -162,6 +162,29 @@ def test_frames_with_missing_images(tmp_path):
     assert np.all(lf.frame(2) == 0) and np.all(lf.weights(2) == 0)
 
 
+def test_rgb_session_gives_a_colour_store(tmp_path):
+    p = _rig(tmp_path)
+    p.write_text(p.read_text().replace('fov_deg = 60', 'fov_deg = 60\npixel_format = "RGB"'))
+    rig = load_rig(p)
+    models = true_cameramodels(rig, seed=1, perturb_rotation_deg=1.0)
+    rng = np.random.default_rng(1)
+    with SessionWriter(tmp_path / "s", rig) as w:
+        for cam, m in models.items():
+            w.write_calibration(cam, m)
+        imgs = {c.id: rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for c in rig.cameras}
+        w.add_frame(1000, imgs)
+        w.add_frame(2000, imgs)
+    summ = resample_session(tmp_path / "s", tmp_path / "lf.zarr", scheduler="sync")
+    lf = open_lightfield(summ.path)
+    assert summ.channels == 3 and lf.colour == 3 and lf.frame(1).shape == (*lf.grid.shape, 3)
+    r = Resampler(open_session(tmp_path / "s").calibration(), lf.grid, channels=3).resample(imgs)
+    np.testing.assert_array_equal(lf.frame(1), r.L)
+    grey = Resampler(open_session(tmp_path / "s").calibration(), lf.grid).resample(
+        {c: img[..., 1] for c, img in imgs.items()})
+    np.testing.assert_allclose(lf.frame(0)[..., 1], grey.L, atol=1e-6)   # channels are independent
+    np.testing.assert_array_equal(lf.weights(0), grey.W)
+
+
 def _polycam(*args):
     return subprocess.run([sys.executable, "-m", "polycam.cli", *map(str, args)], capture_output=True,
                           text=True, cwd=REPO, timeout=300)
