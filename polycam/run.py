@@ -332,8 +332,7 @@ def _plot_calibration(path: Path, cal) -> None:
 
 
 def _grey(L):
-    import numpy as np
-
+    """Grey (T-less) light field: the colour axis, if any, averaged."""
     return L.mean(axis=-1) if L.ndim == 6 else L
 
 
