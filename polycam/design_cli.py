@@ -66,8 +66,8 @@ def add_parsers(sub) -> None:
     p.add_argument("--draws", type=pos_i, default=3, help="noise draws per pair for the measurement (default 3)")
     p.add_argument("--no-measure", action="store_true",
                    help="predictions only (fast: for searching many designs)")
-    p.add_argument("--uv-step", type=pos_f, default=1.0, metavar="DEG",
-                   help="direction sampling of the design light field [deg] (default 1)")
+    p.add_argument("--uv-step", type=pos_f, default=1.5, metavar="DEG",
+                   help="direction sampling of the design light field [deg] (default 1.5)")
     p.add_argument("--xy-oversample", type=pos_i, default=2, help="viewpoints per camera spacing (default 2)")
     p.add_argument("--supersample", type=pos_i, default=2, help="k x k rays per light-field sample (default 2)")
     p.add_argument("--sweep", type=_sweep, default=None, metavar="auto|none|D1,D2,...",
