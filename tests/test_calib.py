@@ -82,7 +82,12 @@ def _aligned_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float
 
 @pytest.fixture(scope="module")
 def board_session(tmp_path_factory):
-    """A rendered 2x2 board session (real OPENCV8 lens when ../shared/data is there)."""
+    """A rendered 2x2 board session through a real OPENCV8 lens from ../shared/data.
+
+    Skipped without it: the tolerances below are set for that lens (with a pinhole
+    truth the fitted distortion leaves ~0.36 px projection differences; see issue 4 notes)."""
+    if not LENS.is_file():
+        pytest.skip(f"real lens model not found at {LENS}")
     tmp = tmp_path_factory.mktemp("calib")
     rig = _rig(tmp)
     board = _board(tmp)
