@@ -16,7 +16,7 @@ from pathlib import Path
 
 __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
-STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run")
+STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli")
 """Modules whose ``add_parsers(subparsers)`` add the pipeline stages' verbs."""
 
 log = logging.getLogger("polycam")
