@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -150,10 +152,9 @@ def test_source_renderer_matches_the_light_field_renderer_and_shares(renderer):
 def test_noise_propagation_matches_monte_carlo_of_the_linear_estimator(renderer):
     """The sandwich N⁺ Σ σ² ‖(K P)ᵀ w A‖² N⁺ is the exact covariance of the weighted
     least-squares solution with noise filtered by K and interpolated by P."""
-    from polycam.derivatives import smooth_all
-    from polycam.motion import MotionOptions, ray_motion_coefficients, warp_lightfield
-    from polycam.derivatives import plenoptic_derivatives
+    from polycam.derivatives import plenoptic_derivatives, smooth_all
     from polycam.geometry import T_inverse
+    from polycam.motion import MotionOptions, ray_motion_coefficients, warp_lightfield
 
     s = dz.design_grid(dz.planar_array_rig(3, 3, 0.02, CAM), uv_step_deg=5.0, xy_oversample=2)
     M = dz.pair_motions(1, 0.005, 0.2)[0]
@@ -307,3 +308,17 @@ def test_report_without_measurement(tmp_path, hierarchy):
     with open(tmp_path / "r" / "summary.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert all(r["err_t"] == "" and r["err_w"] == "" for r in rows)
+
+
+def test_design_verb_in_a_subprocess(tmp_path, repo):
+    """The real command (registered in polycam.cli.STAGE_CLIS): success and a one-line user error."""
+    rig = _small_rig(tmp_path, "arr", "[grid]\nrows = 3\ncols = 3\npitch = 0.02\n")
+    out = tmp_path / "study"
+    cmd = [sys.executable, "-m", "polycam.cli", "design", str(rig), "--out", str(out), "--no-measure",
+           "--sweep", "none", "--uv-step", "5", "--no-plots"]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=repo, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert (out / "summary.csv").read_text().startswith("rig,cameras,faces,std_t,std_w,err_t,err_w,unobservable")
+    res = subprocess.run(cmd[:4] + [str(tmp_path / "missing.toml")] + cmd[5:], capture_output=True, text=True,
+                         cwd=repo, timeout=300)
+    assert res.returncode == 1 and len(res.stderr.strip().splitlines()) == 1 and "missing.toml" in res.stderr
