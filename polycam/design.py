@@ -63,9 +63,9 @@ result is mapped from the ray motion the solver solves for to the rig's ``(t, r)
 like the solver maps its own covariance.
 
 Measured against the real solver (tests/test_design.py, docs/design.md): its
-scatter over noise draws is 0.96–1.07x the prediction on well-conditioned designs
-with viewpoints at the cameras and noise above the model error, 1.1–1.2x with
-interpolated viewpoints, and up to ~1.5x on ill-conditioned single-face designs;
+scatter over noise draws is 0.84–1.07x the prediction on well-conditioned designs
+with viewpoints at the cameras and noise above the model error, 1.05–1.18x with
+interpolated viewpoints, and ~1.5x on an ill-conditioned single-face design;
 where the noise-free residual (model error: occlusions, aliasing, interpolated
 views) exceeds the noise (``DesignPrediction.misfit`` > 1) the solver's error is
 mostly systematic and far above the noise prediction. Noise in the derivatives
