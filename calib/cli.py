@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 
+from polycam.cliargs import number
+
 __all__ = ["add_parsers", "cmd_calibrate"]
 
 _LENSMODELS = ("opencv4", "opencv5", "opencv8", "splined")
@@ -19,16 +21,6 @@ def _exports(text: str) -> list[str]:
     if not names or bad:
         raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(_EXPORTS)}, got {text!r}")
     return names
-
-
-def _min_corners(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 6:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 6 (PnP needs 6 corners), got {v}")
-    return v
 
 
 def add_parsers(sub) -> None:
@@ -45,7 +37,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--lensmodel", default="opencv8",
                    help=f"mrcal lens model: {', '.join(_LENSMODELS)} or a full LENSMODEL_... name "
                         "(default opencv8)")
-    p.add_argument("--min-corners", type=_min_corners, default=8,
+    p.add_argument("--min-corners", type=number(int, 6, why="PnP needs 6 corners"), default=8,
                    help="smallest partial ChArUco view kept (default 8)")
     p.add_argument("--no-board-warp", action="store_true", help="assume a perfectly flat board")
     p.add_argument("--no-plots", action="store_true", help="skip the report's plots")

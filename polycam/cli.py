@@ -14,6 +14,10 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from .cliargs import nonneg_float as _nonneg_float
+from .cliargs import positive_float as _positive_float
+from .cliargs import positive_int as _positive_int
+
 __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
 STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli")
@@ -55,26 +59,6 @@ def _faces_arg(text: str) -> list[str]:
     return names
 
 
-def _number(kind: type, minimum: float, *, strict: bool = False):
-    """An argparse ``type`` accepting a ``kind`` (int or float) >= ``minimum`` (> with ``strict``)."""
-    what = "an integer" if kind is int else "a number"
-    bound = f"{'>' if strict else '>='} {minimum:g}"
-
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-        if not (v > minimum if strict else v >= minimum):
-            raise argparse.ArgumentTypeError(f"expected {what} {bound}, got {text}")
-        return v
-
-    return parse
-
-
-_positive_int = _number(int, 1)
-_nonneg_float = _number(float, 0.0)
-_positive_float = _number(float, 0.0, strict=True)
 
 
 # ----------------------------------------------------------------------------- verbs

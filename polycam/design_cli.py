@@ -9,22 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .cliargs import number as _number
+
 __all__ = ["add_parsers", "cmd_design"]
-
-
-def _number(kind: type, minimum: float, strict: bool):
-    what = "an integer" if kind is int else "a number"
-
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-        if not (v > minimum if strict else v >= minimum):
-            raise argparse.ArgumentTypeError(f"expected {what} {'>' if strict else '>='} {minimum:g}, got {text}")
-        return v
-
-    return parse
 
 
 def _sweep(text: str) -> tuple[float, ...] | None:

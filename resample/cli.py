@@ -10,27 +10,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from polycam.cliargs import nonneg_int as _nonneg_int
+from polycam.cliargs import positive_float as _positive_float
+
 __all__ = ["add_parsers", "cmd_resample"]
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text}")
-    return v
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
 
 
 def add_parsers(sub) -> None:
