@@ -98,11 +98,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .derivatives import FILTERS, correlate_axis, min_filter_axis, plenoptic_derivatives, smooth_all
+from .derivatives import FILTERS, min_filter_axis, plenoptic_derivatives, smooth_all
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
 from .lightfield import FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for
-from .motion import PARAM_NAMES, MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield
+from .motion import (PARAM_NAMES, MotionOptions, discontinuity_weight, estimate_motion, ray_motion_coefficients,
+                     warp_lightfield)
 from .rig import CameraSpec, MockSpec, Rig
 
 __all__ = [
@@ -685,26 +686,6 @@ def _min_support(c: np.ndarray, pairs: dict) -> np.ndarray:
     return out
 
 
-def _discontinuity_weight(S: np.ndarray, opts: MotionOptions) -> np.ndarray:
-    """The solver's discontinuity weight (MotionOptions.smooth_c / smooth_radius) of the mean S."""
-    from scipy.ndimage import maximum_filter
-
-    lap = np.array([1.0, -2.0, 1.0], np.float32)
-    e = np.zeros_like(S)
-    for ax in (3, 4):
-        if S.shape[ax] >= 3:
-            e += np.abs(correlate_axis(S, lap, ax))
-    r = int(opts.smooth_radius)
-    if r > 0:
-        e = maximum_filter(e, size=(1, 1, 1, 2 * r + 1, 2 * r + 1), mode="nearest")
-    sample = e.reshape(-1)[:: max(1, e.size // 200_000)]
-    m = float(np.median(sample))
-    if not m > 0:
-        return np.ones_like(e)
-    z = e / np.float32(opts.smooth_c * m)
-    return (1.0 / (1.0 + z * z)).astype(np.float32)
-
-
 def _weighted_mad(res: np.ndarray, w: np.ndarray) -> float:
     m = w.reshape(-1) > 0
     a = np.abs(res.reshape(-1)[m]).astype(np.float64)
@@ -954,7 +935,7 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     S = 0.5 * (L0n + L1n) * (W > 0)
     base = conf * der.valid[None].astype(np.float32)
     if opts.smooth_c > 0:
-        base = base * _discontinuity_weight(np.ascontiguousarray(S, np.float32), opts)
+        base = base * discontinuity_weight(np.ascontiguousarray(S, np.float32), opts)
     Lt_noisy = smooth_all(np.ascontiguousarray(w1[1] - L0n, np.float32), pairs)
     scale = max(_weighted_mad(Lt_noisy, base), _SCALE_FLOOR)
     w = base * _robust_weight(Lt_noisy, scale, opts)

@@ -117,6 +117,7 @@ __all__ = [
     "PairResult",
     "estimate_motion",
     "estimate_trajectory",
+    "discontinuity_weight",
     "ray_motion_coefficients",
     "solve_ray_motion",
     "warp_lightfield",
@@ -910,18 +911,17 @@ def _noise_variance(lev: _Level) -> float:
     return float((1.4826 * np.median(v)) ** 2 / 6.0)
 
 
-def _discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
-    """(F, Ny, Nx, Nv, Nu) weights in (0, 1]: small near intensity discontinuities.
+def discontinuity_weight(S: np.ndarray, opts: MotionOptions) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) weights in (0, 1] of a light field S of the same dims: small near
+    intensity discontinuities.
 
-    e = |∂²L/∂u²| + |∂²L/∂v²| of the frames' mean, maximised over ±``smooth_radius``
-    samples in (u, v); w = 1 / (1 + (e / (smooth_c · median e))²). It depends on the
-    data only (not on the motion), so it is the same in every iteration of a level.
+    e = |∂²S/∂u²| + |∂²S/∂v²|, maximised over ±``smooth_radius`` samples in (u, v);
+    w = 1 / (1 + (e / (smooth_c · median e))²). The solver applies it to the mean of a
+    frame pair; it depends on the data only (not on the motion), so it is the same in
+    every iteration of a level. Public so the design study predicts with the same weights.
     """
     from scipy.ndimage import maximum_filter
 
-    S = 0.5 * (lev.L0 + lev.L1)
-    if lev.W0 is not None:
-        S = S * (lev.W0 > 0)
     lap = np.array([1.0, -2.0, 1.0], np.float32)
     e = np.zeros_like(S)
     for ax in (3, 4):
@@ -936,6 +936,14 @@ def _discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
         return np.ones_like(e)
     z = e / np.float32(opts.smooth_c * m)
     return (1.0 / (1.0 + z * z)).astype(np.float32)
+
+
+def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
+    """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data)."""
+    S = 0.5 * (lev.L0 + lev.L1)
+    if lev.W0 is not None:
+        S = S * (lev.W0 > 0)
+    return discontinuity_weight(S, opts)
 
 
 # ============================================================================ the solver
@@ -954,7 +962,7 @@ class _Solver:
         self.radius = {k: (fp.radius if getattr(self.g, k).count >= 2 * fp.radius + 1 else 0)
                        for k, fp in filters.items()}
         self.scale: float | None = None
-        self.smooth = _discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
+        self.smooth = _level_discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
         self.noise_var: float | None = None
 
     def prepare(self, M: np.ndarray) -> None:
