@@ -27,3 +27,27 @@ def shared_data(name: str) -> Path:
     if not p.exists():
         pytest.skip(f"shared data set {name!r} not found at {p}")
     return p
+
+
+def mock_grid_rig_text(name: str, width: int, height: int, rows: int = 3, cols: int = 3,
+                       pitch: float = 0.02) -> str:
+    """A small planar mock rig (room scene, smooth motion, light noise) as rig-file text."""
+    return f"""[rig]
+name = "{name}"
+[defaults]
+driver = "mock"
+width = {width}
+height = {height}
+fps = 30
+pixel_format = "GREY"
+fov_deg = 60
+[grid]
+rows = {rows}
+cols = {cols}
+pitch = {pitch}
+[mock]
+scene = "room"
+motion = "smooth"
+seed = 1
+noise = 0.004
+"""

@@ -14,27 +14,10 @@ from polycam.cli import main
 from polycam.rig import load_rig
 from polycam.synth import synth_session
 from polycam.trajectory import read_tum
+from conftest import mock_grid_rig_text
 from tolerances import E2E_SMALL_RIG_MOTION_REL, E2E_STREAM_VS_STORE_ATOL
 
-RIG_TEXT = """[rig]
-name = "e2e3x3"
-[defaults]
-driver = "mock"
-width = 64
-height = 48
-fps = 30
-pixel_format = "GREY"
-fov_deg = 60
-[grid]
-rows = 3
-cols = 3
-pitch = 0.02
-[mock]
-scene = "room"
-motion = "smooth"
-seed = 1
-noise = 0.004
-"""
+RIG_TEXT = mock_grid_rig_text("e2e3x3", 64, 48)
 
 
 @pytest.fixture(scope="module")

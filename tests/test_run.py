@@ -7,27 +7,10 @@ import numpy as np
 
 from polycam.cli import main
 from polycam.trajectory import read_tum
+from conftest import mock_grid_rig_text
 from tolerances import E2E_RUN_MOTION_REL
 
-RUN_RIG_TEXT = """[rig]
-name = "run3x3"
-[defaults]
-driver = "mock"
-width = 160
-height = 120
-fps = 30
-pixel_format = "GREY"
-fov_deg = 60
-[grid]
-rows = 3
-cols = 3
-pitch = 0.02
-[mock]
-scene = "room"
-motion = "smooth"
-seed = 1
-noise = 0.004
-"""
+RUN_RIG_TEXT = mock_grid_rig_text("run3x3", 160, 120)
 
 
 def _one_line_error(capsys, code: int, *fragments: str) -> None:
