@@ -17,7 +17,7 @@ from .errors import FormatError
 from .geometry import R_from_quat, T_from_Rt, T_inverse, quat_from_R
 from .tomlio import atomic_write_text
 
-__all__ = ["Trajectory", "read_tum", "write_tum"]
+__all__ = ["Trajectory", "read_tum", "write_tum", "tum_text"]
 
 
 @dataclass(frozen=True)
@@ -55,16 +55,22 @@ class Trajectory:
         return cls(np.asarray(timestamps_ns, dtype=np.int64), np.stack(T))
 
 
-def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
-    """Write a TUM file atomically (timestamps in seconds with ns precision)."""
-    q = quat_from_R(traj.T_world_rig[:, :3, :3])
-    t = traj.T_world_rig[:, :3, 3]
+def tum_text(timestamps_ns: np.ndarray, T: np.ndarray) -> str:
+    """TUM lines ``timestamp tx ty tz qx qy qz qw`` for poses T (N, 4, 4) at (N,) int64 ns
+    (seconds written with ns precision, negative timestamps included)."""
+    T = np.asarray(T, dtype=float)
+    q = quat_from_R(T[:, :3, :3])
     lines = []
-    for ns, ti, qi in zip(np.asarray(traj.timestamps_ns, dtype=np.int64), t, q):
+    for ns, Ti, qi in zip(np.asarray(timestamps_ns, dtype=np.int64), T, q):
         sign, a = ("-", -int(ns)) if ns < 0 else ("", int(ns))
         sec = f"{sign}{a // 1_000_000_000}.{a % 1_000_000_000:09d}"
-        lines.append(sec + " " + " ".join(f"{v:.9f}" for v in (*ti, *qi)))
-    atomic_write_text(path, "\n".join(lines) + "\n")
+        lines.append(sec + " " + " ".join(f"{v:.9f}" for v in (*Ti[:3, 3], *qi)))
+    return "\n".join(lines) + "\n"
+
+
+def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
+    """Write a TUM file atomically (:func:`tum_text` of ``T_world_rig``)."""
+    atomic_write_text(path, tum_text(traj.timestamps_ns, traj.T_world_rig))
 
 
 def _parse_ns(token: str) -> int:

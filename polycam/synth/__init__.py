@@ -13,7 +13,7 @@ from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield
 from .scenes import (SCENE_NAMES, Scene, SphereGrid, TextureBuilder, Textures, make_scene, room_scene,
                      spheres_scene)
 from .sessions import (board_poses, scene_for_rig, synth_board_session, synth_lightfield, synth_session,
-                       trajectory_for_rig, true_cameramodels, tum_text, write_lightfield_sequence)
+                       trajectory_for_rig, true_cameramodels, write_lightfield_sequence)
 
 __all__ = [
     # scenes
@@ -27,6 +27,6 @@ __all__ = [
     "default_lightfield_grid", "lightfield_face_rays", "LightFieldRenderer", "render_lightfield",
     "CameraArrayRenderer", "quantize",
     # products on disk
-    "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "tum_text", "write_lightfield_sequence", "synth_lightfield",
+    "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "write_lightfield_sequence", "synth_lightfield",
     "synth_session", "synth_board_session",
 ]

@@ -34,10 +34,10 @@ import numpy as np
 
 from ..cameras import T_rig_cam_of, nominal_cameramodel
 from ..errors import InputError
-from ..geometry import R_from_r, T_from_Rt, T_inverse, quat_from_R, rt_from_T
+from ..geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T
 from ..lightfield import LightFieldGrid
 from ..rig import Rig
-from ..trajectory import Trajectory
+from ..trajectory import Trajectory, tum_text
 from .motion import make_trajectory, static_trajectory
 from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, quantize
 from .scenes import Scene, make_scene, room_scene
@@ -51,7 +51,6 @@ __all__ = [
     "synth_board_session",
     "scene_for_rig",
     "trajectory_for_rig",
-    "tum_text",
 ]
 
 log = logging.getLogger(__name__)
@@ -112,17 +111,6 @@ def _image_for(cam, radiance: np.ndarray, bit_depth: int | None, noise: float, r
     if cam.pixel_format == "RGB":
         img = np.repeat(img[:, :, None], 3, axis=2)
     return img
-
-
-def tum_text(timestamps_ns: np.ndarray, T: np.ndarray) -> str:
-    """TUM lines ``timestamp tx ty tz qx qy qz qw`` for poses T (N, 4, 4) at (N,) ns."""
-    q = quat_from_R(np.asarray(T)[:, :3, :3])
-    lines = []
-    for ns, Ti, qi in zip(np.asarray(timestamps_ns, np.int64), np.asarray(T), q):
-        ns = int(ns)
-        sec = f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
-        lines.append(sec + " " + " ".join(f"{v:.9f}" for v in (*Ti[:3, 3], *qi)))
-    return "\n".join(lines) + "\n"
 
 
 # ----------------------------------------------------------------------------- light fields
