@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polycam.cameras import load_cameramodel
+from polycam.cameras import load_cameramodel, write_cameramodel
 from polycam.errors import FormatError, InputError
 from polycam.tomlio import atomic_write_text
 
@@ -44,19 +44,6 @@ def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool = False) -> P
             raise InputError(f"{p}: refusing to write into a folder holding {strange[0]!r} (not a calibration)")
     p.mkdir(parents=True, exist_ok=True)
     return p
-
-
-def write_cameramodel(model, path: str | os.PathLike) -> Path:
-    """Write an mrcal cameramodel atomically (temporary name, then os.replace)."""
-    path = Path(path)
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        model.write(str(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
 
 
 def write_models(models: dict, out: str | os.PathLike) -> list[Path]:

@@ -21,6 +21,7 @@ from .rig import CameraSpec
 __all__ = [
     "nominal_cameramodel",
     "load_cameramodel",
+    "write_cameramodel",
     "T_rig_cam_of",
     "pixel_grid",
     "camera_rays",
@@ -75,6 +76,19 @@ def load_cameramodel(path: str | os.PathLike):
     except Exception as e:  # mrcal raises plain Exceptions for malformed models
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise FormatError(path, f"not a valid mrcal cameramodel ({msg})") from None
+
+
+def write_cameramodel(model, path: str | os.PathLike) -> Path:
+    """Write an mrcal cameramodel atomically (temporary name, then ``os.replace``)."""
+    path = Path(path)
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    try:
+        model.write(str(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
 
 
 def T_rig_cam_of(model) -> np.ndarray:

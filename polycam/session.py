@@ -44,6 +44,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .cameras import write_cameramodel
 from .errors import FormatError, InputError
 from .rig import Rig, load_rig
 from .tomlio import Table, atomic_write_text, load_toml
@@ -369,15 +370,7 @@ class SessionWriter:
             raise InputError(f"{self.path}: unknown camera {cam_id!r} (rig has {', '.join(self.cameras)})")
         d = self.path / "calib"
         d.mkdir(exist_ok=True)
-        dst = d / f"{cam_id}.cameramodel"
-        tmp = d / f".tmp-{os.getpid()}-{cam_id}.cameramodel"
-        try:
-            model.write(str(tmp))
-            os.replace(tmp, dst)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-        return dst
+        return write_cameramodel(model, d / f"{cam_id}.cameramodel")
 
     def write_groundtruth(self, traj: Trajectory) -> Path:
         """Write ``groundtruth.tum`` (``T_world_rig`` per frame)."""
