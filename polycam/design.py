@@ -21,14 +21,14 @@ docs/conventions.md; the method and its limits: docs/design.md.
 
 From a rig to a light field (the rig → grid choice)
 ---------------------------------------------------
-The same rules as the resample stage's automatic grid (``resample.grid.auto_grid``;
-the core may not import a stage, so they are restated here): each camera
-belongs to the nested-cube face its optical axis points into; ``z_pi`` is the
-median distance of the camera centres along their face normal; ``x``, ``y`` run
-over the camera centres in face coordinates with ``xy_oversample`` steps per
-median camera spacing; ``u``, ``v`` span the union of the cameras' fields of
-view (at most 45 deg off the normal with several faces). One difference: the
-directions are sampled every ``uv_step_deg`` (not every camera pixel) so that
+The rules of the resample stage's automatic grid, shared through
+:func:`polycam.gridrules.choose_grid`: each camera belongs to the nested-cube
+face its optical axis points into; ``z_pi`` is the median distance of the camera
+centres along their face normal; ``x``, ``y`` run over the camera centres in face
+coordinates with ``xy_oversample`` steps per median camera spacing; ``u``, ``v``
+span the union of the cameras' fields of view (at most 45 deg off the normal with
+several faces). One difference: the directions are sampled every ``uv_step_deg``
+(grid ``f = 1 / tan(uv_step_deg)``, not every camera pixel) so that
 many designs can be compared quickly; a grid sample then stands for a block of
 ``k x k`` camera pixels (k = camera focal length in pixels / grid ``f``) and
 carries the noise of their mean, ``σ / k``. This keeps the information of
@@ -100,6 +100,7 @@ import numpy as np
 
 from .derivatives import FILTERS, min_filter_axis, plenoptic_derivatives, smooth_all
 from .errors import InputError
+from .gridrules import choose_grid
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
 from .lightfield import FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for
 from .motion import (PARAM_NAMES, MotionOptions, discontinuity_weight, estimate_motion, ray_motion_coefficients,
@@ -131,8 +132,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_MAX_SIDE_DEG = 70.0
-"""With a single face, directions more than this off the face normal are not gridded."""
 _SNAP = 0.3
 """A camera centre within this fraction of a grid step (and of the spacing) of a viewpoint sits on it."""
 _SCALE_FLOOR = 1e-5
@@ -262,32 +261,6 @@ class RigSampling:
         return out * self.W
 
 
-def _face_of(d_rig: np.ndarray) -> int:
-    """Index into FACE_NAMES of the cube face a direction (3,) points into."""
-    normals = np.stack([R_rig_face_for(n)[:, 2] for n in FACE_NAMES])
-    return int(np.argmax(normals @ np.asarray(d_rig, float)))
-
-
-def _nn_spacing(c: np.ndarray) -> float:
-    """Median nearest-neighbour distance of points (N, d); 0 for fewer than two (or all coincident)."""
-    if c.shape[0] < 2:
-        return 0.0
-    d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=-1)
-    np.fill_diagonal(d, np.inf)
-    nn = d.min(axis=1)
-    nn = nn[nn > 1e-9]
-    return float(np.median(nn)) if nn.size else 0.0
-
-
-def _axis(lo: float, hi: float, spacing: float, oversample: int) -> Axis:
-    span = hi - lo
-    if spacing <= 0 or span <= 1e-9 or span < 0.5 * spacing:
-        mid = 0.5 * (lo + hi)
-        return Axis(mid, mid, 1)
-    n = max(int(round(span / spacing)), 1) * oversample + 1
-    return Axis(float(lo), float(hi), n)
-
-
 def _boundary_pixels(W: int, H: int, step: int = 4) -> np.ndarray:
     """(n, 2) pixel coordinates along the image border every ``step`` pixels, and the centre:
     the extent of a field of view (lens models map the border to the extreme directions)."""
@@ -359,51 +332,18 @@ def design_grid(rig: Rig, models: dict | None = None, *, uv_step_deg: float = 1.
     ids = [c.id for c in rig.cameras]
     T = np.stack([T_rig_cam_of(models[c]) for c in ids])
     centres = T[:, :3, 3]
-    own = np.array([_face_of(T[i, :3, 2]) for i in range(len(ids))])
-    face_idx = sorted(set(own.tolist()))
-    faces = [FACE_NAMES[i] for i in face_idx]
-    R_faces = [R_rig_face_for(n) for n in faces]
-    z_pi = float(np.median([centres[i] @ R_rig_face_for(FACE_NAMES[own[i]])[:, 2] for i in range(len(ids))]))
     f = 1.0 / math.tan(math.radians(uv_step_deg))
-    max_tan = 1.0 if len(faces) > 1 else math.tan(math.radians(_MAX_SIDE_DEG))
-
-    # x, y: centres in face coordinates
-    xs, ys, steps = [], [], []
-    for k, n in enumerate(faces):
-        sel = [i for i in range(len(ids)) if own[i] == face_idx[k]]
-        c_face = centres[sel] @ R_faces[k]
-        xs.append(c_face[:, 0])
-        ys.append(c_face[:, 1])
-        steps.append(_nn_spacing(c_face[:, :2]))
-    xs_all, ys_all = np.concatenate(xs), np.concatenate(ys)
-    good = [s for s in steps if s > 0]
-    spacing = float(np.median(good)) if good else 0.0
-    x_axis = _axis(float(xs_all.min()), float(xs_all.max()), spacing, xy_oversample)
-    y_axis = _axis(float(ys_all.min()), float(ys_all.max()), spacing, xy_oversample)
-
-    # u, v: union of the fields of view on the faces, in grid samples
-    lo = np.array([np.inf, np.inf])
-    hi = -lo
-    dirs_cam = {}
-    for i, c in enumerate(ids):
-        m = models[c]
-        W_px, H_px = (int(v) for v in m.imagersize())
-        d = camera_rays(m, _boundary_pixels(W_px, H_px)).directions.reshape(-1, 3)
-        d = d[np.all(np.isfinite(d), axis=1)]
-        dirs_cam[c] = d
-        k = face_idx.index(int(own[i]))
-        d_face = d @ R_faces[k]
-        ok = d_face[:, 2] > 1e-6
-        uv = d_face[ok, :2] / d_face[ok, 2:3]
-        uv = uv[np.all(np.abs(uv) <= max_tan, axis=1)]
-        if uv.size:
-            lo = np.minimum(lo, uv.min(axis=0) * f)
-            hi = np.maximum(hi, uv.max(axis=0) * f)
-    if not np.all(np.isfinite(lo)):
-        raise InputError(f"design: rig {rig.name!r}: no camera sees into its face")
-    u_axis = Axis(float(math.floor(lo[0])), float(math.ceil(hi[0])), int(math.ceil(hi[0]) - math.floor(lo[0])) + 1)
-    v_axis = Axis(float(math.floor(lo[1])), float(math.ceil(hi[1])), int(math.ceil(hi[1]) - math.floor(lo[1])) + 1)
-    grid = LightFieldGrid.cube(faces, f=f, z_pi=z_pi, x=x_axis, y=y_axis, u=u_axis, v=v_axis)
+    dirs = []
+    for c in ids:
+        W_px, H_px = (int(v) for v in models[c].imagersize())
+        dirs.append(camera_rays(models[c], _boundary_pixels(W_px, H_px)).directions.reshape(-1, 3))
+    choice = choose_grid(centres, T[:, :3, 2], dirs, f, xy_oversample=xy_oversample,
+                         who=f"design: rig {rig.name!r}")
+    grid, own, spacing = choice.grid, choice.own, choice.spacing
+    faces = [face.name for face in grid.faces]
+    face_idx = [FACE_NAMES.index(n) for n in faces]
+    R_faces = [R_rig_face_for(n) for n in faces]
+    x_axis, y_axis, u_axis, v_axis = grid.x, grid.y, grid.u, grid.v
     F, Ny, Nx, Nv, Nu = grid.shape
 
     # place cameras on viewpoints

@@ -129,3 +129,33 @@ def test_grid_errors(tmp_path, old, new, substrings):
 def test_faces_attr_errors(faces, where):
     with pytest.raises(FormatError, match=re.escape(f"store.zarr: {where}: ")):
         _check_faces_attr("store.zarr", faces)
+
+
+def test_grid_rules_shared_by_resample_and_design():
+    """polycam.gridrules is the one copy of the automatic-grid rules: resample's auto_grid
+    and the design study's design_grid both give its grid for the same cameras."""
+    from polycam import gridrules
+    from polycam.cameras import T_rig_cam_of, camera_rays, nominal_cameramodel
+    from polycam.design import design_grid, planar_array_rig
+    from polycam.rig import CameraSpec
+    from resample import grid as rgrid
+
+    assert rgrid.face_of_direction is gridrules.face_of_direction
+    assert rgrid.camera_spacing is gridrules.camera_spacing
+    cam = CameraSpec(id="c", driver="mock", device=None, width=64, height=48, fps=30.0, pixel_format="GREY",
+                     position=np.zeros(3), rotation=np.zeros(3), fov_deg=60.0)
+    rig = planar_array_rig(2, 3, 0.02, cam)
+    models = {c.id: nominal_cameramodel(c) for c in rig.cameras}
+    T = np.stack([T_rig_cam_of(m) for m in models.values()])
+    q = np.stack(np.meshgrid(np.arange(0.0, 64.0), np.arange(0.0, 48.0), indexing="xy"), axis=-1)
+    dirs = [camera_rays(m, q).directions for m in models.values()]
+    f = float(np.median([m.intrinsics()[1][0] for m in models.values()]))
+    choice = gridrules.choose_grid(T[:, :3, 3], T[:, :3, 2], dirs, f)
+    assert choice.grid == rgrid.auto_grid(models, rays_stride=1)
+    assert choice.spacing == pytest.approx(0.02) and choice.own.tolist() == [0] * 6
+    g = choice.grid
+    assert (g.y.count, g.x.count) == (3, 5) and g.x.step == pytest.approx(0.01)
+    d = design_grid(rig, models, uv_step_deg=2.0).grid
+    assert (d.x, d.y, d.faces[0].z_pi) == (g.x, g.y, g.faces[0].z_pi)
+    assert gridrules.axis_from_range(0.0, 0.004, 0.01, 2) == Axis(0.002, 0.002, 1)
+    assert gridrules.max_side_tan(1) > gridrules.max_side_tan(2) == 1.0
