@@ -36,7 +36,7 @@ CAPTURE_JITTER_STD_REL = 0.15  # measured timestamp-jitter std of the mock vs [m
 CALIB_RENDERED_RMS_PX = 0.25          # [px] mrcal RMS residual on a rendered 320x240 board session
 CALIB_RENDERED_POSITION_M = 0.002     # [m] solved vs true camera centres after a rigid alignment (8 board poses)
 CALIB_RENDERED_ROTATION_DEG = 0.2     # [deg] solved vs true camera orientations after the same alignment
-CALIB_RENDERED_PROJECTION_PX = 0.3    # [px] RMS mrcal.projection_diff (implied-rotation fit) vs the true model
+CALIB_RENDERED_PROJECTION_PX = 0.1    # [px] RMS mrcal.projection_diff (implied-rotation fit) vs the true model at the board distance (measured 0.025-0.071 pinhole, 0.008-0.024 real lens)
 CALIB_EXACT_POSITION_M = 1e-5         # [m] noise-free synthetic observations: recovered centres
 CALIB_EXACT_ROTATION_DEG = 1e-3       # [deg] noise-free: recovered orientations
 CALIB_EXACT_REPROJ_PX = 1e-3          # [px] noise-free: RMS residual
@@ -63,3 +63,6 @@ DESIGN_LINEAR_SIGMA_REL = 0.15    # analytic noise propagation vs Monte Carlo of
 DESIGN_SCATTER_REL = 0.2          # predicted σ vs the real solver's scatter over noise draws (issue 8; 16 draws)
 DESIGN_AMBIGUITY_MIN_CORR = 0.7   # |corr(t_i, w_j)| of a small-FOV array's reported rotation-translation ambiguity
 E2E_DEMO_MOTION_REL = 0.25        # median relative per-pair error of `polycam demo` (mock5x5, calibrated models, room; measured 10.8% / 4.9%)
+# HCI real light field (tests/test_hci.py; antinous, 8x8 pixel blocks)
+HCI_SHIFT_T_ABS = 0.01            # [view spacings] |t − (1, 0, 0)| of the one-view shift along x (issue #3 target: 1%; measured ~1e-6)
+HCI_SHIFT_R_MAX_RAD = 1e-4        # [rad] |r| of the same (true rotation 0; measured ~4e-9)
