@@ -80,31 +80,44 @@ def _aligned_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float
     return float(fit.position_residuals_m.max()), math.degrees(float(fit.rotation_residuals_rad.max()))
 
 
-@pytest.fixture(scope="module")
-def board_session(tmp_path_factory):
-    """A rendered 2x2 board session through a real OPENCV8 lens from ../shared/data.
-
-    Skipped without it: the tolerances below are set for that lens (with a pinhole
-    truth the fitted distortion leaves ~0.36 px projection differences; see issue 4 notes)."""
-    if not LENS.is_file():
-        pytest.skip(f"real lens model not found at {LENS}")
-    tmp = tmp_path_factory.mktemp("calib")
-    rig = _rig(tmp)
+def _render_board_session(tmp: Path, lens: bool):
+    rig = _rig(tmp, lens=lens)
     board = _board(tmp)
     out = synth_board_session(rig, tmp / "session", board=board, frames=16, seed=3, supersample=2, noise=0.004,
                               perturb_position_m=0.001, perturb_rotation_deg=0.3, perturb_focal_frac=0.01)
     return out, board
 
 
-def test_rendered_board_session_end_to_end(board_session, tmp_path):
-    """`polycam calibrate` on a rendered session: models in the rig frame close to the truth,
-    optimization_inputs usable by mrcal's own tools, report and exports written."""
+@pytest.fixture(scope="module")
+def board_session(tmp_path_factory):
+    """A rendered 2x2 board session with a pinhole truth (no external data needed)."""
+    return _render_board_session(tmp_path_factory.mktemp("calib"), lens=False)
+
+
+@pytest.fixture(scope="module")
+def lens_board_session(tmp_path_factory):
+    """The same session through the real OPENCV8 lens from ../shared/data (skipped without it)."""
+    if not LENS.is_file():
+        pytest.skip(f"real lens model not found at {LENS}")
+    return _render_board_session(tmp_path_factory.mktemp("calib-lens"), lens=True)
+
+
+@pytest.mark.parametrize("truth", ["pinhole", "real lens"])
+def test_rendered_board_session_end_to_end(truth, request, tmp_path):
+    """`polycam calibrate` on a rendered session (pinhole truth, and the real OPENCV8 lens when
+    ../shared/data has it): models in the rig frame close to the truth, optimization_inputs
+    usable by mrcal's own tools, report and exports written.
+
+    The projection difference is taken at the board distance, where the data pin the lens
+    down: at infinity 16 poses of a 2x2 rig leave mrcal's own predicted projection
+    uncertainty at ~0.19 px (worst direction, 1 sigma), and the measured differences there
+    (0.06-0.44 px, seed-dependent, pinhole and real lens alike) are that noise, not a bias."""
     import mrcal
 
     from polycam.cli import main
     from polycam.session import open_session
 
-    session, board = board_session
+    session, board = request.getfixturevalue("board_session" if truth == "pinhole" else "lens_board_session")
     out = tmp_path / "calib"
     rc = main(["calibrate", str(session), "--board", str(session / "board.toml"), "--out", str(out),
                "--export", "colmap,opencv", "--rays", "--no-plots"])
@@ -131,7 +144,8 @@ def test_rendered_board_session_end_to_end(board_session, tmp_path):
         u = mrcal.projection_uncertainty(np.array([0.0, 0.0, 1.0]), model=m, atinfinity=True,
                                          what="worstdirection-stdev")
         assert np.isfinite(u) and u > 0
-        diff, _, q0, _ = mrcal.projection_diff((m, true[cam]), use_uncertainties=False, gridn_width=20)
+        diff, _, q0, _ = mrcal.projection_diff((m, true[cam]), use_uncertainties=False, gridn_width=20,
+                                               distance=report["calibration"]["board_distance_m"])
         assert math.sqrt(np.nanmean(diff[_inside(m, q0)] ** 2)) <= CALIB_RENDERED_PROJECTION_PX
         assert report["camera"][cam]["views"] >= 2
     assert (out / "corners.vnl").is_file() and (out / "colmap" / "rig_config.json").is_file()
