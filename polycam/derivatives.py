@@ -16,17 +16,17 @@ are marked invalid. An axis with fewer samples than the filter support is not
 differentiated: its derivative is zero and it is not smoothed (the solver then
 reports the motion directions that depend on it as unobservable).
 
-The filters run as two fused numba kernels (parallel over view images) on float32
-C-contiguous arrays: an (x, y) stage that reads both frames once and writes the
-four view-filtered arrays, and a (u, v) stage that filters each view image in
-cache. :func:`plenoptic_derivatives_reference` does the same one separable pass at
+The filters run as one fused numba kernel (parallel over view images) on float32
+C-contiguous arrays: per output view image an (x, y) stage reads the neighbouring
+views of both frames into four view-filtered images held in cache, and a (u, v)
+stage filters those into the five outputs (:func:`xy_view`, :func:`uv_view`, which
+the motion solver's kernels share). :func:`plenoptic_derivatives_reference` does the same one separable pass at
 a time with :func:`correlate_axis` (which matches ``scipy.ndimage.correlate1d``
 with ``mode="nearest"``).
 """
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numba
@@ -43,6 +43,10 @@ __all__ = [
     "plenoptic_derivatives",
     "plenoptic_derivatives_reference",
     "smooth_all",
+    "filter_taps",
+    "parallel_chunks",
+    "xy_view",
+    "uv_view",
 ]
 
 
@@ -313,54 +317,46 @@ def plenoptic_derivatives_reference(L0: np.ndarray, L1: np.ndarray, grid: LightF
 # ---------------------------------------------------------------------------- fused kernels
 
 
-@numba.njit(parallel=True, cache=True)
-def _xy_stage(L0, L1, py, dy, px, dx, A1, A2, A3, A4):
-    """Per output view image (f, y, x), from the frames' mean S and difference D:
-    A1 = Px Py S, A2 = Dx Py S, A3 = Px Dy S, A4 = Px Py D (clamped borders)."""
-    F, Ny, Nx, Nv, Nu = L0.shape
+@numba.njit(cache=True, inline="always")
+def xy_view(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
+    """(x, y) stage of one output view image (f, j, i) from the frames' mean S and
+    difference D: a1 = Px Py S, a2 = Dx Py S, a3 = Px Dy S, a4 = Px Py D, each (Nv, Nu)
+    (clamped borders). Shared with the motion solver's fused kernels."""
+    Ny, Nx, Nv, Nu = L0.shape[1:]
     ry = py.shape[0] // 2
     rx = px.shape[0] // 2
-    for idx in numba.prange(F * Ny * Nx):
-        f = idx // (Ny * Nx)
-        rem = idx - f * Ny * Nx
-        j = rem // Nx
-        i = rem - j * Nx
-        a1 = A1[f, j, i]
-        a2 = A2[f, j, i]
-        a3 = A3[f, j, i]
-        a4 = A4[f, j, i]
-        a1[:, :] = 0.0
-        a2[:, :] = 0.0
-        a3[:, :] = 0.0
-        a4[:, :] = 0.0
-        for a in range(py.shape[0]):
-            jj = min(max(j + a - ry, 0), Ny - 1)
-            for b in range(px.shape[0]):
-                ii = min(max(i + b - rx, 0), Nx - 1)
-                w1 = py[a] * px[b]
-                w2 = py[a] * dx[b]
-                w3 = dy[a] * px[b]
-                if w1 == 0.0 and w2 == 0.0 and w3 == 0.0:
-                    continue
-                s0 = L0[f, jj, ii]
-                s1 = L1[f, jj, ii]
-                h1 = np.float32(0.5 * w1)
-                h2 = np.float32(0.5 * w2)
-                h3 = np.float32(0.5 * w3)
-                d1 = np.float32(w1)
-                for v in range(Nv):
-                    r0 = s0[v]
-                    r1 = s1[v]
-                    o1 = a1[v]
-                    o2 = a2[v]
-                    o3 = a3[v]
-                    o4 = a4[v]
-                    for u in range(Nu):
-                        sm = r0[u] + r1[u]
-                        o1[u] += h1 * sm
-                        o2[u] += h2 * sm
-                        o3[u] += h3 * sm
-                        o4[u] += d1 * (r1[u] - r0[u])
+    a1[:, :] = 0.0
+    a2[:, :] = 0.0
+    a3[:, :] = 0.0
+    a4[:, :] = 0.0
+    for a in range(py.shape[0]):
+        jj = min(max(j + a - ry, 0), Ny - 1)
+        for b in range(px.shape[0]):
+            ii = min(max(i + b - rx, 0), Nx - 1)
+            w1 = py[a] * px[b]
+            w2 = py[a] * dx[b]
+            w3 = dy[a] * px[b]
+            if w1 == 0.0 and w2 == 0.0 and w3 == 0.0:
+                continue
+            s0 = L0[f, jj, ii]
+            s1 = L1[f, jj, ii]
+            h1 = np.float32(0.5 * w1)
+            h2 = np.float32(0.5 * w2)
+            h3 = np.float32(0.5 * w3)
+            d1 = np.float32(w1)
+            for v in range(Nv):
+                r0 = s0[v]
+                r1 = s1[v]
+                o1 = a1[v]
+                o2 = a2[v]
+                o3 = a3[v]
+                o4 = a4[v]
+                for u in range(Nu):
+                    sm = r0[u] + r1[u]
+                    o1[u] += h1 * sm
+                    o2[u] += h2 * sm
+                    o3[u] += h3 * sm
+                    o4[u] += d1 * (r1[u] - r0[u])
 
 
 @numba.njit(cache=True, inline="always")
@@ -408,39 +404,65 @@ def _filt_u(src, w, scale, out):
             out[v, j] = acc * scale
 
 
+@numba.njit(cache=True, inline="always")
+def uv_view(a1, a2, a3, a4, pv, dv, pu, du, sx, sy, su, sv, tmp, lx, ly, lu, lv, lt):
+    """(u, v) stage of one view image: lu = Du Pv a1, lv = Pu Dv a1, lx = Pu Pv a2,
+    ly = Pu Pv a3, lt = Pu Pv a4, derivatives scaled by 1/step (s*); all (Nv, Nu)."""
+    _filt_v(a1, pv, tmp)
+    _filt_u(tmp, du, su, lu)
+    _filt_v(a1, dv, tmp)
+    _filt_u(tmp, pu, sv, lv)
+    _filt_v(a2, pv, tmp)
+    _filt_u(tmp, pu, sx, lx)
+    _filt_v(a3, pv, tmp)
+    _filt_u(tmp, pu, sy, ly)
+    _filt_v(a4, pv, tmp)
+    _filt_u(tmp, pu, np.float32(1.0), lt)
+
+
 @numba.njit(parallel=True, cache=True)
-def _uv_stage(A1, A2, A3, A4, pv, dv, pu, du, sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt):
-    """Per view image: Lu = Du Pv A1, Lv = Pu Dv A1, Lx = Pu Pv A2, Ly = Pu Pv A3,
-    Lt = Pu Pv A4, derivatives scaled by 1/step (s*)."""
-    F, Ny, Nx, Nv, Nu = A1.shape
-    for idx in numba.prange(F * Ny * Nx):
-        f = idx // (Ny * Nx)
-        rem = idx - f * Ny * Nx
-        j = rem // Nx
-        i = rem - j * Nx
-        tmp = np.empty((Nv, Nu), np.float32)
-        _filt_v(A1[f, j, i], pv, tmp)
-        _filt_u(tmp, du, su, Lu[f, j, i])
-        _filt_v(A1[f, j, i], dv, tmp)
-        _filt_u(tmp, pu, sv, Lv[f, j, i])
-        _filt_v(A2[f, j, i], pv, tmp)
-        _filt_u(tmp, pu, sx, Lx[f, j, i])
-        _filt_v(A3[f, j, i], pv, tmp)
-        _filt_u(tmp, pu, sy, Ly[f, j, i])
-        _filt_v(A4[f, j, i], pv, tmp)
-        _filt_u(tmp, pu, np.float32(1.0), Lt[f, j, i])
+def _derivatives_kernel(L0, L1, py, dy, px, dx, pv, dv, pu, du, sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt,
+                        chunks):
+    """Both stages per view image, with the (x, y)-stage results kept in per-chunk
+    (Nv, Nu) buffers (in cache) instead of four frame-sized arrays."""
+    F, Ny, Nx, Nv, Nu = L0.shape
+    n = F * Ny * Nx
+    chunks = max(1, min(n, chunks))
+    for c in numba.prange(chunks):
+        buf = np.empty((5, Nv, Nu), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            f = idx // (Ny * Nx)
+            rem = idx - f * Ny * Nx
+            j = rem // Nx
+            i = rem - j * Nx
+            xy_view(L0, L1, f, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
+            uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4],
+                    Lx[f, j, i], Ly[f, j, i], Lu[f, j, i], Lv[f, j, i], Lt[f, j, i])
 
 
-_local = threading.local()
+def parallel_chunks() -> int:
+    """Work chunks for a prange over view images: a few per thread (load balance)."""
+    return 4 * numba.get_num_threads()
 
 
-def _scratch(shape: tuple, n: int) -> list[np.ndarray]:
-    """n float32 work arrays of ``shape``, reused between calls in this thread (fresh
-    pages cost as much as the filtering itself)."""
-    cache = getattr(_local, "cache", None)
-    if cache is None or cache[0] != shape:
-        _local.cache = cache = (shape, [np.empty(shape, np.float32) for _ in range(n)])
-    return cache[1][:n]
+def filter_taps(grid: LightFieldGrid, filters: str | dict) -> tuple[dict, tuple]:
+    """The resolved pairs (axis name → FilterPair or None) and the kernels' float32 taps
+    ``(py, dy, px, dx, pv, dv, pu, du, sx, sy, su, sv)``: prefilter and derivative taps
+    per axis and 1/step scales; an axis too short to differentiate gets the identity
+    prefilter, a zero derivative and scale 0."""
+    pairs = _axis_pairs({"x": grid.x.count, "y": grid.y.count, "u": grid.u.count,
+                         "v": grid.v.count}, _resolve_filters(filters))
+    step = {"x": grid.x.step, "y": grid.y.step, "u": grid.u.step, "v": grid.v.step}
+    taps = {}
+    for name in ("y", "x", "v", "u"):
+        fp = pairs[name]
+        if fp is None:                                 # not differentiated, not smoothed
+            taps[name] = (np.ones(1, np.float32), np.zeros(1, np.float32), np.float32(0.0))
+        else:
+            taps[name] = (fp.prefilter.astype(np.float32), fp.derivative.astype(np.float32),
+                          np.float32(1.0 / step[name]))
+    (py, dy, sy), (px, dx, sx), (pv, dv, sv), (pu, du, su) = (taps[k] for k in ("y", "x", "v", "u"))
+    return pairs, (py, dy, px, dx, pv, dv, pu, du, sx, sy, su, sv)
 
 
 def plenoptic_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
@@ -450,38 +472,20 @@ def plenoptic_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, 
     ``filters`` names a :data:`FILTERS` pair for all axes, or maps axis names
     (``x y u v``) to pair names (unnamed axes use ``fs5``). ``out``: a previous result
     of the same dims whose arrays are overwritten (saves allocating fresh memory).
-    Two fused kernels: the (x, y) stage builds the four view-smoothed /
-    view-differentiated arrays from the frames' mean and difference, the (u, v) stage
-    filters each view image in cache.
+    One fused kernel, parallel over view images: the (x, y) stage builds the four
+    view-smoothed / view-differentiated images from the frames' mean and difference in
+    cache, the (u, v) stage filters them into the five outputs.
     """
-    pairs = _axis_pairs({"x": grid.x.count, "y": grid.y.count, "u": grid.u.count,
-                         "v": grid.v.count}, _resolve_filters(filters))
+    pairs, taps = filter_taps(grid, filters)
     L0 = np.ascontiguousarray(L0, dtype=np.float32)
     L1 = np.ascontiguousarray(L1, dtype=np.float32)
     if L0.shape != L1.shape or L0.ndim != 5:
         raise ValueError(f"frames must both be (F, Ny, Nx, Nv, Nu), got {L0.shape} and {L1.shape}")
-    one = np.ones(1, np.float32)
-    zero = np.zeros(1, np.float32)
-    step = {"x": grid.x.step, "y": grid.y.step, "u": grid.u.step, "v": grid.v.step}
-
-    def taps(name):
-        fp = pairs[name]
-        if fp is None:                                 # not differentiated, not smoothed
-            return one, zero, np.float32(0.0)
-        return (fp.prefilter.astype(np.float32), fp.derivative.astype(np.float32),
-                np.float32(1.0 / step[name]))
-
-    py, dy, sy = taps("y")
-    px, dx, sx = taps("x")
-    pv, dv, sv = taps("v")
-    pu, du, su = taps("u")
-    A = _scratch(L0.shape, 4)
-    _xy_stage(L0, L1, py, dy, px, dx, *A)
     if out is not None and out.Lx.shape == L0.shape:
         arrays = [out.Lx, out.Ly, out.Lu, out.Lv, out.Lt]
     else:
         arrays = [np.empty_like(L0) for _ in range(5)]
     Lx, Ly, Lu, Lv, Lt = arrays
-    _uv_stage(*A, pv, dv, pu, du, sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt)
+    _derivatives_kernel(L0, L1, *taps, Lx, Ly, Lu, Lv, Lt, parallel_chunks())
     valid = _valid_mask(L0.shape[1:], pairs)
     return Derivatives(Lx, Ly, Lu, Lv, Lt, valid, {k: pairs[k] is not None for k in _AX})
