@@ -20,7 +20,7 @@ from .cliargs import positive_int as _positive_int
 
 __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
-STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli")
+STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli", "polycam.depth_cli")
 """Modules whose ``add_parsers(subparsers)`` add the pipeline stages' verbs."""
 
 log = logging.getLogger("polycam")

@@ -9,17 +9,23 @@ factor f² — units show it)::
     L_u = λ L_x,   L_v = λ L_y                      (differential stereo)
 
 and, with a known ray motion δ = (δx, δy, δu, δv) of the frame pair (Eq. 5 rows),
-substituting Eq. 6 into ``L_t + L_x δx + L_y δy + L_u δu + L_v δv = 0``::
+substituting Eq. 6 into ``L_t + L_x δx + L_y δy + L_u δu + L_v δv = 0`` in its two
+ways gives the two motion-based estimates of Eq. 7::
 
-    λ (L_x δu + L_y δv) = −(L_t + L_x δx + L_y δy)    (Eq. 7, last form)
+    λ (L_t + L_u δu + L_v δv) = −(L_u δx + L_v δy)     (directional: L_x = L_u / λ)
+    λ (L_x δu + L_y δv) = −(L_t + L_x δx + L_y δy)     (positional: L_u = λ L_x)
 
-All three are linear in λ: ``a_i λ = b_i``. They are fused per ray by weighted
-least squares over a small (u, v) neighbourhood (prefilter-weighted sums of
-``a²`` and ``a b``): ``λ = Σ a b / Σ a²``. The confidence is the information
-``Σ a²`` times the fraction of the equations' energy explained by one depth
-(near 0 at occlusion boundaries, where two depths mix, and in textureless areas).
-This is a first implementation (one scale; no scale selection or temporal
-integration, paper Sect. 4.1).
+All four are linear in λ: ``a_i λ = b_i`` (:func:`depth_equations`). They are fused
+per ray by weighted least squares over a small (u, v) neighbourhood
+(prefilter-weighted sums of ``a²`` and ``a b``): ``λ = Σ a b / Σ a²``. The
+confidence is the information ``Σ a²`` times the fraction of the equations' energy
+explained by one depth (near 0 at occlusion boundaries, where two depths mix, and
+in textureless areas). :func:`depth_from_derivatives` fuses the two stereo
+equations and the positional motion equation (the directional one has the noisy
+``L_t`` on its left side); :mod:`polycam.scales` compares all four to choose the
+derivative scales (paper Sect. 4.1). :func:`confident_mask` and
+:func:`depth_points` turn a depth map into a point cloud (file writing is in
+:mod:`polycam.depth_io`; this module does no I/O).
 """
 
 from __future__ import annotations
@@ -32,7 +38,14 @@ from .derivatives import FILTERS, Derivatives, correlate_axis
 from .geometry import T_inverse, rt_from_T
 from .lightfield import LightFieldGrid
 
-__all__ = ["DepthMap", "depth_from_derivatives"]
+__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "depth_equations", "window_sum",
+           "depth_from_derivatives", "depth_of_pair", "confident_mask", "view_mask", "depth_points"]
+
+DEPTH_FILTERS = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
+"""Derivative filters for depth (the motion solver's defaults; 9 viewpoints leave 7 valid with fs3)."""
+
+EQUATIONS = ("stereo_x", "stereo_y", "motion_dir", "motion_pos")
+"""Names of the four depth equations of Eq. 6–7, in the order of :func:`depth_equations`."""
 
 
 @dataclass(frozen=True)
@@ -72,50 +85,57 @@ def _ray_flow(grid: LightFieldGrid, k: int, p_face: np.ndarray):
     return dx, dy, du, dv
 
 
-def _smooth_uv(a: np.ndarray, radius: int) -> np.ndarray:
-    """Smooth a (F, Ny, Nx, Nv, Nu) array over (u, v) with the fs5 prefilter applied
-    ``radius // 2`` times (0 = none)."""
+def window_sum(a: np.ndarray, window: int) -> np.ndarray:
+    """Prefilter-weighted local sum of a (F, Ny, Nx, Nv, Nu) array over (u, v): the fs5
+    prefilter applied ``window // 2`` times along u and v (0 or 1 = no smoothing)."""
     taps = FILTERS["fs5"].prefilter
     out = np.ascontiguousarray(a, dtype=np.float32)
-    for _ in range(max(0, radius // 2)):
+    for _ in range(max(0, window // 2)):
         out = correlate_axis(correlate_axis(out, taps, 3), taps, 4)
     return out
 
 
-def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
-                           T_prev_next: np.ndarray | None = None, window: int = 4,
-                           min_confidence: float = 0.0) -> DepthMap:
-    """Per-ray depth from the plenoptic derivatives of a frame pair.
+def depth_equations(der: Derivatives, grid: LightFieldGrid,
+                    T_prev_next: np.ndarray | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The depth equations ``a λ = b`` (λ = Z / f) per ray: name → (a, b), each
+    (F, Ny, Nx, Nv, Nu) float32, names from :data:`EQUATIONS`.
 
-    ``der``: :func:`~polycam.derivatives.plenoptic_derivatives` of frames (L0, L1).
-    ``T_prev_next``: (4, 4) rig motion ``T_rig0_rig1`` (e.g. from
-    :func:`~polycam.motion.estimate_motion`); with it the temporal equation (Eq. 7)
-    joins the two stereo equations, without it only Eq. 6 is used (one frame's
-    structure suffices). ``window``: neighbourhood size in (u, v) samples for the
-    fusion. Rays with confidence ≤ ``min_confidence`` get ``Z = NaN``.
+    Without ``T_prev_next`` (the rig motion ``T_rig0_rig1``) only the two stereo
+    equations are returned.
     """
-    # the equations a λ = b, stacked per ray as sums a², a b, b² (float32 arrays)
-    Lx, Ly, Lu, Lv, Lt = der.Lx, der.Ly, der.Lu, der.Lv, der.Lt
-    aa = Lx * Lx + Ly * Ly
-    ab = Lx * Lu + Ly * Lv
-    bb = Lu * Lu + Lv * Lv
-    if T_prev_next is not None:
-        G = T_inverse(np.asarray(T_prev_next, float))          # the rays' motion
-        rt = rt_from_T(G)
-        p_rig = np.concatenate([rt[3:], rt[:3]])
-        for k, face in enumerate(grid.faces):
-            R = np.asarray(face.R_rig_face, float)
-            p_face = np.concatenate([R.T @ p_rig[:3], R.T @ p_rig[3:]])
-            dx, dy, du, dv = _ray_flow(grid, k, p_face)
-            a3 = Lx[k] * du + Ly[k] * dv
-            b3 = -(Lt[k] + Lx[k] * dx + Ly[k] * dy)
-            aa[k] += a3 * a3
-            ab[k] += a3 * b3
-            bb[k] += b3 * b3
-    valid = np.broadcast_to(der.valid, aa.shape).astype(np.float32)
-    Saa = _smooth_uv(aa * valid, window)
-    Sab = _smooth_uv(ab * valid, window)
-    Sbb = _smooth_uv(bb * valid, window)
+    out = {"stereo_x": (der.Lx, der.Lu), "stereo_y": (der.Ly, der.Lv)}
+    if T_prev_next is None:
+        return out
+    G = T_inverse(np.asarray(T_prev_next, float))          # the rays' motion
+    rt = rt_from_T(G)
+    p_rig = np.concatenate([rt[3:], rt[:3]])
+    a_dir = np.empty_like(der.Lx)
+    b_dir = np.empty_like(der.Lx)
+    a_pos = np.empty_like(der.Lx)
+    b_pos = np.empty_like(der.Lx)
+    for k, face in enumerate(grid.faces):
+        R = np.asarray(face.R_rig_face, float)
+        p_face = np.concatenate([R.T @ p_rig[:3], R.T @ p_rig[3:]])
+        dx, dy, du, dv = _ray_flow(grid, k, p_face)
+        Lx, Ly, Lu, Lv, Lt = der.Lx[k], der.Ly[k], der.Lu[k], der.Lv[k], der.Lt[k]
+        a_dir[k] = Lt + Lu * du + Lv * dv
+        b_dir[k] = -(Lu * dx + Lv * dy)
+        a_pos[k] = Lx * du + Ly * dv
+        b_pos[k] = -(Lt + Lx * dx + Ly * dy)
+    out["motion_dir"] = (a_dir, b_dir)
+    out["motion_pos"] = (a_pos, b_pos)
+    return out
+
+
+def _fuse(sums: list[tuple[np.ndarray, np.ndarray, np.ndarray]], valid: np.ndarray, window: int,
+          grid: LightFieldGrid, min_confidence: float) -> DepthMap:
+    """DepthMap from per-ray sums (a², a b, b²) of the equations to fuse."""
+    aa = sum(s[0] for s in sums)
+    ab = sum(s[1] for s in sums)
+    bb = sum(s[2] for s in sums)
+    Saa = window_sum(aa * valid, window)
+    Sab = window_sum(ab * valid, window)
+    Sbb = window_sum(bb * valid, window)
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = np.where(Saa > 0, Sab / Saa, np.nan)
         # energy explained by the best single depth: (Σab)² / (Σa² Σb²) ∈ [0, 1]
@@ -127,3 +147,102 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
         Z[k] = lam[k] * face.f
     Z = np.where(confidence > min_confidence, Z, np.nan).astype(np.float32)
     return DepthMap(Z=Z, confidence=confidence, consistency=consistency)
+
+
+def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
+                           T_prev_next: np.ndarray | None = None, window: int = 4,
+                           min_confidence: float = 0.0,
+                           equations: tuple[str, ...] = ("stereo_x", "stereo_y", "motion_pos"),
+                           valid: np.ndarray | None = None) -> DepthMap:
+    """Per-ray depth from the plenoptic derivatives of a frame pair.
+
+    ``der``: :func:`~polycam.derivatives.plenoptic_derivatives` of frames (L0, L1).
+    ``T_prev_next``: (4, 4) rig motion ``T_rig0_rig1`` (e.g. from
+    :func:`~polycam.motion.estimate_motion`); with it the motion equations of Eq. 7
+    join the two stereo equations, without it only Eq. 6 is used (one frame's
+    structure suffices). ``window``: neighbourhood size in (u, v) samples for the
+    fusion. ``equations``: which of :data:`EQUATIONS` to fuse (motion ones are
+    skipped without ``T_prev_next``). ``valid``: optional extra mask broadcastable
+    to (F, Ny, Nx, Nv, Nu) (e.g. the border of a pre-smoothing). Rays with
+    confidence ≤ ``min_confidence`` get ``Z = NaN``.
+    """
+    unknown = [e for e in equations if e not in EQUATIONS]
+    if unknown:
+        raise ValueError(f"unknown depth equation(s) {unknown}; expected some of {EQUATIONS}")
+    eqs = depth_equations(der, grid, T_prev_next if any(e.startswith("motion") for e in equations) else None)
+    sums = []
+    for name in equations:
+        if name in eqs:
+            a, b = eqs[name]
+            sums.append((a * a, a * b, b * b))
+    m = np.broadcast_to(der.valid, der.Lx.shape)
+    if valid is not None:
+        m = m & np.broadcast_to(valid, der.Lx.shape)
+    return _fuse(sums, m.astype(np.float32), window, grid, min_confidence)
+
+
+def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
+                  T_prev_next: np.ndarray | None = None, *, window: int = 4,
+                  filters: str | dict = DEPTH_FILTERS) -> DepthMap:
+    """Single-scale depth of the frame pair (L0, L1), each (F, Ny, Nx, Nv, Nu) (a trailing
+    colour axis is averaged): :func:`depth_from_derivatives` of their plenoptic
+    derivatives with the rig motion ``T_prev_next`` (4, 4) ``T_rig0_rig1`` (None: stereo only)."""
+    from .derivatives import plenoptic_derivatives
+
+    def grey(L):
+        L = np.asarray(L)
+        return np.ascontiguousarray(L.mean(axis=-1) if L.ndim == 6 else L, dtype=np.float32)
+
+    der = plenoptic_derivatives(grey(L0), grey(L1), grid, filters=filters)
+    return depth_from_derivatives(der, grid, T_prev_next=T_prev_next, window=window)
+
+
+def confident_mask(dm: DepthMap, *, keep: float = 0.5, W: np.ndarray | None = None,
+                   min_W: float = 0.5) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) bool: rays with a finite positive depth whose confidence is in
+    the best ``keep`` fraction of the rays with any confidence (and, with the light
+    field's confidence ``W`` of the same dims, ``W > min_W``)."""
+    conf = dm.confidence
+    if W is not None:
+        conf = conf * (np.asarray(W) > min_W)
+    pos = conf[conf > 0]
+    thr = float(np.quantile(pos, 1.0 - keep)) if pos.size else np.inf
+    return (conf >= thr) & (conf > 0) & np.isfinite(dm.Z) & (dm.Z > 0)
+
+
+def view_mask(grid: LightFieldGrid, views: int | None = None, faces=None) -> np.ndarray:
+    """(F, Ny, Nx) bool selecting the central ``views x views`` viewpoints (None: all
+    viewpoints) of the faces with indices in ``faces`` (None: every face)."""
+    F, Ny, Nx = grid.shape[:3]
+    m = np.zeros((F, Ny, Nx), bool)
+    fs = list(range(F)) if faces is None else list(faces)
+    if views is None:
+        m[fs] = True
+        return m
+    h = int(views) // 2
+    jc, ic = Ny // 2, Nx // 2
+    for k in fs:
+        m[k, max(0, jc - h):min(Ny, jc + h + 1), max(0, ic - h):min(Nx, ic + h + 1)] = True
+    return m
+
+
+def depth_points(dm: DepthMap, grid: LightFieldGrid, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Surface points of the rays selected by ``mask`` (bool, broadcastable to
+    (F, Ny, Nx, Nv, Nu)).
+
+    Returns ``p_rig`` (N, 3) [m]: ray origin + range × unit direction in the rig frame of
+    the pair's first frame, and ``index`` (N,) int64 flat indices of those rays into the
+    (F, Ny, Nx, Nv, Nu) arrays (e.g. to pick their intensities), ordered by face, y, x, v, u.
+    """
+    m = np.broadcast_to(mask, dm.Z.shape) & np.isfinite(dm.Z)
+    rng_ray = dm.range_along_ray(grid)
+    pts = []
+    for k in range(len(grid.faces)):
+        mk = m[k]
+        if not mk.any():
+            continue
+        rays = grid.face_rays(k)
+        pts.append(rays.origins[mk] + rays.directions[mk] * rng_ray[k][mk][:, None])
+    index = np.flatnonzero(m.reshape(-1))
+    p = np.concatenate(pts) if pts else np.zeros((0, 3))
+    return p, index

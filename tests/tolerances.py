@@ -66,3 +66,9 @@ E2E_DEMO_MOTION_REL = 0.25        # median relative per-pair error of `polycam d
 # HCI real light field (tests/test_hci.py; antinous, 8x8 pixel blocks)
 HCI_SHIFT_T_ABS = 0.01            # [view spacings] |t − (1, 0, 0)| of the one-view shift along x (issue #3 target: 1%; measured ~1e-6)
 HCI_SHIFT_R_MAX_RAD = 1e-4        # [rad] |r| of the same (true rotation 0; measured ~4e-9)
+# depth and scale selection (tests/test_depth.py)
+DEPTH_PLANE_MEDIAN_REL = 0.01     # median relative depth error on a textured fronto-parallel plane (kept rays)
+DEPTH_SPHERES_MEDIAN_REL = 0.25   # median |range / traced - 1|, unit spheres at 4 m, one face 5x5x48x48, single scale (measured 0.20: aliased directions)
+DEPTH_NEAR_SELECTED_REL = 0.03    # near plane with viewpoint-aliased texture: error at the selected scale (single scale ~12%)
+DEPTH_PNG_ATOL_M = 0.0005         # [m] 16-bit millimetre PNG vs the float depth (rounding)
+DEPTH_PLY_ATOL = 1e-5             # [m] PLY coordinates (ASCII %.5f, binary float32) vs the points written

@@ -1,0 +1,166 @@
+"""The ``polycam depth`` verb: per-ray depth of one frame pair (paper Eq. 6–7) written as
+per-view depth maps and a PLY point cloud (docs/depth.md; files: docs/formats.md,
+"Depth output").
+
+Registered through polycam/cli.py's STAGE_CLIS; imports nothing heavy at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .cliargs import positive_float as _positive_float
+
+__all__ = ["add_parsers", "cmd_depth", "open_source", "pair_motion_from_trajectory"]
+
+TIMESTAMP_TOLERANCE_NS = 1_000_000
+"""A --traj pose belongs to a frame when their timestamps differ by at most this (1 ms)."""
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def add_parsers(sub) -> None:
+    """Add the ``depth`` verb."""
+    p = sub.add_parser("depth", help="depth of a frame pair (Eq. 6-7): per-view depth maps and a PLY point cloud",
+                       description="Estimate the motion of frames (I, I+1) (or take it from --traj), compute "
+                                   "the depth of every ray (differential stereo and motion, fused, with a "
+                                   "confidence) and write per-view depth maps (PFM float32 and 16-bit PNG in "
+                                   "mm) and a PLY point cloud in the rig frame of frame I. See docs/depth.md.")
+    p.add_argument("source", metavar="LF.zarr|SESSION",
+                   help="light-field store, or a recorded session (resampled on the fly)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--frame", type=_nonneg_int, default=0, metavar="I", help="first frame of the pair (default 0)")
+    p.add_argument("--traj", metavar="TRAJ.tum",
+                   help="take the pair's motion from this trajectory (T_world_rig) instead of estimating it")
+    p.add_argument("--views", choices=("central", "all"), default="central",
+                   help="write maps (and points) for the central view of each face or all views (default central)")
+    p.add_argument("--scale-selection", choices=("off", "face", "region"), default="off",
+                   help="choose the derivative scales where the four depth estimates agree (Sect. 4.1; "
+                        "default off, see docs/depth.md for when it helps)")
+    p.add_argument("--keep", type=_positive_float, default=0.5, metavar="FRAC",
+                   help="keep the most confident FRAC of the rays (default 0.5)")
+    p.add_argument("--calib", metavar="CALIB_DIR",
+                   help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
+    p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
+                   help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
+    p.add_argument("--ascii-ply", action="store_true", help="write an ASCII PLY (default binary little-endian)")
+    p.set_defaults(func=cmd_depth)
+
+
+def open_source(source: str | Path, *, calib: str | None = None, uv_step: float = 1.0):
+    """A light-field store, or a session resampled on the fly (resample.stream.SessionLightField):
+    anything with ``grid``, ``timestamps_ns``, ``frame(i)``, ``weights(i)``, ``groundtruth()``."""
+    from .errors import InputError
+
+    src = Path(source)
+    if (src / "session.toml").exists():
+        if calib is not None and not Path(calib).is_dir():
+            raise InputError(f"{calib}: no such calibration folder")
+        from resample.stream import SessionLightField   # the CLI layer may import stages
+
+        return SessionLightField(src, calib_dir=calib, uv_step_px=uv_step)
+    if calib is not None:
+        raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
+    if not src.exists():
+        raise InputError(f"{src}: no such light-field store or session")
+    from .lfstore import open_lightfield
+
+    return open_lightfield(src)
+
+
+def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int):
+    """(4, 4) ``T_rig0_rig1`` between the poses of a TUM trajectory at two frame times
+    (each matched within :data:`TIMESTAMP_TOLERANCE_NS`)."""
+    import numpy as np
+
+    from .errors import InputError
+    from .geometry import T_inverse
+    from .trajectory import read_tum
+
+    traj = read_tum(path)
+    ts = np.asarray(traj.timestamps_ns, np.int64)
+    idx = []
+    for t in (t0_ns, t1_ns):
+        i = int(np.argmin(np.abs(ts - t))) if len(ts) else -1
+        if i < 0 or abs(int(ts[i]) - int(t)) > TIMESTAMP_TOLERANCE_NS:
+            raise InputError(f"{path}: no pose within 1 ms of frame time {t * 1e-9:.9f} s")
+        idx.append(i)
+    return T_inverse(traj.T_world_rig[idx[0]]) @ traj.T_world_rig[idx[1]]
+
+
+def cmd_depth(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .depth import confident_mask, depth_of_pair, view_mask
+    from .depth_io import write_depth_folder
+    from .errors import InputError
+
+    src = Path(args.source)
+    store = open_source(src, calib=args.calib, uv_step=args.uv_step)
+    n = len(store.timestamps_ns)
+    if n < 2:
+        raise InputError(f"{src}: has {n} frame(s); depth needs a frame pair (at least 2)")
+    i = args.frame
+    if i > n - 2:
+        raise InputError(f"{src}: --frame {i} needs frames {i} and {i + 1}, but there are {n} (0..{n - 1})")
+    if not args.keep <= 1.0:
+        raise InputError(f"--keep must be in (0, 1], got {args.keep}")
+    grid = store.grid
+    ts = np.asarray(store.timestamps_ns, np.int64)
+    L0, L1 = store.frame(i), store.frame(i + 1)
+    get_w = getattr(store, "weights", None)
+    W0 = get_w(i) if get_w else None
+    W1 = get_w(i + 1) if get_w else None
+    if args.traj:
+        M = pair_motion_from_trajectory(args.traj, int(ts[i]), int(ts[i + 1]))
+        motion = {"motion_source": str(args.traj)}
+    else:
+        from .motion import estimate_motion
+
+        res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i)
+        if not res:
+            raise InputError(f"{src}: motion of frames {i}, {i + 1} failed ({res.reason}); "
+                             "give it with --traj")
+        M = res.T_prev_next
+        motion = {"motion_source": "estimated", "motion_condition": float(res.condition)}
+    if args.scale_selection == "off":
+        dm = depth_of_pair(L0, L1, grid, M)
+        scale_info = {}
+    else:
+        from .scales import depth_scale_selected
+
+        dm, sel = depth_scale_selected(L0, L1, grid, M, per=args.scale_selection, W0=W0)
+        scale_info = {"face_scales": [s.name for s in sel.face_scales()]}
+    mask = confident_mask(dm, keep=args.keep, W=W0)
+    views = view_mask(grid, 1 if args.views == "central" else None)
+    L0a = np.asarray(L0, np.float32)
+    meta = {"source": str(src), "frame": i, "frame_next": i + 1, "timestamp_ns": int(ts[i]),
+            "timestamp_next_ns": int(ts[i + 1]), "T_prev_next": np.asarray(M, float).tolist(),
+            "keep": float(args.keep), "scale_selection": args.scale_selection, **motion, **scale_info}
+    summary = write_depth_folder(args.out, grid, dm, intensity=L0a, mask=mask, views=views, meta=meta,
+                                 binary_ply=not args.ascii_ply)
+    out = Path(args.out)
+    print(f"wrote {out}: {summary['views']} view depth maps, {summary['points']} points in "
+          f"{out / 'points.ply'}; {100 * summary['confident_fraction']:.0f}% of the written views' rays "
+          f"kept, median depth {summary['median_depth_m']:.2f} m (motion: {motion['motion_source']})")
+    truth = store.groundtruth() if hasattr(store, "groundtruth") else None
+    if truth is not None and not args.traj:
+        from .evaluate import pair_errors
+        from .trajectory import Trajectory
+
+        est = Trajectory.from_relative(ts[i:i + 2], M[None])
+        sub = Trajectory(ts[i:i + 2], truth.T_world_rig[i:i + 2]) if len(truth) == n else None
+        if sub is not None:
+            err = pair_errors(est, sub)
+            print(f"  motion vs groundtruth: translation {100 * float(err.t_rel[0]):.2f}%, "
+                  f"rotation {100 * float(err.w_rel[0]):.2f}%")
+    return 0

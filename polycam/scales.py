@@ -1,0 +1,437 @@
+"""Scale selection for plenoptic derivatives (paper Sect. 4.1): make the four depth
+estimates of Eq. 7 agree.
+
+A scale is a pair of binomial pre-smoothings, one along (x, y) and one along (u, v),
+applied to both frames before the solver's matched derivative filters. By linearity
+this equals derivative filters ``d ⊛ b`` with prefilters ``p ⊛ b``, i.e. the matched
+Farid–Simoncelli pairs of :mod:`polycam.derivatives` moved up a Gaussian-like scale
+space (binomial ``b`` of order n has variance n / 4 samples²). The (x, y) and (u, v)
+scales are chosen independently per face (or per (u, v) tile, "region"), so their
+*relative* scale is what is selected: on a Lambertian surface at depth Z a (u, v)
+sample covers ``Z Δu / f`` metres of the scene and an (x, y) sample ``Δx`` metres, so
+the derivatives along the two see the same scene patch only for one relative scale.
+
+Selection: with a motion estimate, compute at each candidate scale the four
+per-ray depth estimates ``λ_i = Σ a_i b_i / Σ a_i²`` of
+:func:`polycam.depth.depth_equations` (two differential-stereo ones, from L_u / L_x
+and L_v / L_y, and two motion-based ones) and their disagreement, the
+information-weighted mean of ``|log λ_i − log λ_j|`` over pairs (clipped at 1). The
+scale with the smallest disagreement in a face / region wins (ties, within
+``tie`` relative, go to the least smoothing). :func:`estimate_motion_scale_selected`
+closes the loop of the paper: motion → depth → adapt filter scales → re-estimate
+motion (from the previous estimate), until the choice stops changing.
+
+The pre-smoothing uses :func:`polycam.derivatives.correlate_axis`; samples whose
+smoothing support leaves the grid get weight 0. The solver is
+:func:`polycam.motion.estimate_motion`, unchanged (this module only pre-filters its
+input and passes the border as the confidence W). Measured effect:
+benchmarks/bench_scales.py and docs/depth.md. This module does no I/O.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .depth import DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, window_sum
+from .derivatives import correlate_axis, plenoptic_derivatives
+from .lightfield import LightFieldGrid
+
+__all__ = [
+    "Scale",
+    "SCALE_LADDER",
+    "binomial_taps",
+    "smooth_at_scale",
+    "scale_derivatives",
+    "DepthEstimates",
+    "depth_estimates",
+    "disagreement",
+    "ScaleSelection",
+    "select_scales",
+    "apply_selection",
+    "ScaleSelectedMotion",
+    "estimate_motion_scale_selected",
+    "depth_scale_selected",
+]
+
+log = logging.getLogger(__name__)
+
+@dataclass(frozen=True)
+class Scale:
+    """Binomial pre-smoothing orders along (x, y) and (u, v) (0 = none, else even).
+
+    Order n has n + 1 taps (radius n / 2) and a variance of n / 4 samples².
+    """
+
+    xy: int = 0
+    uv: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"xy{self.xy}_uv{self.uv}"
+
+    @property
+    def sigma_xy(self) -> float:
+        """[samples] standard deviation of the (x, y) pre-smoothing."""
+        return 0.5 * float(np.sqrt(self.xy))
+
+    @property
+    def sigma_uv(self) -> float:
+        """[samples] standard deviation of the (u, v) pre-smoothing."""
+        return 0.5 * float(np.sqrt(self.uv))
+
+
+SCALE_LADDER: tuple[Scale, ...] = (Scale(4, 0), Scale(2, 0), Scale(0, 0), Scale(2, 2), Scale(0, 2),
+                                   Scale(0, 4), Scale(0, 8))
+"""Candidate scales from relatively finest (u, v) to coarsest: σ_xy = 1, 0.71, 0 with no
+(u, v) smoothing, σ_xy = σ_uv = 0.71, then σ_uv = 0.71, 1, 1.41 samples with no (x, y)
+smoothing. (x, y) orders above 4 leave no valid viewpoint on a 9 x 9 grid with fs3.)"""
+
+
+def binomial_taps(order: int) -> np.ndarray:
+    """(order + 1,) normalised binomial coefficients (order 0: ``[1]``)."""
+    if order < 0 or order % 2:
+        raise ValueError(f"binomial order must be even and >= 0, got {order}")
+    t = np.array([1.0])
+    for _ in range(order):
+        t = np.convolve(t, [0.5, 0.5])
+    return t
+
+
+_AXES = {"xy": (1, 2), "uv": (3, 4)}
+
+
+def _smooth_face(L: np.ndarray, scale: Scale) -> tuple[np.ndarray, np.ndarray]:
+    """Pre-smooth one face (Ny, Nx, Nv, Nu) (or stacked (..., Ny, Nx, Nv, Nu)) and its
+    (Ny, Nx, Nv, Nu) bool mask of samples whose smoothing support lies inside the grid."""
+    out = np.ascontiguousarray(L, dtype=np.float32)
+    nd = out.ndim
+    shape4 = out.shape[-4:]
+    ok = np.ones(shape4, bool)
+    for group, order in (("xy", scale.xy), ("uv", scale.uv)):
+        if order == 0:
+            continue
+        taps = binomial_taps(order)
+        r = order // 2
+        for ax in _AXES[group]:
+            a4 = ax - 1                                   # axis in (Ny, Nx, Nv, Nu)
+            n = shape4[a4]
+            if n < 2 * r + 1:                             # too short to smooth: leave it
+                continue
+            out = correlate_axis(out, taps, nd - 4 + a4)
+            keep = np.zeros(n, bool)
+            keep[r:n - r] = True
+            sh = [1, 1, 1, 1]
+            sh[a4] = n
+            ok &= keep.reshape(sh)
+    return out, ok
+
+
+def smooth_at_scale(L: np.ndarray, scales: Scale | list[Scale] | tuple[Scale, ...]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Pre-smooth a frame L (F, Ny, Nx, Nv, Nu) at one scale, or one scale per face.
+
+    Returns the smoothed frame (float32, same dims) and ``ok`` (F, Ny, Nx, Nv, Nu) bool:
+    the smoothing support lies inside the grid.
+    """
+    L = np.asarray(L, dtype=np.float32)
+    F = L.shape[0]
+    per_face = [scales] * F if isinstance(scales, Scale) else list(scales)
+    if len(per_face) != F:
+        raise ValueError(f"{len(per_face)} scales for {F} faces")
+    out = np.empty_like(L)
+    ok = np.empty(L.shape, bool)
+    for k in range(F):
+        out[k], ok[k] = _smooth_face(L[k], per_face[k])
+    return out, ok
+
+
+def scale_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, scale, *,
+                      filters: str | dict = DEPTH_FILTERS):
+    """Plenoptic derivatives of the pair at ``scale`` (one :class:`Scale` or one per face).
+
+    Returns (:class:`~polycam.derivatives.Derivatives`, ``ok`` (F, Ny, Nx, Nv, Nu) bool:
+    the derivative's and the smoothing's support inside the grid).
+    """
+    S0, ok0 = smooth_at_scale(L0, scale)
+    S1, _ = smooth_at_scale(L1, scale)
+    der = plenoptic_derivatives(S0, S1, grid, filters=filters)
+    return der, ok0 & der.valid[None]
+
+
+@dataclass(frozen=True)
+class DepthEstimates:
+    """The four per-ray depth estimates of Eq. 6–7 at one scale (arrays (F, Ny, Nx, Nv, Nu))."""
+
+    lam: dict
+    """Equation name (:data:`polycam.depth.EQUATIONS`) → λ = Z / f (float32; NaN: no information)."""
+    info: dict
+    """Equation name → windowed information Σ a² (≥ 0)."""
+    ok: np.ndarray
+    """bool: the filters' support lies inside the grid."""
+
+
+def depth_estimates(der, grid: LightFieldGrid, T_prev_next: np.ndarray, *, ok: np.ndarray | None = None,
+                    window: int = 4) -> DepthEstimates:
+    """Windowed least-squares λ of each depth equation separately (``window`` as in
+    :func:`~polycam.depth.depth_from_derivatives`)."""
+    m = np.broadcast_to(der.valid, der.Lx.shape) if ok is None else ok
+    valid = m.astype(np.float32)
+    lam, info = {}, {}
+    for name, (a, b) in depth_equations(der, grid, T_prev_next).items():
+        Saa = window_sum(a * a * valid, window)
+        Sab = window_sum(a * b * valid, window)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam[name] = np.where((Saa > 0) & m, Sab / Saa, np.nan).astype(np.float32)
+        info[name] = np.where(m, Saa, 0.0).astype(np.float32)
+    return DepthEstimates(lam=lam, info=info, ok=m)
+
+
+def _pair_terms(est: DepthEstimates, sel: np.ndarray | tuple = ()):
+    """Per pair of equations: (|log λ_i − log λ_j| clipped at 1, weight) on the rays of ``sel``.
+
+    Weights are min over the pair of information / its median on the valid rays, so
+    every equation counts about equally whatever its units; rays where either λ is not
+    positive count as a full disagreement (1).
+    """
+    names = [n for n in EQUATIONS if n in est.lam]
+    ok = est.ok[sel] if sel != () else est.ok
+    norm = {}
+    for n in names:
+        I = est.info[n][sel] if sel != () else est.info[n]
+        pos = I[ok & (I > 0)]
+        norm[n] = float(np.median(pos)) if pos.size else 0.0
+    terms = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            if not (norm[a] > 0 and norm[b] > 0):
+                continue
+            la = est.lam[a][sel] if sel != () else est.lam[a]
+            lb = est.lam[b][sel] if sel != () else est.lam[b]
+            Ia = (est.info[a][sel] if sel != () else est.info[a]) / norm[a]
+            Ib = (est.info[b][sel] if sel != () else est.info[b]) / norm[b]
+            w = np.where(ok, np.minimum(Ia, Ib), 0.0)
+            good = (la > 0) & (lb > 0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                d = np.where(good, np.abs(np.log(np.where(good, la / lb, 1.0))), 1.0)
+            terms.append((np.minimum(np.nan_to_num(d, nan=1.0), 1.0), np.nan_to_num(w)))
+    return terms
+
+
+def disagreement(est: DepthEstimates, sel=()) -> float:
+    """Information-weighted mean of ``min(|log λ_i − log λ_j|, 1)`` over the pairs of
+    equations and the rays of ``sel`` (an index into (F, Ny, Nx, Nv, Nu) arrays; all
+    rays by default); NaN without information."""
+    num = den = 0.0
+    for d, w in _pair_terms(est, sel):
+        num += float(np.sum(d * w, dtype=np.float64))
+        den += float(np.sum(w, dtype=np.float64))
+    return num / den if den > 0 else float("nan")
+
+
+@dataclass(frozen=True)
+class ScaleSelection:
+    """The chosen scale per face (and per (u, v) tile for ``per="region"``)."""
+
+    scales: tuple[Scale, ...]
+    """The candidate scales that were compared."""
+    face_choice: tuple[int, ...]
+    """(F,) index into ``scales`` per face."""
+    scores: np.ndarray
+    """(F, S) disagreement per face and candidate (NaN: no information)."""
+    region_choice: np.ndarray | None = None
+    """(F, Tv, Tu) index into ``scales`` per (u, v) tile (``per="region"`` only)."""
+    region_scores: np.ndarray | None = None
+    """(F, Tv, Tu, S) disagreement per tile and candidate."""
+    tile: int = 16
+    """(u, v) tile size in samples of the regions."""
+
+    def face_scales(self) -> tuple[Scale, ...]:
+        return tuple(self.scales[i] for i in self.face_choice)
+
+
+def _choose(scores: np.ndarray, tie: float) -> np.ndarray:
+    """Index of the least-smoothing candidate within ``tie`` (relative) of the best, per row
+    of scores (..., S); candidates are ordered from least to most smoothing except that
+    (x, y) smoothing counts after no smoothing (see :data:`SCALE_LADDER`)."""
+    s = np.where(np.isfinite(scores), scores, np.inf)
+    best = s.min(axis=-1, keepdims=True)
+    good = s <= best * (1.0 + tie)
+    idx = np.argmax(good, axis=-1)
+    return np.where(np.isfinite(best[..., 0]), idx, -1)
+
+
+def _ladder_order(scales) -> list[int]:
+    """Candidate order for tie-breaking: least total smoothing first."""
+    return sorted(range(len(scales)), key=lambda i: (scales[i].xy + scales[i].uv, scales[i].xy))
+
+
+def select_scales(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T_prev_next: np.ndarray, *,
+                  scales: tuple[Scale, ...] = SCALE_LADDER, per: str = "face", tile: int = 16,
+                  window: int = 4, tie: float = 0.05, W0: np.ndarray | None = None) -> ScaleSelection:
+    """Choose per face (``per="face"``) or also per (u, v) tile (``"region"``) the scale at
+    which the four depth estimates of the pair (L0, L1) (F, Ny, Nx, Nv, Nu) agree best,
+    given the rig motion ``T_prev_next`` (4, 4). ``W0``: optional confidence of L0
+    (rays with W0 ≤ 0.5 are ignored)."""
+    if per not in ("face", "region"):
+        raise ValueError(f"per must be 'face' or 'region', got {per!r}")
+    F, Ny, Nx, Nv, Nu = grid.shape
+    order = _ladder_order(scales)
+    Tv, Tu = -(-Nv // tile), -(-Nu // tile)
+    S = len(scales)
+    scores = np.full((F, S), np.nan)
+    rscores = np.full((F, Tv, Tu, S), np.nan) if per == "region" else None
+    for si in range(S):
+        der, ok = scale_derivatives(L0, L1, grid, scales[si])
+        if W0 is not None:
+            ok = ok & (np.asarray(W0) > 0.5)
+        est = depth_estimates(der, grid, T_prev_next, ok=ok, window=window)
+        for k in range(F):
+            scores[k, si] = disagreement(est, (slice(k, k + 1),))
+            if rscores is not None:
+                terms = _pair_terms(est, (slice(k, k + 1),))
+                num = np.zeros((Tv, Tu))
+                den = np.zeros((Tv, Tu))
+                for d, w in terms:
+                    dw = _tile_sum((d * w)[0], tile)
+                    num += dw
+                    den += _tile_sum(w[0], tile)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    rscores[k, :, :, si] = np.where(den > 0, num / den, np.nan)
+    # choose in the tie-break order, map back to indices into scales
+    ordered = scores[:, order]
+    face_choice = tuple(int(order[i]) if i >= 0 else scales.index(Scale()) if Scale() in scales else 0
+                        for i in _choose(ordered, tie))
+    region_choice = None
+    if rscores is not None:
+        ri = _choose(rscores[..., order], tie)
+        fallback = np.array(face_choice)[:, None, None]
+        region_choice = np.where(ri >= 0, np.array(order)[np.maximum(ri, 0)], fallback)
+    sel = ScaleSelection(scales=tuple(scales), face_choice=face_choice, scores=scores,
+                         region_choice=region_choice, region_scores=rscores, tile=tile)
+    log.info("scale selection: %s", ", ".join(s.name for s in sel.face_scales()))
+    return sel
+
+
+def _tile_sum(a: np.ndarray, tile: int) -> np.ndarray:
+    """Sum of a (Ny, Nx, Nv, Nu) array over viewpoints and (u, v) tiles → (Tv, Tu)."""
+    s = np.sum(a, axis=(0, 1), dtype=np.float64)
+    Nv, Nu = s.shape
+    Tv, Tu = -(-Nv // tile), -(-Nu // tile)
+    pad = np.zeros((Tv * tile, Tu * tile))
+    pad[:Nv, :Nu] = s
+    return pad.reshape(Tv, tile, Tu, tile).sum(axis=(1, 3))
+
+
+def apply_selection(L0: np.ndarray, L1: np.ndarray, sel: ScaleSelection,
+                    W0: np.ndarray | None = None, W1: np.ndarray | None = None):
+    """Both frames pre-smoothed at each face's chosen scale, with confidences that are 0
+    where the smoothing support leaves the grid: (L0s, L1s, W0s, W1s), all
+    (F, Ny, Nx, Nv, Nu) float32 (W None when nothing was smoothed and no W was given)."""
+    fs = sel.face_scales()
+    L0s, ok = smooth_at_scale(L0, fs)
+    L1s, _ = smooth_at_scale(L1, fs)
+    if ok.all() and W0 is None and W1 is None:
+        return L0s, L1s, None, None
+    okf = ok.astype(np.float32)
+    W0s = okf if W0 is None else okf * np.asarray(W0, np.float32)
+    W1s = okf if W1 is None else okf * np.asarray(W1, np.float32)
+    return L0s, L1s, W0s, W1s
+
+
+@dataclass(frozen=True)
+class ScaleSelectedMotion:
+    """Result of :func:`estimate_motion_scale_selected`."""
+
+    result: object
+    """The final :class:`polycam.motion.PairResult` (on the pre-smoothed frames)."""
+    selection: ScaleSelection
+    """The last scale selection."""
+    history: list = field(default_factory=list)
+    """Per round: (T_prev_next (4, 4), face scale names) before re-estimating."""
+
+
+def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
+                                   W0: np.ndarray | None = None, W1: np.ndarray | None = None,
+                                   T_init: np.ndarray | None = None, options=None,
+                                   scales: tuple[Scale, ...] = SCALE_LADDER, rounds: int = 2,
+                                   tie: float = 0.05, index: int = 0) -> ScaleSelectedMotion:
+    """Rig motion ``T_rig0_rig1`` with the scale-selection feedback loop of Sect. 4.1.
+
+    1. ``estimate_motion`` on the frames as given (``options``: a
+       :class:`polycam.motion.MotionOptions`);
+    2. per face, the scale at which the four depth estimates agree (:func:`select_scales`);
+    3. ``estimate_motion`` again on both frames pre-smoothed at those scales, from the
+       previous estimate; repeat 2–3 up to ``rounds`` times or until the choice repeats.
+    ``L0``, ``L1``, ``W0``, ``W1``: (F, Ny, Nx, Nv, Nu) (a colour axis is averaged).
+    """
+    from .motion import estimate_motion
+
+    L0 = _grey(L0, grid)
+    L1 = _grey(L1, grid)
+    res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, T_init=T_init, options=options, index=index)
+    history = []
+    sel = None
+    prev = None
+    for _ in range(max(0, int(rounds))):
+        if not res:
+            break
+        sel = select_scales(L0, L1, grid, res.T_prev_next, scales=scales, tie=tie, W0=W0)
+        choice = sel.face_choice
+        history.append((res.T_prev_next.copy(), tuple(s.name for s in sel.face_scales())))
+        if choice == prev:
+            break
+        prev = choice
+        if all(scales[i] == Scale() for i in choice) and not history[:-1]:
+            break                                          # the unsmoothed input was already best
+        a, b, w0, w1 = apply_selection(L0, L1, sel, W0, W1)
+        res = estimate_motion(a, b, grid, W0=w0, W1=w1, T_init=res.T_prev_next, options=options, index=index)
+    if sel is None:
+        sel = ScaleSelection(scales=tuple(scales), face_choice=(0,) * grid.shape[0],
+                             scores=np.full((grid.shape[0], len(scales)), np.nan))
+    return ScaleSelectedMotion(result=res, selection=sel, history=history)
+
+
+def _grey(L: np.ndarray, grid: LightFieldGrid) -> np.ndarray:
+    L = np.asarray(L)
+    if L.ndim == 6 and L.shape[:5] == grid.shape:
+        L = L.mean(axis=-1)
+    return np.ascontiguousarray(L, dtype=np.float32)
+
+
+def depth_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T_prev_next: np.ndarray, *,
+                         selection: ScaleSelection | None = None, scales: tuple[Scale, ...] = SCALE_LADDER,
+                         per: str = "region", tile: int = 16, window: int = 4,
+                         equations: tuple[str, ...] = ("stereo_x", "stereo_y", "motion_pos"),
+                         W0: np.ndarray | None = None) -> tuple[DepthMap, ScaleSelection]:
+    """Fused depth (:func:`~polycam.depth.depth_from_derivatives`) where every face / (u, v)
+    tile takes the scale its four depth estimates agree best at.
+
+    Returns the :class:`~polycam.depth.DepthMap` (F, Ny, Nx, Nv, Nu) and the selection
+    used (computed unless ``selection`` is given; ``per`` as in :func:`select_scales`).
+    """
+    L0 = _grey(L0, grid)
+    L1 = _grey(L1, grid)
+    if selection is None:
+        selection = select_scales(L0, L1, grid, T_prev_next, scales=scales, per=per, tile=tile,
+                                  window=window, W0=W0)
+    F, Ny, Nx, Nv, Nu = grid.shape
+    if selection.region_choice is not None:
+        t = selection.tile
+        choice = np.repeat(np.repeat(selection.region_choice, t, axis=1), t, axis=2)[:, :Nv, :Nu]
+    else:
+        choice = np.broadcast_to(np.array(selection.face_choice)[:, None, None], (F, Nv, Nu))
+    Z = np.full(grid.shape, np.nan, np.float32)
+    conf = np.zeros(grid.shape, np.float32)
+    cons = np.zeros(grid.shape, np.float32)
+    for si in np.unique(choice):
+        der, ok = scale_derivatives(L0, L1, grid, selection.scales[int(si)])
+        dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next, window=window,
+                                    equations=equations, valid=ok)
+        m = np.broadcast_to((choice == si)[:, None, None], grid.shape)
+        Z[m] = dm.Z[m]
+        conf[m] = dm.confidence[m]
+        cons[m] = dm.consistency[m]
+    return DepthMap(Z=Z, confidence=conf, consistency=cons), selection
