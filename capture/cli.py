@@ -82,6 +82,9 @@ def add_parsers(sub) -> None:
     pc.add_argument("--white-balance", type=_positive_int, help="white-balance temperature [K]")
     pc.add_argument("--sync", choices=("auto", "hardware", "software"), default="auto",
                     help="OAK frame sync (default auto: hardware where supported)")
+    pc.add_argument("--mock-board", metavar="BOARD.toml",
+                    help="mock cameras show this calibration board moving in front of the static rig "
+                         "(a board session for `polycam calibrate`) instead of the [mock] scene")
     pc.set_defaults(func=cmd_capture)
 
     pr = sub.add_parser("replay", help="play a recorded session back as a live rig (optionally re-recording it)",
@@ -123,6 +126,14 @@ def cmd_capture(args: argparse.Namespace) -> int:
     from polycam.rig import load_rig
 
     rig = load_rig(args.rig)  # user files first
+    mock_kwargs = {}
+    if args.mock_board:
+        from polycam.board import load_board
+        from polycam.errors import InputError
+
+        if not any(c.driver == "mock" for c in rig.cameras):
+            raise InputError(f"--mock-board: {args.rig} has no mock cameras")
+        mock_kwargs["board"] = load_board(args.mock_board)
     from .drivers import rig_source
     from .oak import DepthAIControls
     from .v4l2 import Controls
@@ -133,8 +144,13 @@ def cmd_capture(args: argparse.Namespace) -> int:
                                                white_balance=args.white_balance),
                         depthai_controls=DepthAIControls(fixed=fixed, exposure_us=args.exposure, iso=args.iso,
                                                          white_balance=args.white_balance),
-                        depthai_sync=args.sync)
-    return _run(source, rig, args.out, args, f"capture {rig.name}")
+                        depthai_sync=args.sync, **mock_kwargs)
+    code = _run(source, rig, args.out, args, f"capture {rig.name}")
+    from .mock import MockSource
+
+    if isinstance(source, MockSource) and source.has_truth:
+        print(f"  ground truth (mock): {', '.join(source.write_truth(args.out))}")
+    return code
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

@@ -21,6 +21,14 @@ It renders the rig's ``[mock]`` table (SPEC.md, rig file):
 - ``disconnect_after``: camera id → frame count after which that camera
   reports :class:`~capture.source.CameraLost` and delivers nothing more.
 
+- ``board`` (a constructor argument; ``polycam capture --mock-board``): instead of
+  the scene, a static rig watches a calibration board moved through seeded poses.
+- ``models`` (constructor argument): the camera models rendered with (default the
+  rig file's nominal ones).
+
+:meth:`MockSource.write_truth` adds a recorded session's ground truth
+(``groundtruth.tum``, ``calib/``, and for a board ``board_poses.tum``).
+
 Every random choice comes from a stream seeded by ``[mock] seed``, the camera's
 index and the frame index, so a run is reproducible.
 
@@ -37,7 +45,9 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import logging
+import os
 import time
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -128,26 +138,62 @@ class PatternRenderer:
 
 
 class _RayTraced:
-    """``room`` / ``spheres``: all cameras rendered at one rig pose per nominal frame time."""
+    """``room`` / ``spheres``: all cameras rendered at one rig pose per nominal frame time;
+    with a board: a static rig (at the world origin) watching the board at one pose per
+    nominal frame time, in front of an object-free room."""
 
-    def __init__(self, rig: Rig, cams: list[CameraSpec], mock: MockSpec, frames: int, supersample: int):
-        from polycam.synth import CameraArrayRenderer, scene_for_rig, trajectory_for_rig
+    def __init__(self, rig: Rig, cams: list[CameraSpec], mock: MockSpec, frames: int, supersample: int,
+                 models: dict | None = None, board: Any = None):
+        from polycam.cameras import nominal_cameramodel
+        from polycam.synth import (CameraArrayRenderer, board_poses, room_scene, scene_for_rig,
+                                   static_trajectory, trajectory_for_rig)
 
         sub = dataclasses.replace(rig, cameras=tuple(cams))
-        self.trajectory = trajectory_for_rig(sub, frames, seed=mock.seed)
-        self.period_ns = 1e9 / float(cams[0].fps)
-        self.renderer = CameraArrayRenderer(sub, None, scene_for_rig(sub, seed=mock.seed), supersample)
+        missing = [c.id for c in cams if models is not None and c.id not in models]
+        if missing:
+            raise CaptureError(f"mock: no camera model given for {', '.join(missing)}")
+        self.models = {c.id: (models[c.id] if models is not None else nominal_cameramodel(c)) for c in cams}
+        self.board = board
         self.ids = [c.id for c in cams]
+        if board is None:
+            self.trajectory = trajectory_for_rig(sub, frames, seed=mock.seed)
+            self.scene = scene_for_rig(sub, seed=mock.seed)
+            self.board_poses = None
+        else:
+            self.trajectory = static_trajectory(frames, float(cams[0].fps))
+            self.board_poses = board_poses(board, self.models, frames, seed=mock.seed, cam_ids=self.ids)
+            background = room_scene(max(mock.distance, 2.0), seed=mock.seed, n_spheres=0, n_boxes=0)
+            self.scene, self._rect = _board_scene(board, self.models, self.board_poses, background)
+        self.period_ns = 1e9 / float(cams[0].fps)
+        self.renderer = CameraArrayRenderer(sub, self.models, self.scene, supersample)
         self._cache: tuple[int, dict] | None = None
-        self.noise = mock.noise
-        self.seed = mock.seed
 
-    def radiance(self, k: int, t_rel_ns: int) -> np.ndarray:
-        n = len(self.trajectory)
-        i = min(max(int(round(t_rel_ns / self.period_ns)), 0), n - 1)
+    def index(self, t_rel_ns: int) -> int:
+        """The trajectory (or board pose) index shown at ``t_rel_ns`` after the start."""
+        return min(max(int(round(t_rel_ns / self.period_ns)), 0), len(self.trajectory) - 1)
+
+    def radiance(self, k: int, i: int) -> np.ndarray:
         if self._cache is None or self._cache[0] != i:
-            self._cache = (i, self.renderer.render(self.trajectory.T_world_rig[i]))
+            scene = None if self.board_poses is None else self.scene.with_rect_pose(self._rect, self.board_poses[i])
+            self._cache = (i, self.renderer.render(self.trajectory.T_world_rig[i], scene))
         return self._cache[1][self.ids[k]]
+
+
+def _board_scene(board, models: dict, poses: np.ndarray, background):
+    """``background`` with the board's image as a two-sided textured rectangle at
+    ``poses[0]`` (T_rig_board (N, 4, 4)) → (scene, rectangle index). The texture has at
+    least two texels per pixel of the finest camera at the board's closest distance."""
+    from polycam.cameras import T_rig_cam_of
+
+    centres = np.stack([T_rig_cam_of(m)[:3, 3] for m in models.values()])             # (C, 3)
+    closest = float(np.min(np.linalg.norm(poses[:, None, :3, 3] - centres[None], axis=-1)))
+    fx = max(float(m.intrinsics()[1][0]) for m in models.values())
+    texels = int(np.clip(np.ceil(2.0 * fx * board.square_length / max(closest, 1e-3)), 40, 240))
+    image, H_image_board = board.render(texels, 0.5)
+    border = round(0.5 * texels) / texels * board.square_length                 # [m] white margin
+    w, h = board.size_m
+    return background.with_image_rect(image, poses[0], (-border, w + border, -border, h + border),
+                                      np.asarray(H_image_board)[:2])
 
 
 class MockSource(FrameSource):
@@ -159,16 +205,26 @@ class MockSource(FrameSource):
     frames: stop each camera after this many frames (default: run until stopped).
     buffers: frames a camera holds before unread ones are lost (real-time only).
     supersample: rays per pixel side for ``room``/``spheres``.
-    trajectory_frames: length of the ``room``/``spheres`` trajectory when ``frames``
-        is not given (the pose holds still after its end).
+    trajectory_frames: length of the ``room``/``spheres`` trajectory (or of the board's
+        pose sequence) when ``frames`` is not given (the pose holds still after its end).
+    models: camera id → mrcal cameramodel to render each camera with (``room``,
+        ``spheres``, board), e.g. :func:`polycam.synth.true_cameramodels` of a perturbed
+        rig; default the rig file's nominal models.
+    board: a :class:`polycam.board.Board`: instead of the ``[mock]`` scene the cameras
+        see this calibration board moved through :func:`polycam.synth.board_poses` (seeded
+        by ``[mock] seed``) in front of an object-free room, the rig standing still at
+        the world origin (a board session for ``polycam calibrate``).
+
+    After a recording of a ray-traced scene, :meth:`write_truth` adds the ground truth
+    to the session (``groundtruth.tum``, ``calib/``, for a board ``board_poses.tum``).
     """
 
     driver = "mock"
 
     def __init__(self, rig: Rig, cameras: list[CameraSpec] | None = None, *, realtime: bool = True,
                  frames: int | None = None, start_ns: int = 0, buffers: int = 4, supersample: int = 1,
-                 trajectory_frames: int = 900, clock: Callable[[], int] = time.monotonic_ns,
-                 sleep: Callable[[float], None] = time.sleep):
+                 trajectory_frames: int = 900, models: dict | None = None, board: Any = None,
+                 clock: Callable[[], int] = time.monotonic_ns, sleep: Callable[[float], None] = time.sleep):
         self.rig = rig
         self.cams = list(cameras if cameras is not None else rig.cameras)
         if not self.cams:
@@ -181,6 +237,11 @@ class MockSource(FrameSource):
         self.buffers = max(1, int(buffers))
         self.supersample = supersample
         self.trajectory_frames = trajectory_frames
+        self.models = models
+        self.board = board
+        if board is not None and self.mock.scene == "pattern":
+            raise CaptureError(f"{rig.path or rig.name}: a mock board needs a ray-traced [mock] scene, not 'pattern'")
+        self._shown: dict[tuple[str, int], int] = {}     # (camera id, timestamp) → pose index shown
         self._clock = clock
         self._sleep = sleep
         self._started = False
@@ -197,7 +258,8 @@ class MockSource(FrameSource):
             self._renderer = PatternRenderer(self.cams, m.seed, m.noise)
         else:
             n = self.frames if self.frames is not None else self.trajectory_frames
-            self._renderer = _RayTraced(self.rig, self.cams, m, max(int(n), 1), self.supersample)
+            self._renderer = _RayTraced(self.rig, self.cams, m, max(int(n), 1), self.supersample,
+                                        models=self.models, board=self.board)
         self._t0 = self._clock() + 1_000_000 if self.realtime else self.start_ns  # [ns]
         idx = {c.id: i for i, c in enumerate(self.rig.cameras)}
         self._rig_index = [idx.get(c.id, i) for i, c in enumerate(self.cams)]
@@ -208,7 +270,7 @@ class MockSource(FrameSource):
         self._drop_rng = [np.random.default_rng([m.seed, _SALT_DROP, r]) for r in self._rig_index]
         self._jit_rng = [np.random.default_rng([m.seed, _SALT_JITTER, r]) for r in self._rig_index]
         self._started = True
-        log.info("mock: %d cameras, scene %s, %s", len(self.cams), m.scene,
+        log.info("mock: %d cameras, scene %s, %s", len(self.cams), "board" if self.board is not None else m.scene,
                  "real time" if self.realtime else "as fast as possible")
 
     def stop(self) -> None:
@@ -216,7 +278,7 @@ class MockSource(FrameSource):
 
     def info(self) -> dict[str, Any]:
         m = self.mock
-        return {"mock": {"scene": m.scene, "motion": m.motion, "seed": m.seed, "noise": m.noise,
+        return {"mock": {"scene": "board" if self.board is not None else m.scene, "motion": m.motion, "seed": m.seed, "noise": m.noise,
                          "jitter_ms": m.jitter_ms, "drop_rate": m.drop_rate,
                          "realtime": self.realtime}}
 
@@ -308,9 +370,68 @@ class MockSource(FrameSource):
         else:
             from polycam.synth import quantize
 
-            rad = self._renderer.radiance(k, t_rel)
+            pose = self._renderer.index(t_rel)
+            self._shown[(cam.id, ts)] = pose
+            rad = self._renderer.radiance(k, pose)
             rng = np.random.default_rng([m.seed, _SALT_NOISE, self._rig_index[k], i]) if m.noise > 0 else None
             if cam.pixel_format == "Y16":
                 return Frame(cam.id, ts, i, quantize(rad, 16, m.noise, rng))
             grey = quantize(rad, 8, m.noise, rng)
         return Frame(cam.id, ts, i, to_pixel_format(grey, cam.pixel_format))
+
+    # -- ground truth
+
+    @property
+    def has_truth(self) -> bool:
+        """True for the ray-traced scenes (``room``, ``spheres``, a board), which know
+        their camera models and poses exactly; False for ``pattern``."""
+        return self.board is not None or self.mock.scene != "pattern"
+
+    def write_truth(self, session_path: str | os.PathLike) -> list[str]:
+        """Add the ground truth to a session recorded from this source; returns the files written.
+
+        - ``groundtruth.tum``: ``T_world_rig`` of the pose each frame shows, at the
+          frame's timestamp (world = the rig at the trajectory's start; a board session's
+          rig stands still at the origin);
+        - ``calib/<cam>.cameramodel``: the models the cameras were rendered with;
+        - with a board: ``board_poses.tum`` (``T_rig_board`` per frame, as
+          :func:`polycam.synth.synth_board_session` writes it) and ``board.toml`` (a copy
+          of the board file, when the board was read from one).
+
+        Like a synthetic session, a mock session then carries its true trajectory and
+        calibration. Raises :class:`CaptureError` for the ``pattern`` scene or a session
+        whose frames this source did not deliver.
+        """
+        from polycam.cameras import write_cameramodel
+        from polycam.session import open_session
+        from polycam.tomlio import atomic_write_text
+        from polycam.trajectory import Trajectory, tum_text, write_tum
+
+        if not self.has_truth or not isinstance(self._renderer, _RayTraced):
+            raise CaptureError("mock: the 'pattern' scene has no ground truth (or the source never started)")
+        sess = open_session(session_path)
+        poses = np.empty(len(sess), np.int64)
+        cams = list(sess.cameras)
+        for f in range(len(sess)):
+            shown = [self._shown.get((c, int(ts))) for c, ts in zip(cams, sess.cam_timestamps[f]) if ts >= 0]
+            shown = [p for p in shown if p is not None]
+            if not shown:
+                raise CaptureError(f"{sess.path}: frame {f} was not delivered by this mock source")
+            poses[f] = shown[0]
+        r = self._renderer
+        path = Path(session_path)
+        write_tum(path / "groundtruth.tum", Trajectory(sess.timestamps_ns.copy(), r.trajectory.T_world_rig[poses]))
+        written = ["groundtruth.tum"]
+        (path / "calib").mkdir(exist_ok=True)
+        for c, model in r.models.items():
+            write_cameramodel(model, path / "calib" / f"{c}.cameramodel")
+        written.append(f"calib/ ({len(r.models)} models)")
+        if r.board_poses is not None:
+            atomic_write_text(path / "board_poses.tum", tum_text(sess.timestamps_ns, r.board_poses[poses]))
+            written.append("board_poses.tum")
+            src = getattr(self.board, "path", None)
+            if src is not None and Path(src).is_file():
+                atomic_write_text(path / "board.toml", Path(src).read_text())
+                written.append("board.toml")
+        log.info("mock: ground truth of %d frames written to %s", len(sess), path)
+        return written

@@ -1,0 +1,105 @@
+"""The mock driver's ground truth (issue 7): a mock session carries its true trajectory and
+camera models like a synthetic one, and the mock can show a calibration board."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture import CaptureError, MockSource, record
+from polycam.board import load_board
+from polycam.cameras import T_rig_cam_of
+from polycam.rig import load_rig
+from polycam.session import open_session
+from polycam.synth import board_poses, trajectory_for_rig, true_cameramodels
+from polycam.trajectory import read_tum
+from conftest import mock_grid_rig_text
+
+REPO = Path(__file__).resolve().parents[1]
+BOARD = REPO / "rigs" / "boards" / "charuco_5x7.toml"
+
+
+def make_rig(tmp_path: Path, *, w=32, h=24, scene="room", motion="smooth", mock: str = ""):
+    """A 1x2 mock rig (conftest's rig text, seed 1) with this scene, motion and extra [mock] lines."""
+    text = mock_grid_rig_text("truth1x2", w, h, rows=1, cols=2)
+    text = text.replace('scene = "room"', f'scene = "{scene}"').replace('motion = "smooth"', f'motion = "{motion}"')
+    p = tmp_path / "rig.toml"
+    p.write_text(text + mock + "\n")
+    return load_rig(p)
+
+
+def test_mock_session_carries_its_trajectory_and_models(tmp_path):
+    """Frames lost to drops and jittered timestamps still get the pose each frame showed."""
+    rig = make_rig(tmp_path, mock="jitter_ms = 3.0\ndrop_rate = 0.2")
+    models = true_cameramodels(rig, seed=2, perturb_position_m=0.002, perturb_rotation_deg=0.5)
+    src = MockSource(rig, realtime=False, frames=8, models=models)
+    record(src, rig, tmp_path / "s", frames=8)
+    assert src.write_truth(tmp_path / "s") == ["groundtruth.tum", "calib/ (2 models)"]
+    s = open_session(tmp_path / "s")
+    gt = s.groundtruth()
+    np.testing.assert_array_equal(gt.timestamps_ns, s.timestamps_ns)
+    traj = trajectory_for_rig(rig, 8, seed=1)
+    period = 1e9 / 30
+    for f in range(len(s)):
+        ts = s.cam_timestamps[f][s.cam_timestamps[f] >= 0]
+        i = int(round(float(np.median(ts)) / period))            # jitter (3 ms) << half a period
+        np.testing.assert_allclose(gt.T_world_rig[f], traj.T_world_rig[i], atol=1e-6)
+    calib = s.calibration()
+    for c in rig.ids:
+        np.testing.assert_allclose(T_rig_cam_of(calib[c]), T_rig_cam_of(models[c]), atol=1e-9)
+        np.testing.assert_allclose(calib[c].intrinsics()[1], models[c].intrinsics()[1])
+
+
+def test_mock_renders_with_the_given_models(tmp_path):
+    """A camera rendered with a perturbed model sees a different image than the nominal one."""
+    rig = make_rig(tmp_path, motion="static")
+    models = true_cameramodels(rig, seed=2, perturb_rotation_deg=2.0)
+    record(MockSource(rig, realtime=False, frames=1), rig, tmp_path / "a", frames=1)
+    record(MockSource(rig, realtime=False, frames=1, models=models), rig, tmp_path / "b", frames=1)
+    a, b = (open_session(tmp_path / n).read_frame(0)["cam00"].astype(float) for n in "ab")
+    assert np.mean(np.abs(a - b)) > 2.0
+
+
+def test_mock_board_session(tmp_path):
+    """With a board the rig stands still and the board moves through the seeded poses."""
+    rig = make_rig(tmp_path, w=160, h=120)
+    board = load_board(BOARD)
+    src = MockSource(rig, realtime=False, frames=3, board=board)
+    record(src, rig, tmp_path / "s", frames=3)
+    assert src.write_truth(tmp_path / "s") == ["groundtruth.tum", "calib/ (2 models)", "board_poses.tum",
+                                               "board.toml"]
+    s = open_session(tmp_path / "s")
+    np.testing.assert_allclose(s.groundtruth().T_world_rig, np.broadcast_to(np.eye(4), (3, 4, 4)), atol=1e-12)
+    poses = read_tum(tmp_path / "s" / "board_poses.tum")
+    np.testing.assert_array_equal(poses.timestamps_ns, s.timestamps_ns)
+    np.testing.assert_allclose(poses.T_world_rig, board_poses(board, s.calibration(), 3, seed=1, cam_ids=rig.ids),
+                               atol=1e-6)
+    assert (tmp_path / "s" / "board.toml").read_text() == BOARD.read_text()
+    img = s.read_frame(0)["cam00"]
+    assert (img < 40).mean() > 0.05 and (img > 215).mean() > 0.05     # black squares and white paper
+
+
+def test_pattern_scene_has_no_truth(tmp_path):
+    rig = make_rig(tmp_path, scene="pattern")
+    with pytest.raises(CaptureError, match="pattern"):
+        MockSource(rig, realtime=False, board=load_board(BOARD))
+    src = MockSource(rig, realtime=False, frames=2)
+    record(src, rig, tmp_path / "s", frames=2)
+    assert not src.has_truth
+    with pytest.raises(CaptureError, match="pattern"):
+        src.write_truth(tmp_path / "s")
+
+
+def test_capture_verb_writes_the_mock_truth(tmp_path):
+    rig = make_rig(tmp_path, w=64, h=48)
+    res = subprocess.run([sys.executable, "-m", "polycam.cli", "capture", "--rig", str(rig.path), "--out",
+                          str(tmp_path / "s"), "--frames", "2", "--fast", "--no-display", "--mock-board", str(BOARD)],
+                         capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "ground truth (mock): groundtruth.tum" in res.stdout
+    for rel in ("groundtruth.tum", "board_poses.tum", "board.toml", "calib/cam01.cameramodel"):
+        assert (tmp_path / "s" / rel).is_file(), rel
