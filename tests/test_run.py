@@ -1,4 +1,5 @@
-"""`polycam run` (issue 7): the whole chain on a small mock rig, its report folder, and the
+"""`polycam run` (issue 7): the whole chain on a small mock rig (both sessions recorded through
+the capture stage's mock driver), its report folder with depth against the truth, and the
 chain stopping with `run: STAGE: reason` when a stage's output is unusable."""
 
 from __future__ import annotations
@@ -8,7 +9,7 @@ import numpy as np
 from polycam.cli import main
 from polycam.trajectory import read_tum
 from conftest import mock_grid_rig_text
-from tolerances import E2E_RUN_MOTION_REL
+from tolerances import E2E_RUN_DEPTH_REL, E2E_RUN_MOTION_REL
 
 RUN_RIG_TEXT = mock_grid_rig_text("run3x3", 160, 120)
 
@@ -35,7 +36,8 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
     for stage in ("board", "calibrate", "capture", "resample", "motion", "depth", "report"):
         assert any(line.startswith(stage) for line in cap.out.splitlines()), (stage, cap.out)
     for rel in ("calib/cam04.cameramodel", "calib/report.md", "session/groundtruth.tum", "lightfield.zarr/zarr.json",
-                "trajectory.tum"):
+                "trajectory.tum", "board_session/board_poses.tum", "board_session/capture_stats.toml",
+                "session/capture_stats.toml", "session/calib/cam04.cameramodel"):
         assert (out / rel).exists(), rel
     rep = out / "report"
     for name in ("README.md", "summary.toml", "pairs.csv", "trajectory.png", "errors.png",
@@ -46,6 +48,9 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
     assert summary["calibrate"]["rms_px"] < 0.5
     assert summary["resample"]["mean_W"] > 0.3
     assert summary["depth"]["points"] > 1000
+    assert summary["depth"]["truth_rays"] > 1000 and summary["depth"]["median_rel_error"] < E2E_RUN_DEPTH_REL
+    assert summary["board"]["dropped"] == 0 and summary["capture"]["frames"] == 3
+    assert summary["resample"]["views"] == [5, 5]        # a 3x3 rig gets in-between views (run.MIN_VIEWS)
     header = (rep / "points.ply").read_text().split("end_header")[0]
     assert header.startswith("ply") and f"element vertex {summary['depth']['points']}" in header
     from polycam.evaluate import pair_errors
