@@ -3,12 +3,14 @@
 The demo is :func:`polycam.run.run_chain` on ``rigs/mock5x5.toml`` (a 5x5 array of
 320x240 grey cameras, 2 cm apart, in a textured room), with exact ground truth:
 
-1. a calibration-board session of the (slightly perturbed) true rig;
+1. a calibration-board session of the (slightly perturbed) true rig, recorded through
+   the capture stage from the mock driver showing the board;
 2. mrcal board calibration (the calibration stage);
-3. a motion session of the same rig;
-4. resampling onto the two-plane light field with the *calibrated* models;
+3. a motion session of the same rig, recorded the same way, with its ground truth;
+4. resampling onto the two-plane light field (views at the cameras) with the
+   *calibrated* models;
 5. plenoptic egomotion of every frame pair, compared with the ground truth;
-6. per-ray depth and a point cloud;
+6. per-ray depth, compared with the ray tracer's true depth, and a point cloud;
 7. a report folder (``OUT/report``) with every picture.
 
 Like :mod:`polycam.run` (which imports the stages lazily), this is CLI-layer
