@@ -189,7 +189,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                                          "radius_uv": options.kernel.radius_uv,
                                          "linear": options.kernel.linear},
                               "schedule": options.schedule, "attenuation": options.attenuation,
-                              "full_weight": options.full_weight}}
+                              "full_weight": options.full_weight, "view_fill": options.view_fill}}
         store = FrameStore(out, grid, sess.timestamps_ns, channels=channels if channels > 1 else None,
                            overwrite=overwrite, extra_attrs=attrs)
         t1 = time.perf_counter()

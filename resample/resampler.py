@@ -3,8 +3,10 @@
 :class:`Resampler` holds everything that depends only on the calibration and
 the grid (the splat geometry, :mod:`resample.geometry`) and the buffers of one
 frame, so resampling a frame costs one sparse matrix product
-(:func:`~resample.geometry.splat`) and one pull-push pass
-(:class:`~resample.pushpull.PushPull`). A frame in which some cameras have no
+(:func:`~resample.geometry.splat`), one pull-push pass
+(:class:`~resample.pushpull.PushPull`) and, by default, the depth-aware filling
+of the views between cameras (:mod:`resample.viewfill`: a plane sweep per view,
+interpolating along the disparity instead of across it). A frame in which some cameras have no
 image uses a geometry built for the cameras present (built on first use and
 cached), so every cell is still a proper weighted fit of the data it has.
 
@@ -28,8 +30,14 @@ from polycam.lightfield import LightFieldGrid
 
 from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
 from .pushpull import SCHEDULES, PushPull
+from .viewfill import ViewFillOptions, ViewFillPlan, fill_views, plan_view_fill
 
-__all__ = ["ResampleOptions", "ResampledFrame", "Resampler", "normalise_image"]
+VIEW_FILLS = ("depth", "pushpull")
+"""How views no camera measured are filled: along the disparity found by a plane sweep
+(:mod:`resample.viewfill`), or by the pull-push alone (depth-free: linear in (x, y) at
+fixed (u, v))."""
+
+__all__ = ["VIEW_FILLS", "ResampleOptions", "ResampledFrame", "Resampler", "normalise_image"]
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +59,14 @@ class ResampleOptions:
     is enough for the local-linear fit to be trusted on its own."""
     geometry_cache: int = 8
     """Geometries kept for frames with missing cameras (one per set of cameras present)."""
+    view_fill: str = "depth"
+    """How the views between cameras are filled (:data:`VIEW_FILLS`)."""
+    fill: ViewFillOptions = field(default_factory=ViewFillOptions)
+    """Settings of the depth-aware view filling (``view_fill="depth"``)."""
 
     def __post_init__(self) -> None:
+        if self.view_fill not in VIEW_FILLS:
+            raise ValueError(f"view_fill must be one of {VIEW_FILLS}, got {self.view_fill!r}")
         if self.schedule not in SCHEDULES:
             raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
         if not 0.0 < self.attenuation <= 1.0:
@@ -121,6 +135,7 @@ class Resampler:
         """Splat geometry for all cameras."""
         self._subsets: OrderedDict[tuple[str, ...], SplatGeometry] = OrderedDict()
         self._w0c: dict[int, np.ndarray] = {}
+        self._plans: dict[int, ViewFillPlan] = {}
         self._pp: PushPull | None = None
         self._pixels: np.ndarray | None = None
         self._L: np.ndarray | None = None
@@ -129,7 +144,7 @@ class Resampler:
     # pickling (dask): drop the per-frame buffers, keep the geometry
     def __getstate__(self):
         st = self.__dict__.copy()
-        st.update(_pp=None, _pixels=None, _L=None, _W=None, _w0c={})
+        st.update(_pp=None, _pixels=None, _L=None, _W=None, _w0c={}, _plans={})
         return st
 
     @property
@@ -160,6 +175,19 @@ class Resampler:
             w = np.minimum(geo.w0 * np.float32(1.0 / self.options.full_weight), np.float32(1.0))
             self._w0c[key] = w
         return w
+
+    def fill_plan(self, geo: SplatGeometry | None = None) -> ViewFillPlan:
+        """The depth-aware fill plan (which views are filled from which) of a geometry
+        (default: all cameras); built on first use."""
+        geo = geo or self.geometry
+        key = id(geo)
+        plan = self._plans.get(key)
+        if plan is None:
+            if len(self._plans) > self.options.geometry_cache + 1:
+                self._plans.clear()
+            plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill)
+            self._plans[key] = plan
+        return plan
 
     def _buffers(self):
         if self._pp is None:
@@ -228,6 +256,8 @@ class Resampler:
         else:
             splat(geo, sub, out=L.reshape(-1, self.channels))
         pp.run(L, self._clamped(geo), W)
+        if self.options.view_fill == "depth":
+            fill_views(L, W, self.fill_plan(geo), self.options.fill)
         Lv = L[..., 0] if self.channels == 1 else L
         return ResampledFrame(L=Lv, W=W, cameras=present)
 

@@ -20,7 +20,8 @@ from resample import (KernelOptions, ResampleOptions, Resampler, auto_grid, buil
                       push_pull_reference, ray_samples)
 from resample.geometry import camera_layout
 from resample.pushpull import pyramid_schedule
-from tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL)
+from tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL, RESAMPLE_VIEWFILL_DISPARITY_ATOL,
+                        RESAMPLE_VIEWFILL_RMS)
 
 
 def _lens(tmp_path: Path) -> Path:
@@ -289,3 +290,92 @@ def test_geometry_rows_are_normalised(tmp_path):
     np.testing.assert_allclose(rows[reached], 1.0, atol=1e-5)
     assert np.all(rows[~reached] == 0) and geo.linear_fraction > 0.9
     assert np.array_equal(reached.reshape(geo.w0.shape), geo.w0 > 0)
+
+
+# ----------------------------------------------------------------------------- depth-aware view fill
+
+
+def _plane_lightfield(grid, delta):
+    """A textured fronto-parallel plane: L(iy, ix, iv, iu) = g(iu + δ ix, iv + δ r_y iy) with a
+    disparity of δ u-steps per x-step (two incommensurate gratings: no repeat within the sweep)."""
+    F, Ny, Nx, Nv, Nu = grid.shape
+    r_y = (grid.y.step / grid.x.step) * (grid.u.step / grid.v.step)
+    iy, ix, iv, iu = np.meshgrid(np.arange(Ny), np.arange(Nx), np.arange(Nv), np.arange(Nu), indexing="ij")
+    a = iu + delta * ix
+    b = iv + delta * r_y * iy
+    g = 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+    return g[None].astype(np.float32)
+
+
+def test_view_fill_plan_on_an_auto_grid(tmp_path):
+    """Views between cameras are filled: half-way views from the two cameras either side,
+    centre views from the four around them; camera views are never targets."""
+    _, models = _models(tmp_path)
+    grid = auto_grid(models)
+    rs = Resampler(models, grid)
+    plan = rs.fill_plan()
+    assert (grid.y.count, grid.x.count) == (5, 5)
+    assert len(plan) == 25 - 9
+    for (f, j, i), src, off, w in zip(plan.targets, plan.sources, plan.offsets, plan.weights):
+        assert not (j % 2 == 0 and i % 2 == 0)
+        assert np.all(src % 2 == 0)
+        assert len(src) == (4 if (j % 2 and i % 2) else 2)
+        np.testing.assert_array_equal(off, src - [j, i])
+        assert math.isclose(float(w.sum()), 1.0, rel_tol=1e-6)
+    assert plan.disparities[0] < 0 < plan.disparities[-1]
+
+
+def test_view_fill_recovers_the_views_of_a_plane():
+    """Camera views at even (x, y) indices of a plane's light field; the views between are
+    filled along the disparity (found by the sweep) and match the truth, where the
+    depth-free blend of the neighbours does not."""
+    from resample import ViewFillOptions, fill_views, plan_view_fill
+
+    axis = Axis(0.0, 0.04, 5)
+    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=axis, y=axis, u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    delta = 1.7                     # u-steps per x-step: depth f step_x / delta = 0.59 m
+    truth = _plane_lightfield(grid, delta)
+    cam = np.zeros(grid.shape, bool)
+    cam[:, ::2, ::2] = True
+    opts = ViewFillOptions(min_depth=0.4)   # sweeps disparities up to 2.5 u-steps per x-step
+    plan = plan_view_fill(grid, cam.astype(np.float32), opts)
+    assert len(plan) == 16
+    # what pull-push would leave between the cameras: the depth-free blend
+    L = np.where(cam, truth, 0).astype(np.float32)
+    L[:, ::2, 1::2] = 0.5 * (truth[:, ::2, 0:-1:2] + truth[:, ::2, 2::2])
+    L[:, 1::2] = 0.5 * (L[:, 0:-1:2] + L[:, 2::2])
+    blend = L.copy()
+    W = np.where(cam, 1.0, 0.25).astype(np.float32)
+    disp = np.zeros(grid.shape, np.float32)
+    L6 = np.ascontiguousarray(L[..., None])
+    fill_views(L6, W, plan, opts, disparity_out=disp)
+    inner = np.zeros(grid.shape, bool)
+    inner[..., 8:-8, 8:-8] = True        # sources stay inside their views
+    tgt = inner & ~cam
+    err = np.abs(L6[..., 0] - truth)[tgt]
+    err_blend = np.abs(blend - truth)[tgt]
+    assert np.sqrt(np.mean(err ** 2)) <= RESAMPLE_VIEWFILL_RMS, np.sqrt(np.mean(err ** 2))
+    assert np.sqrt(np.mean(err_blend ** 2)) > 4 * RESAMPLE_VIEWFILL_RMS        # the test has teeth
+    np.testing.assert_allclose(np.median(disp[tgt]), delta, atol=RESAMPLE_VIEWFILL_DISPARITY_ATOL)
+    np.testing.assert_array_equal(L6[..., 0][cam], truth[cam])                  # camera views untouched
+
+
+def test_view_fill_options_and_colour(tmp_path):
+    """view_fill="pushpull" leaves the depth-free blend; the depth fill works channel by
+    channel on colour frames (grey repeated into RGB gives the grey result) and keeps W."""
+    _, models = _models(tmp_path)
+    grid = auto_grid(models)
+    rng = np.random.default_rng(3)
+    frame = {c: rng.integers(0, 256, (30, 40), dtype=np.uint8) for c in models}
+    r_pp = Resampler(models, grid, options=ResampleOptions(view_fill="pushpull")).resample(frame)
+    r = Resampler(models, grid).resample(frame)
+    r3 = Resampler(models, grid, channels=3).resample(frame)
+    np.testing.assert_array_equal(r.W, r_pp.W)
+    cam = np.zeros(grid.shape, bool)
+    cam[:, ::2, ::2] = True
+    np.testing.assert_array_equal(r.L[cam], r_pp.L[cam])
+    assert np.abs(r.L - r_pp.L)[~cam].max() > 1e-3
+    for k in range(3):   # (float rounding may break a tie between two disparities differently)
+        assert np.mean(np.abs(r3.L[..., k] - r.L) > RESAMPLE_CONSTANT_ATOL) < 1e-3
+    with pytest.raises(ValueError):
+        ResampleOptions(view_fill="bogus")

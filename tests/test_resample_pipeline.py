@@ -16,7 +16,7 @@ from polycam.lightfield import LightFieldGrid
 from polycam.rig import load_rig
 from polycam.session import SessionWriter, open_session
 from polycam.synth import render_lightfield, room_scene, synth_session, true_cameramodels
-from resample import Resampler, auto_grid, resample_session
+from resample import ResampleOptions, Resampler, auto_grid, resample_session
 from tolerances import RESAMPLE_DIRECT_PSNR_DB, RESAMPLE_MIDVIEW_PSNR_DB
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,17 +69,19 @@ def _psnr(a, b, mask):
 
 def test_irregular_rig_against_a_direct_render(session):
     """At viewpoints where cameras sit the resampled light field matches the grid rendered
-    directly; half-way between two cameras it is the linear interpolation of their
-    resampled views at full (u, v) resolution (the depth-free limit) and flagged as not
-    covered. (At 64x48 pixels the resampling error at the cameras dominates the
-    depth-free error; benchmarks/bench_resample.py compares with interpolated direct
-    views at full size.)"""
+    directly. Half-way between two cameras the pull-push alone gives the linear
+    interpolation of their resampled views at full (u, v) resolution (the depth-free
+    limit); the default fills those views along the disparity instead (camera views
+    unchanged). Both flag them as not covered. (At 64x48 pixels the resampling error at
+    the cameras dominates; benchmarks/bench_resample.py compares the views between
+    cameras with interpolated direct views at full size.)"""
     path, scene = session
     s = open_session(path)
     models = s.calibration()
     grid = auto_grid(models)
     assert (grid.y.count, grid.x.count) == (5, 5)
     r = Resampler(models, grid).resample(s.read_frame(1))
+    r_pp = Resampler(models, grid, options=ResampleOptions(view_fill="pushpull")).resample(s.read_frame(1))
     ref = render_lightfield(scene, grid, s.groundtruth().T_world_rig[1], supersample=4)
     at_cam = np.zeros(grid.shape, bool)
     at_cam[:, ::2, ::2] = True
@@ -87,11 +89,14 @@ def test_irregular_rig_against_a_direct_render(session):
     assert good.sum() > 0.5 * at_cam.sum()
     psnr_cam = _psnr(r.L, ref, good)
     assert psnr_cam >= RESAMPLE_DIRECT_PSNR_DB
+    np.testing.assert_array_equal(r.L[at_cam], r_pp.L[at_cam])
     # half-way between two cameras along x, where both neighbours are covered
     both = (r.W[:, ::2, 0:-1:2] > 0.5) & (r.W[:, ::2, 2::2] > 0.5)
-    lin = 0.5 * (r.L[:, ::2, 0:-1:2] + r.L[:, ::2, 2::2])
-    assert _psnr(r.L[:, ::2, 1::2], lin, both) >= RESAMPLE_MIDVIEW_PSNR_DB
-    assert np.all(r.W[:, ::2, 1::2] <= 0.5 + 1e-6)       # interpolated views are not "covered"
+    lin = 0.5 * (r_pp.L[:, ::2, 0:-1:2] + r_pp.L[:, ::2, 2::2])
+    assert _psnr(r_pp.L[:, ::2, 1::2], lin, both) >= RESAMPLE_MIDVIEW_PSNR_DB
+    assert _psnr(r.L[:, ::2, 1::2], ref[:, ::2, 1::2], both) >= RESAMPLE_DIRECT_PSNR_DB
+    for x in (r, r_pp):
+        assert np.all(x.W[:, ::2, 1::2] <= 0.5 + 1e-6)       # interpolated views are not "covered"
 
 
 def test_session_to_store_in_process(session, tmp_path):
@@ -179,9 +184,15 @@ def test_rgb_session_gives_a_colour_store(tmp_path):
     assert summ.channels == 3 and lf.colour == 3 and lf.frame(1).shape == (*lf.grid.shape, 3)
     r = Resampler(open_session(tmp_path / "s").calibration(), lf.grid, channels=3).resample(imgs)
     np.testing.assert_array_equal(lf.frame(1), r.L)
-    grey = Resampler(open_session(tmp_path / "s").calibration(), lf.grid).resample(
-        {c: img[..., 1] for c, img in imgs.items()})
-    np.testing.assert_allclose(lf.frame(0)[..., 1], grey.L, atol=1e-6)   # channels are independent
+    rs_grey = Resampler(open_session(tmp_path / "s").calibration(), lf.grid)
+    grey = rs_grey.resample({c: img[..., 1] for c, img in imgs.items()})
+    # channels are independent, except for the disparities of the views filled between
+    # cameras (found on the mean of the channels)
+    measured = np.ones(lf.grid.shape, bool)
+    for f, j, i in rs_grey.fill_plan().targets:
+        measured[f, j, i] = False
+    assert 0 < measured.mean() < 1
+    np.testing.assert_allclose(lf.frame(0)[..., 1][measured], grey.L[measured], atol=1e-6)
     np.testing.assert_array_equal(lf.weights(0), grey.W)
 
 
