@@ -13,7 +13,11 @@ directions every 1.5 deg, the defaults of ``polycam design``):
   rendering, and the real solver on 3 pairs x 3 noise draws (what measuring every
   candidate would cost); the ratios say what the analytic prediction and the sharing buy;
 - with ``--accuracy``: predicted 1-σ and measured errors of the example rigs in rigs/
-  (as ``polycam design rigs/*.toml`` reports them).
+  (as ``polycam design rigs/*.toml`` reports them), the measured error split into the
+  systematic part (the solver on the noise-free pairs) and the noise scatter;
+- with ``--bias``: where the systematic error of a single-face array comes from — the
+  solver's error on one noise-free pair of rigs/webcam3x3.toml with one ingredient of
+  the pipeline changed at a time (docs/design.md discusses the table).
 
 Timings include everything after a warm-up (numba compilation excluded); the machine is
 shared, so other processes can slow any row.
@@ -70,7 +74,10 @@ def main() -> int:
     ap.add_argument("--rigs", type=int, default=100)
     ap.add_argument("--baseline", type=int, default=10, help="rigs in the baseline rows (default 10)")
     ap.add_argument("--accuracy", action="store_true", help="also predicted vs measured for rigs/*.toml")
+    ap.add_argument("--bias", action="store_true", help="only the systematic-error decomposition (webcam3x3)")
     args = ap.parse_args()
+    if args.bias:
+        return bias_table()
 
     rigs = candidates(args.rigs)
     pred = dz.DesignOptions(measure=False)
@@ -117,18 +124,77 @@ def main() -> int:
         print()
         print(f"example rigs, predicted 1-σ vs measured RMS per frame pair (|t| = 5 mm, |ω| = 0.2 deg; "
               f"{t_acc:.0f} s)")
-        print(f"{'rig':<11} {'class':<24} {'std_t':>8} {'err_t':>8} {'scat_t':>8} {'std_w':>8} {'err_w':>8} "
-              f"{'scat_w':>8} {'misfit':>6}  unobservable / ambiguity")
-        print(f"{'':<11} {'':<24} {'[mm]':>8} {'[mm]':>8} {'[mm]':>8} {'[mrad]':>8} {'[mrad]':>8} {'[mrad]':>8}")
+        print(f"{'rig':<11} {'class':<24} {'std_t':>8} {'err_t':>8} {'bias_t':>8} {'scat_t':>8} {'std_w':>8} "
+              f"{'err_w':>8} {'bias_w':>8} {'scat_w':>8} {'misfit':>6}  unobservable / ambiguity")
+        print(f"{'':<11} {'':<24} {'[mm]':>8} {'[mm]':>8} {'[mm]':>8} {'[mm]':>8} {'[mrad]':>8} {'[mrad]':>8} "
+              f"{'[mrad]':>8} {'[mrad]':>8}")
         for r in res:
             p, mm = r.prediction, r.measurement
 
             def f(v):
                 return "inf" if np.isinf(v) else ("-" if np.isnan(v) else f"{v * 1e3:.3g}")
 
-            print(f"{r.name:<11} {r.features['class']:<24} {f(p.std_t):>8} {f(mm.err_t):>8} {f(mm.scatter_t):>8} "
-                  f"{f(p.std_w):>8} {f(mm.err_w):>8} {f(mm.scatter_w):>8} {p.misfit:>6.2f}  "
+            print(f"{r.name:<11} {r.features['class']:<24} {f(p.std_t):>8} {f(mm.err_t):>8} {f(mm.bias_t):>8} "
+                  f"{f(mm.scatter_t):>8} {f(p.std_w):>8} {f(mm.err_w):>8} {f(mm.bias_w):>8} {f(mm.scatter_w):>8} "
+                  f"{p.misfit:>6.2f}  "
                   f"{' '.join(p.unobservable) or '-'} / {p.ambiguity or '-'}")
+    return 0
+
+
+def bias_table() -> int:
+    """The solver's error on noise-free pairs of rigs/webcam3x3.toml (one face, 3x3 webcams, 4 cm
+    pitch: the t~w ambiguity of a small field of view), one pipeline ingredient changed at a time."""
+    import dataclasses
+
+    from polycam.geometry import T_from_Rt, r_from_R
+    from polycam.motion import MotionOptions, estimate_motion
+
+    rig = load_rig(REPO / "rigs" / "webcam3x3.toml")
+    opts = dz.DesignOptions(pairs=3)
+    motions = dz.pair_motions(3, opts.step_t, opts.step_r_deg, opts.seed)
+    renderers: dict = {}
+    base = MotionOptions()
+
+    def run(i, *, uv=1.5, ss=2, xyo=2, solver=base, motion=None, start_at_truth=False, pitch=None):
+        r = rig if pitch is None else dz.planar_array_rig(3, 3, pitch, rig.cameras[0])
+        s = dz.design_grid(r, uv_step_deg=uv, xy_oversample=xyo)
+        rend = renderers.setdefault(ss, dz.SourceRenderer(dz._scene(opts), ss))
+        M = motions[i] if motion is None else motion
+        W = None if s.all_data else s.W
+        res = estimate_motion(s.assemble(rend.render(s, np.eye(4))), s.assemble(rend.render(s, M)), s.grid,
+                              W0=W, W1=W, options=solver, T_init=M if start_at_truth else None)
+        e = np.r_[res.t - M[:3, 3], res.r - r_from_R(M[:3, :3])]
+        return np.linalg.norm(e[:3]), np.linalg.norm(e[3:])
+
+    t0 = time.perf_counter()
+    pred = dz.evaluate_rig(rig, dz.DesignOptions(measure=False, pairs=1)).prediction
+    rows = []
+    for i in (1, 2):
+        M = motions[i]
+        rows += [
+            (i, "default pipeline (uv 1.5 deg, supersample 2, xy_oversample 2, 6-tap warp)", run(i)),
+            (i, "  solver started at the true motion", run(i, start_at_truth=True)),
+            (i, "  no discontinuity and no robust weights", run(i, solver=dataclasses.replace(base, smooth_c=0.0,
+                                                                                             robust="none"))),
+            (i, "  5x stronger discontinuity rejection (smooth_c 0.1)",
+             run(i, solver=dataclasses.replace(base, smooth_c=0.1))),
+            (i, "  4-tap (cubic) warp in (u, v)", run(i, solver=dataclasses.replace(base, uv_taps=4))),
+            (i, "  supersample 4 (less aliasing)", run(i, ss=4)),
+            (i, "  directions every 0.75 deg", run(i, uv=0.75)),
+            (i, "  no interpolated viewpoints (xy_oversample 1)", run(i, xyo=1)),
+            (i, "  pitch 1 cm instead of 4 (less parallax per view)", run(i, pitch=0.01)),
+            (i, "  translation only (warp interpolates in x, y only)",
+             run(i, motion=T_from_Rt(np.eye(3), M[:3, 3]))),
+            (i, "  rotation only (warp interpolates in u, v only)",
+             run(i, motion=T_from_Rt(M[:3, :3], np.zeros(3)))),
+        ]
+    print(f"systematic error of the solver on noise-free pairs of webcam3x3 (room at 4 m, |t| = 5 mm, |w| = 0.2 deg; "
+          f"{time.perf_counter() - t0:.0f} s)")
+    print(f"predicted noise 1-σ at noise 0.01 for comparison: {pred.std_t * 1e3:.3g} mm, {pred.std_w * 1e3:.3g} mrad "
+          f"({pred.ambiguity or 'no ambiguity'})")
+    print(f"{'pair':>4}  {'variant':<76} {'|t err| [mm]':>12} {'|w err| [mrad]':>14}")
+    for i, label, (et, ew) in rows:
+        print(f"{i:>4}  {label:<76} {et * 1e3:>12.3f} {ew * 1e3:>14.3f}")
     return 0
 
 

@@ -527,6 +527,8 @@ class DesignMeasurement:
 
     errors: np.ndarray
     """(pairs, draws, 6) estimated − true (t [m], r [rad]) of ``T_prev_next``."""
+    clean: np.ndarray
+    """(pairs, 6) error of the solver on the noise-free pair: its systematic error (bias)."""
     ok: np.ndarray
     """(pairs, draws) bool: the solver reported success."""
     err_t: float
@@ -534,9 +536,10 @@ class DesignMeasurement:
     err_w: float
     """[rad] RMS |r error|."""
     bias_t: float
-    """[m] RMS over pairs of |mean t error| (systematic part)."""
+    """[m] RMS over pairs of |t error| of the noise-free pair (systematic part: the
+    pipeline's model error on the scene — see docs/design.md for its causes)."""
     bias_w: float
-    """[rad] RMS over pairs of |mean r error|."""
+    """[rad] RMS over pairs of |r error| of the noise-free pair."""
     scatter_t: float
     """[m] RMS |t error − pair mean| (noise part; compare with the predicted std_t)."""
     scatter_w: float
@@ -647,13 +650,6 @@ def _robust_weight(res: np.ndarray, scale: float, opts: MotionOptions) -> np.nda
     if opts.robust == "huber":
         return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
     return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
-
-
-def _warp_kwargs(opts: MotionOptions) -> dict:
-    """The solver's interpolation setting for :func:`~polycam.motion.warp_lightfield`."""
-    if hasattr(opts, "uv_taps"):
-        return {"uv_taps": opts.uv_taps}
-    return {"cubic": opts.cubic} if hasattr(opts, "cubic") else {}
 
 
 def _adjoint(T: np.ndarray) -> np.ndarray:
@@ -862,11 +858,11 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     # the solver's state at convergence: frame 2 warped by the (true) motion
     T_ray = T_inverse(M)
     if sampling.all_data:
-        w1, ok = warp_lightfield(np.stack([L1, L1n]), g, T_ray, **_warp_kwargs(opts))
+        w1, ok = warp_lightfield(np.stack([L1, L1n]), g, T_ray, uv_taps=opts.uv_taps)
         conf = ok.astype(np.float32)
     else:
         w1, ok = warp_lightfield(np.stack([L1, L1n, W, (W <= 0).astype(np.float32)]), g, T_ray,
-                                 **_warp_kwargs(opts))
+                                 uv_taps=opts.uv_taps)
         conf = ok.astype(np.float32) * W * np.clip(w1[2], 0, 1) * (np.abs(w1[3]) < 1e-6)
     conf = _min_support(np.ascontiguousarray(conf, np.float32), {k: v for k, v in pairs.items()})
     fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
@@ -964,27 +960,34 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
 def measure_pairs(sampling: RigSampling, src0: np.ndarray, src1s: Sequence[np.ndarray], motions: np.ndarray,
                   sigma_src: np.ndarray, *, draws: int, options: MotionOptions | None = None,
                   rng: np.random.Generator | None = None, solver_can_t: bool = True) -> DesignMeasurement:
-    """Run the real solver on ``draws`` noisy renderings of every pair.
+    """Run the real solver on every pair once without noise and on ``draws`` noisy renderings.
 
     src0: (n_src, Nv, Nu) frame 0 (shared by all pairs); src1s: per pair the frame-1
     images; motions: (pairs, 4, 4) true ``T_rig0_rig1``; solver_can_t: False when the
     solver cannot estimate translation (one viewpoint): err_t is then NaN.
+    The noise-free run is the systematic error (bias) of the pipeline on the pair; the
+    scatter of the noisy runs about their mean is what the prediction describes.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     g = sampling.grid
     W = None if sampling.all_data else sampling.W
     n = len(src1s)
     errors = np.zeros((n, draws, 6))
+    clean = np.zeros((n, 6))
     ok = np.zeros((n, draws), bool)
     unobs: tuple[str, ...] = ()
+
+    def error(res, i):
+        return np.r_[res.t - motions[i][:3, 3], res.r - r_from_R(motions[i][:3, :3])]
+
     for i in range(n):
-        r_true = r_from_R(motions[i][:3, :3])
+        clean[i] = error(estimate_motion(sampling.assemble(src0), sampling.assemble(src1s[i]), g, W0=W, W1=W,
+                                         options=options, index=i), i)
         for d in range(draws):
             a = sampling.assemble(src0 + sigma_src[:, None, None] * sampling.masks * rng.normal(size=src0.shape))
             b = sampling.assemble(src1s[i] + sigma_src[:, None, None] * sampling.masks * rng.normal(size=src0.shape))
             res = estimate_motion(a, b, g, W0=W, W1=W, options=options, index=i)
-            errors[i, d, :3] = res.t - motions[i][:3, 3]
-            errors[i, d, 3:] = res.r - r_true
+            errors[i, d] = error(res, i)
             ok[i, d] = res.ok
             if i == 0 and d == 0:
                 unobs = tuple(res.unobservable)
@@ -992,14 +995,14 @@ def measure_pairs(sampling: RigSampling, src0: np.ndarray, src1s: Sequence[np.nd
     def rms_norm(e):
         return float(np.sqrt(np.mean(np.sum(e * e, axis=-1))))
 
-    mean = errors.mean(axis=1, keepdims=True)
-    dev = errors - mean
+    dev = errors - errors.mean(axis=1, keepdims=True)
     sc = math.sqrt(draws / (draws - 1)) if draws > 1 else math.nan
-    err_t = rms_norm(errors[..., :3]) if solver_can_t else math.nan
+    nan_t = not solver_can_t
     return DesignMeasurement(
-        errors=errors, ok=ok, err_t=err_t, err_w=rms_norm(errors[..., 3:]),
-        bias_t=rms_norm(mean[..., :3]) if solver_can_t else math.nan, bias_w=rms_norm(mean[..., 3:]),
-        scatter_t=(rms_norm(dev[..., :3]) * sc) if solver_can_t else math.nan,
+        errors=errors, clean=clean, ok=ok, err_t=math.nan if nan_t else rms_norm(errors[..., :3]),
+        err_w=rms_norm(errors[..., 3:]),
+        bias_t=math.nan if nan_t else rms_norm(clean[:, :3]), bias_w=rms_norm(clean[:, 3:]),
+        scatter_t=math.nan if nan_t else rms_norm(dev[..., :3]) * sc,
         scatter_w=rms_norm(dev[..., 3:]) * sc, solver_unobservable=unobs)
 
 

@@ -179,25 +179,53 @@ def test_noise_propagation_matches_monte_carlo_of_the_linear_estimator(renderer)
     assert np.allclose(mc, np.sqrt(np.diag(C)), rtol=DESIGN_LINEAR_SIGMA_REL)
 
 
-def test_predicted_sigma_matches_the_solver_scatter(renderer):
-    """Issue 8: the predicted σ matches the scatter of the real solver over noise draws.
+def _camera(fov_deg: float) -> CameraSpec:
+    return CameraSpec(id="c", driver="mock", device=None, width=160, height=120, fps=30.0, pixel_format="GREY",
+                      position=np.zeros(3), rotation=np.zeros(3), fov_deg=fov_deg)
 
-    A six-face design (well conditioned) of 5x5 arrays with viewpoints at the cameras
-    (xy_oversample 1), noise above the model error: the regime the prediction is for
-    (docs/design.md lists the measured ratios elsewhere)."""
-    opts = dz.DesignOptions(scene="room", distance=4.0, noise=0.02, pairs=1, measure=False, uv_step_deg=5.0,
-                            xy_oversample=1, supersample=3, seed=0)
+
+SCATTER_DRAWS = 32
+"""Noise draws per design in the scatter test: a std from n draws has a relative sampling
+error of ~1/sqrt(2n) = 12.5% per component; the whitened statistic below pools all six
+(~5%), so the 20% tolerance is a real test."""
+
+SCATTER_CASES = {
+    # one face: t and w coupled by the limited field of view (condition ~7 against ~3 for six
+    # faces), viewpoints at the cameras
+    "one face 5x5": (lambda: dz.planar_array_rig(5, 5, 0.01, _camera(90.0)), 5.0, 1),
+    # six faces of 3x3 arrays, viewpoints between the cameras interpolated (the default xy_oversample 2)
+    "six faces 3x3, interpolated viewpoints": (lambda: dz.cube_array_rig(3, 0.02, _camera(90.0)), 5.0, 2),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SCATTER_CASES))
+def test_predicted_sigma_matches_the_solver_scatter(renderer, case):
+    """Issue 8: the predicted σ matches the scatter of the real solver over noise draws
+    (within 20%), for designs of different conditioning, in the regime the prediction is
+    for: the solver converges near the truth (its noise-free bias well below the step).
+
+    Checked three ways: std_t and std_w (sqrt of the traces) against the scatter, and the
+    whole 6x6 covariance through the whitened deviations z = C^(-1/2) (e - mean), whose
+    mean |z|² is 6 when C is right."""
+    make, uv_step, xyo = SCATTER_CASES[case]
+    opts = dz.DesignOptions(scene="room", distance=4.0, noise=0.02, pairs=1, measure=False, uv_step_deg=uv_step,
+                            xy_oversample=xyo, supersample=3, seed=0)
     rend = dz.SourceRenderer(renderer.scene, opts.supersample)
-    res = dz.evaluate_rig(dz.cube_array_rig(5, 0.01, CAM), opts, renderer=rend)
+    res = dz.evaluate_rig(make(), opts, renderer=rend)
     p, s = res.prediction, res.sampling
-    assert p.model == "plenoptic" and not p.unobservable and p.misfit < 1.0
+    assert p.model == "plenoptic" and not p.unobservable
     M = dz.pair_motions(1, opts.step_t, opts.step_r_deg, opts.seed)
     src0, src1 = rend.render(s, np.eye(4)), rend.render(s, M[0])
-    m = dz.measure_pairs(s, src0, [src1], M, dz._sigma_src(s, opts.noise), draws=16,
+    m = dz.measure_pairs(s, src0, [src1], M, dz._sigma_src(s, opts.noise), draws=SCATTER_DRAWS,
                          rng=np.random.default_rng(12))
     assert m.ok.all()
+    assert np.linalg.norm(m.clean[0, :3]) < 0.5 * opts.step_t          # converges near the truth
     assert m.scatter_t / p.std_t == pytest.approx(1.0, rel=DESIGN_SCATTER_REL)
     assert m.scatter_w / p.std_w == pytest.approx(1.0, rel=DESIGN_SCATTER_REL)
+    dev = m.errors[0] - m.errors[0].mean(axis=0)
+    z = np.linalg.solve(np.linalg.cholesky(p.covariance), dev.T)
+    whitened = math.sqrt(np.mean(np.sum(z * z, axis=0)) * SCATTER_DRAWS / (SCATTER_DRAWS - 1) / 6)
+    assert whitened == pytest.approx(1.0, rel=DESIGN_SCATTER_REL)
 
 
 def test_single_camera_cannot_see_the_scale_of_translation(hierarchy):
