@@ -31,6 +31,9 @@ def add_parsers(sub) -> None:
                         "directions over their fields of view)")
     p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
                    help="automatic grid: direction spacing in camera pixels (default 1)")
+    p.add_argument("--view-fill", choices=("depth", "pushpull"), default="depth",
+                   help="views no camera measured: filled along the disparity of a plane sweep (default) or "
+                        "by the pull-push alone (depth-free, several times faster)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask.distributed scheduler to use (e.g. tcp://host:8786); default: a local "
                         "cluster of --workers processes (in-process for tiny jobs)")
@@ -54,13 +57,14 @@ def cmd_resample(args: argparse.Namespace) -> int:
     if args.scheduler is not None and args.workers is not None:
         raise InputError("resample: give either --scheduler or --workers, not both")
     from .pipeline import resample_session
+    from .resampler import ResampleOptions
 
     scheduler = args.scheduler
     if scheduler is None and args.workers == 0:
         scheduler = "sync"
     with _progress(f"resampling {session.name}", None) as advance:   # total: set by the first callback
         s = resample_session(session, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
-                             scheduler=scheduler, workers=args.workers or None, overwrite=args.overwrite,
+                             options=ResampleOptions(view_fill=args.view_fill), scheduler=scheduler, workers=args.workers or None, overwrite=args.overwrite,
                              progress=advance)
     F, Ny, Nx, Nv, Nu = s.grid.shape
     print(f"wrote {s.path}: {s.frames} frames, {F} face(s) ({' '.join(f.name for f in s.grid.faces)}), "

@@ -212,6 +212,10 @@ def test_cli(session, tmp_path):
     assert "wrote" in p.stdout and "3 frames" in p.stdout
     lf = open_lightfield(out)
     assert lf.grid.shape == (1, 3, 3, 16, 21) and lf.grid.faces[0].f == 40.0
+    out2 = tmp_path / "lf-pp.zarr"
+    p = _polycam("resample", path, "--out", out2, "--grid", grid_toml, "--workers", "0", "--view-fill", "pushpull")
+    assert p.returncode == 0, p.stderr
+    assert open_lightfield(out2).grid.shape == lf.grid.shape
     p = _polycam("resample", path, "--out", out, "--workers", "0")
     assert p.returncode == 1 and p.stderr.count("\n") == 1 and "already exists" in p.stderr
     p = _polycam("resample", path, "--calib", tmp_path / "nope", "--out", tmp_path / "x.zarr")
