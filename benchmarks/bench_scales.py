@@ -68,6 +68,7 @@ def main() -> None:
     ap.add_argument("--motions", type=int, default=2)
     ap.add_argument("--distances", type=float, nargs="+", default=[4.0, 8.0, 12.0, 16.0])
     ap.add_argument("--directions", type=int, default=64, help="(u, v) samples per axis (smoke runs: fewer)")
+    ap.add_argument("--depth-only", action="store_true", help="skip the scale-selected motion (depth tables only)")
     a = ap.parse_args()
     distances = [4.0, 16.0] if a.quick else a.distances
     n_mot = 1 if a.quick else a.motions
@@ -97,12 +98,16 @@ def main() -> None:
             errs["default"].append(vec_err(params(r.T_prev_next), tru))
             if est_first is None:
                 est_first = r.T_prev_next
+            if a.depth_only:
+                continue
             t0 = time.process_time()
             s = estimate_motion_scale_selected(L0, L1, grid)
             times["scale-selected"].append(time.process_time() - t0)
             errs["scale-selected"].append(vec_err(params(s.result.T_prev_next), tru))
             chosen.append(",".join(sorted(set(x.name for x in s.selection.face_scales()))))
         for name in errs:
+            if not errs[name]:
+                continue
             e = np.array(errs[name])
             motion_rows.append(f"| {D:g} | {name} | {100 * np.median(e[:, 0]):.2f}% | {100 * np.median(e[:, 1]):.2f}% "
                                f"| {np.median(times[name]):.1f} | {' / '.join(chosen) if name != 'default' else ''} |")

@@ -41,6 +41,7 @@ from .lightfield import LightFieldGrid
 
 __all__ = [
     "Scale",
+    "MOTION_SCALES",
     "SCALE_LADDER",
     "binomial_taps",
     "smooth_at_scale",
@@ -83,11 +84,17 @@ class Scale:
         return 0.5 * float(np.sqrt(self.uv))
 
 
-SCALE_LADDER: tuple[Scale, ...] = (Scale(4, 0), Scale(2, 0), Scale(0, 0), Scale(2, 2), Scale(0, 2),
-                                   Scale(0, 4), Scale(0, 8))
-"""Candidate scales from relatively finest (u, v) to coarsest: σ_xy = 1, 0.71, 0 with no
-(u, v) smoothing, σ_xy = σ_uv = 0.71, then σ_uv = 0.71, 1, 1.41 samples with no (x, y)
-smoothing. (x, y) orders above 4 leave no valid viewpoint on a 9 x 9 grid with fs3.)"""
+MOTION_SCALES: tuple[Scale, ...] = (Scale(4, 0), Scale(2, 0), Scale(0, 0), Scale(2, 2), Scale(0, 2),
+                                    Scale(0, 4), Scale(0, 8))
+"""Candidates of the motion feedback loop, from relatively finest (u, v) to coarsest:
+σ_xy = 1, 0.71, 0 with no (u, v) smoothing, σ_xy = σ_uv = 0.71, then σ_uv = 0.71, 1, 1.41
+samples with no (x, y) smoothing. On 9 x 9 viewpoints with fs3, ``xy4`` leaves the central
+3 x 3 valid, ``xy2`` the central 5 x 5."""
+
+SCALE_LADDER: tuple[Scale, ...] = MOTION_SCALES + (Scale(6, 0), Scale(6, 2))
+"""Candidates for depth: :data:`MOTION_SCALES` plus σ_xy = 1.22 (``xy6``, with σ_uv 0 or 0.71),
+which on 9 x 9 viewpoints leaves only the central view with derivatives (what
+``polycam depth --views central`` writes). Scales without any valid ray are skipped."""
 
 
 def binomial_taps(order: int) -> np.ndarray:
@@ -356,7 +363,7 @@ class ScaleSelectedMotion:
 def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
                                    W0: np.ndarray | None = None, W1: np.ndarray | None = None,
                                    T_init: np.ndarray | None = None, options=None,
-                                   scales: tuple[Scale, ...] = SCALE_LADDER, rounds: int = 2,
+                                   scales: tuple[Scale, ...] = MOTION_SCALES, rounds: int = 2,
                                    tie: float = 0.05, index: int = 0) -> ScaleSelectedMotion:
     """Rig motion ``T_rig0_rig1`` with the scale-selection feedback loop of Sect. 4.1.
 
