@@ -40,8 +40,8 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 from bench_motion import params, random_motion  # noqa: E402
 from polycam.depth import confident_mask, depth_from_derivatives  # noqa: E402
 from polycam.motion import estimate_motion  # noqa: E402
-from polycam.scales import (SCALE_LADDER, depth_scale_selected, estimate_motion_scale_selected,  # noqa: E402
-                            scale_derivatives)
+from polycam.scales import (MOTION_SCALES, SCALE_LADDER, Scale, depth_scale_selected,  # noqa: E402
+                            estimate_motion_scale_selected, scale_derivatives)
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
 from polycam.synth.raycast import trace_rays  # noqa: E402
 
@@ -69,8 +69,13 @@ def main() -> None:
     ap.add_argument("--distances", type=float, nargs="+", default=[4.0, 8.0, 12.0, 16.0])
     ap.add_argument("--directions", type=int, default=64, help="(u, v) samples per axis (smoke runs: fewer)")
     ap.add_argument("--depth-only", action="store_true", help="skip the scale-selected motion (depth tables only)")
+    ap.add_argument("--motion-only", action="store_true", help="skip the depth tables")
+    ap.add_argument("--motion-scales", default=None, metavar="NAMES",
+                    help="candidates of the motion loop, e.g. xy2_uv0,xy0_uv0 (default MOTION_SCALES)")
     a = ap.parse_args()
     distances = [4.0, 16.0] if a.quick else a.distances
+    mscales = MOTION_SCALES if a.motion_scales is None else tuple(
+        Scale(*(int(p[2:]) for p in n.split("_"))) for n in a.motion_scales.split(","))
     n_mot = 1 if a.quick else a.motions
     ss = 2 if a.quick else 3
     grid = default_lightfield_grid("all", directions=a.directions)
@@ -101,7 +106,7 @@ def main() -> None:
             if a.depth_only:
                 continue
             t0 = time.process_time()
-            s = estimate_motion_scale_selected(L0, L1, grid)
+            s = estimate_motion_scale_selected(L0, L1, grid, scales=mscales)
             times["scale-selected"].append(time.process_time() - t0)
             errs["scale-selected"].append(vec_err(params(s.result.T_prev_next), tru))
             chosen.append(",".join(sorted(set(x.name for x in s.selection.face_scales()))))
@@ -112,6 +117,8 @@ def main() -> None:
             motion_rows.append(f"| {D:g} | {name} | {100 * np.median(e[:, 0]):.2f}% | {100 * np.median(e[:, 1]):.2f}% "
                                f"| {np.median(times[name]):.1f} | {' / '.join(chosen) if name != 'default' else ''} |")
             print(motion_rows[-1], flush=True)
+        if a.motion_only:
+            continue
         # depth: central views, truth from the tracer
         rays = grid.rays()
         truth_c = trace_rays(scene, type(rays)(rays.origins[:, jc, ic], rays.directions[:, jc, ic],
