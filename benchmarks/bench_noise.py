@@ -75,6 +75,9 @@ from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: 
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_motion import params, random_motion  # noqa: E402  (the same motions and (t, ω) order)
+
 SIGMAS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0)
 """Noise levels [grey levels of 255]."""
 AXES = ("y", "x", "v", "u")
@@ -187,22 +190,6 @@ def identity_sampling(grid) -> RigSampling:
 
 
 # ---------------------------------------------------------------------------- measurement
-
-
-def random_motion(rng: np.random.Generator, t_norm: float, r_norm: float) -> np.ndarray:
-    """(4, 4) T_rig0_rig1, |t| = t_norm, |r| = r_norm, axes away from the coordinate planes."""
-    def vec(n):
-        while True:
-            v = rng.normal(size=3)
-            v /= np.linalg.norm(v)
-            if np.min(np.abs(v)) > 0.3:
-                return v * n
-    return T_from_Rt(R_from_r(vec(r_norm)), vec(t_norm))
-
-
-def params(T: np.ndarray) -> np.ndarray:
-    rt = rt_from_T(T)
-    return np.concatenate([rt[3:], rt[:3]])
 
 
 def errors(L0, L1, grid, M, sigma: float, draws: int, opts: MotionOptions, seed: int) -> np.ndarray:
