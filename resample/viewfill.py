@@ -212,7 +212,7 @@ def _cost(G, S, dy, dx, sw, base, off, scale, r_y, cost, valid):
                 valid[v, u] = 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=True)
 def _cost_const(G, S, dy, dx, sw, d, r_y, cost, valid):
     """:func:`_cost` for one disparity ``d`` [this level's units] at every sample: the
     shifts and interpolation weights are the same everywhere."""
@@ -271,7 +271,7 @@ def _cost_const(G, S, dy, dx, sw, d, r_y, cost, valid):
             valid[v, u] = 1.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=True)
 def _box(a, r, tmp, out):
     """out = the (2r+1)² box sum of a (clipped at the borders); tmp: scratch of a's shape."""
     Nv, Nu = a.shape
@@ -384,6 +384,44 @@ def _upsample(c, k, out):
             out[v, u], _ = _bilinear(c, y, x)
 
 
+@numba.njit(cache=True, fastmath=True)
+def _blend(X, A, S, dy, dx, sw, r_y, d, out):
+    """out[v, u, :] = Σ_s a_s X_s(v − d r_y dy_s, u − d dx_s) / Σ_s a_s (bilinear) with
+    a_s = sw_s · A_s (nearest sample) at the per-sample disparity d (Nv, Nu); X: (S, Nv, Nu, C),
+    A: (S, Nv, Nu). Samples no source reaches keep out."""
+    _, Nv, Nu, C = X.shape
+    acc = np.zeros(C, np.float32)
+    ky = np.empty(S)
+    for s in range(S):
+        ky[s] = r_y * dy[s]
+    for v in range(Nv):
+        for u in range(Nu):
+            dd = d[v, u]
+            tw = np.float32(0.0)
+            for c in range(C):
+                acc[c] = 0.0
+            for s in range(S):
+                yy = v - dd * ky[s]
+                xx = u - dd * dx[s]
+                if not (yy >= 0.0 and xx >= 0.0 and yy <= Nv - 1 and xx <= Nu - 1):
+                    continue
+                y0 = min(int(yy), Nv - 2) if Nv > 1 else 0
+                x0 = min(int(xx), Nu - 2) if Nu > 1 else 0
+                fy = np.float32(yy - y0)
+                fx = np.float32(xx - x0)
+                y1 = y0 + 1 if Nv > 1 else 0
+                x1 = x0 + 1 if Nu > 1 else 0
+                a = sw[s] * max(A[s, y0 + (fy > 0.5), x0 + (fx > 0.5)], np.float32(1e-3))
+                tw += a
+                for c in range(C):
+                    p0 = X[s, y0, x0, c] + fx * (X[s, y0, x1, c] - X[s, y0, x0, c])
+                    p1 = X[s, y1, x0, c] + fx * (X[s, y1, x1, c] - X[s, y1, x0, c])
+                    acc[c] += a * (p0 + fy * (p1 - p0))
+            if tw > 0.0:
+                for c in range(C):
+                    out[v, u, c] = acc[c] / tw
+
+
 @numba.njit(cache=True, parallel=True)
 def _fill_all(grey, L, W, targets, srcs, offs, sws, nsrc, r_y, coarse, k_down, fine, window, disp_out):
     """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place; disp_out (T, Nv, Nu)."""
@@ -415,34 +453,7 @@ def _fill_all(grey, L, W, targets, srcs, offs, sws, nsrc, r_y, coarse, k_down, f
         if fine.shape[0] > 1:       # a few steps around it at full resolution
             base = d.copy()
             _sweep(G, S, dy, dx, sw, base, fine, 1.0, ry, window, d, False)
-        # blend along the disparity (confidences: nearest sample)
-        acc = np.zeros(C, np.float32)
-        for v in range(Nv):
-            for u in range(Nu):
-                dd = d[v, u]
-                tw = np.float32(0.0)
-                for c in range(C):
-                    acc[c] = 0.0
-                for s in range(S):
-                    yy = v - dd * ry * dy[s]
-                    xx = u - dd * dx[s]
-                    if not (yy >= 0.0 and xx >= 0.0 and yy <= Nv - 1 and xx <= Nu - 1):
-                        continue
-                    y0 = min(int(yy), Nv - 2) if Nv > 1 else 0
-                    x0 = min(int(xx), Nu - 2) if Nu > 1 else 0
-                    fy = np.float32(yy - y0)
-                    fx = np.float32(xx - x0)
-                    y1 = y0 + 1 if Nv > 1 else 0
-                    x1 = x0 + 1 if Nu > 1 else 0
-                    a = sw[s] * max(A[s, y0 + (fy > 0.5), x0 + (fx > 0.5)], np.float32(1e-3))
-                    tw += a
-                    for c in range(C):
-                        p0 = X[s, y0, x0, c] + fx * (X[s, y0, x1, c] - X[s, y0, x0, c])
-                        p1 = X[s, y1, x0, c] + fx * (X[s, y1, x1, c] - X[s, y1, x0, c])
-                        acc[c] += a * (p0 + fy * (p1 - p0))
-                if tw > 0.0:
-                    for c in range(C):
-                        L[f, j, i, v, u, c] = acc[c] / tw
+        _blend(X, A, S, dy, dx, sw, ry, d, L[f, j, i])
 
 
 # ----------------------------------------------------------------------------- driver
