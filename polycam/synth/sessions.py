@@ -245,7 +245,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
 
 def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: float = 40.0,
                 roll_deg: float = 20.0, fill: tuple[float, float] = (0.6, 0.95), margin_px: float = 4.0,
-                cam_ids: list[str] | None = None) -> np.ndarray:
+                cam_ids: list[str] | None = None, spread: float = 0.5, min_visible: float = 1.0) -> np.ndarray:
     """(frames, 4, 4) seeded board poses ``T_rig_board`` for calibration sessions.
 
     Frame i aims at camera ``cam_ids[i % N]`` (default: the models' order): seen
@@ -256,6 +256,14 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
     ``roll_deg``; a pose is redrawn until all four outer corners project inside that
     camera's image with ``margin_px`` to spare. With nearby parallel cameras (a
     planar array) most poses are seen by several cameras at once.
+
+    Better-conditioned calibration sets (closer boards, partial views reaching the
+    imager's corners, as mrcal's calibration guide asks): ``spread`` is the central
+    fraction of the image (per axis) the board centre is drawn from (default 0.5, the
+    central half), and ``min_visible < 1`` replaces the whole-board test by "at least
+    this fraction of the inner corners inside the image (with ``margin_px``)", so ``fill``
+    may exceed 1 (a board larger than the view). The defaults reproduce the poses of
+    earlier versions exactly.
     """
     mrcal = _mrcal()
     ids = list(cam_ids) if cam_ids is not None else list(models)
@@ -263,6 +271,8 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
     bw, bh = board.size_m
     centre_b = np.array([bw / 2.0, bh / 2.0, 0.0])
     corners_b = np.array([[0, 0, 0], [bw, 0, 0], [0, bh, 0], [bw, bh, 0]], float)
+    inner_b = board.object_points()
+    lo, hi = 0.5 - spread / 2.0, 0.5 + spread / 2.0
     out = np.empty((frames, 4, 4))
     for i in range(frames):
         model = models[ids[i % len(ids)]]
@@ -272,7 +282,7 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
         for attempt in range(200):
             scale = rng.uniform(*fill) * min(W / bw, H / bh)          # [px/m] square-on
             z = intr[0] / scale
-            q = np.array([rng.uniform(0.25, 0.75) * W, rng.uniform(0.25, 0.75) * H])
+            q = np.array([rng.uniform(lo, hi) * W, rng.uniform(lo, hi) * H])
             d = mrcal.unproject(q, lensmodel, intr, normalize=True)
             p_c = d * (z / d[2])
             # tilt: up to tilt_deg about a random axis in the board plane; then roll about z
@@ -281,12 +291,13 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
             az = math.radians(rng.uniform(-roll_deg, roll_deg))
             R = R_from_r(np.array([0.0, 0.0, az])) @ R_from_r(tilt * np.array([math.cos(phi), math.sin(phi), 0.0]))
             T_cam_board = T_from_Rt(R, p_c - R @ centre_b)
-            pc = corners_b @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+            pc = (corners_b if min_visible >= 1.0 else inner_b) @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
             if np.any(pc[:, 2] <= 0.05):
                 continue
             qc = mrcal.project(pc, lensmodel, intr)
-            if np.all(np.isfinite(qc)) and np.all(qc >= margin_px - 0.5) and \
-                    np.all(qc[:, 0] <= W - 0.5 - margin_px) and np.all(qc[:, 1] <= H - 0.5 - margin_px):
+            ok = np.all(np.isfinite(qc), axis=1) & np.all(qc >= margin_px - 0.5, axis=1) & \
+                (qc[:, 0] <= W - 0.5 - margin_px) & (qc[:, 1] <= H - 0.5 - margin_px)
+            if (np.all(ok) if min_visible >= 1.0 else np.mean(ok) >= min_visible):
                 break
         else:
             raise InputError(f"could not place the board inside the view of camera {ids[i % len(ids)]} "
