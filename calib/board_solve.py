@@ -52,6 +52,7 @@ __all__ = [
     "calibrate_board",
     "observation_residuals",
     "board_distance",
+    "extrinsics_uncertainty",
     "uncertainty_grid",
     "valid_region_contour",
 ]
@@ -264,6 +265,41 @@ def _focal_estimates(obs: BoardObservations, rig: Rig | None) -> np.ndarray:
 def board_distance(inputs: dict) -> float:
     """[m] median distance from the reference camera to the solved board poses."""
     return float(np.median(np.linalg.norm(inputs["rt_ref_frame"][:, 3:], axis=1)))
+
+
+def extrinsics_uncertainty(inputs: dict, noise_px: float) -> np.ndarray:
+    """(C, 2) predicted 1-sigma errors of each camera's pose relative to camera 0 (the solve's
+    reference): column 0 the rotation [rad], column 1 the position [m], each the square root of
+    the trace of its 3x3 covariance block (so a 3-D error magnitude); row 0 (camera 0) is 0.
+
+    The covariance is mrcal's own first-order propagation of independent Gaussian corner
+    noise of ``noise_px`` per coordinate (for weight-1 corners; a corner of weight w has
+    ``noise_px / w``) through the final solve: ``Var(b) = σ² (JᵀJ)⁻¹ J_obsᵀ J_obs (JᵀJ)⁻¹``
+    with J the Jacobian at the optimum (regularisation included in JᵀJ, as
+    ``mrcal.projection_uncertainty`` does). inputs: the solve's ``optimization_inputs``.
+    """
+    mrcal = _mrcal()
+    _, _, J, _ = mrcal.optimizer_callback(**inputs, no_factorization=True)
+    J = J.tocsr()
+    n_obs = mrcal.num_measurements_boards(**inputs)
+    Jo = J[:n_obs]
+    JtJ = (J.T @ J).toarray()
+    inv = np.linalg.inv(JtJ)
+    n_ext = inputs["rt_cam_ref"].shape[0]
+    i0 = mrcal.state_index_extrinsics(0, **inputs)
+    if i0 is None or i0 < 0 or n_ext == 0:
+        return np.zeros((n_ext + 1, 2))
+    sl = slice(i0, i0 + 6 * n_ext)
+    A = inv[sl] @ (Jo.T @ Jo).toarray() @ inv[:, sl]        # packed covariance of the extrinsics
+    scale = np.ones(J.shape[1])
+    mrcal.unpack_state(scale, **inputs)
+    sc = scale[sl]
+    cov = float(noise_px) ** 2 * A * sc[:, None] * sc[None, :]
+    out = np.zeros((n_ext + 1, 2))
+    for k in range(n_ext):
+        b = cov[6 * k:6 * k + 6, 6 * k:6 * k + 6]
+        out[k + 1] = math.sqrt(max(np.trace(b[:3, :3]), 0.0)), math.sqrt(max(np.trace(b[3:, 3:]), 0.0))
+    return out
 
 
 def uncertainty_grid(model, distance: float | None, gridn_width: int = 30) -> np.ndarray:

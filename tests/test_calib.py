@@ -14,6 +14,7 @@ import pytest
 
 from polycam.board import load_board
 from polycam.cameras import T_rig_cam_of
+from polycam.geometry import T_from_rt
 from polycam.errors import InputError
 from polycam.rig import load_rig
 from polycam.synth import board_poses, synth_board_session, true_cameramodels
@@ -21,7 +22,8 @@ from polycam.synth import board_poses, synth_board_session, true_cameramodels
 from conftest import SHARED_DATA
 from tolerances import (CALIB_SPLINED_POSITION_M, CALIB_EXACT_POSITION_M, CALIB_EXACT_PROJECTION_PX, CALIB_EXACT_REPROJ_PX,
                         CALIB_EXACT_ROTATION_DEG, CALIB_RENDERED_POSITION_M, CALIB_RENDERED_PROJECTION_PX,
-                        CALIB_RENDERED_RMS_PX, CALIB_RENDERED_ROTATION_DEG)
+                        CALIB_RENDERED_RMS_PX, CALIB_RENDERED_ROTATION_DEG, CALIB_UNCERTAINTY_DRAWS,
+                        CALIB_UNCERTAINTY_RATIO)
 
 BOARD = """[board]
 type = "charuco"
@@ -327,3 +329,31 @@ def test_cli_errors_are_one_line(tmp_path, board_session):
     assert r.returncode == 1 and "--board" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = subprocess.run(cmd + ["--board", str(tmp_path / "missing.toml")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "missing.toml" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_extrinsics_uncertainty_matches_the_scatter(tmp_path):
+    """mrcal's covariance of the camera poses (calib.extrinsics_uncertainty) predicts the scatter of
+    the relative poses over noise draws: the measured errors are noise, not a bias."""
+    from calib import calibrate_board, extrinsics_uncertainty
+    from calib.synthetic import synthetic_observations
+    from polycam.geometry import T_inverse, r_from_R
+
+    rig, board, true, poses = _exact_problem(tmp_path, "pinhole")
+    cams = list(true)
+    T_true = [T_inverse(T_rig_cam_of(true[c])) @ T_rig_cam_of(true[cams[0]]) for c in cams]   # T_camk_cam0
+    rot, pos, pred = [], [], None
+    for seed in range(CALIB_UNCERTAINTY_DRAWS):
+        obs = synthetic_observations(true, board, poses, noise_px=0.3, rng=np.random.default_rng(seed))
+        cal = calibrate_board(obs, rig, lensmodel="opencv4", valid_region=False, board_warp=False,
+                              outlier_rejection=False)
+        if pred is None:
+            pred = extrinsics_uncertainty(cal.optimization_inputs, 0.3)
+            assert pred.shape == (len(cams), 2) and np.all(pred[0] == 0) and np.all(pred[1:] > 0)
+        for k in range(1, len(cams)):
+            T = T_from_rt(cal.optimization_inputs["rt_cam_ref"][k - 1])
+            rot.append(np.linalg.norm(r_from_R(T[:3, :3] @ T_true[k][:3, :3].T)))
+            pos.append(np.linalg.norm(T[:3, 3] - T_true[k][:3, 3]))
+    # predicted 3-D sigma vs the RMS of the measured 3-D errors over draws and cameras
+    for measured, predicted in ((np.array(rot), pred[1:, 0]), (np.array(pos), pred[1:, 1])):
+        ratio = math.sqrt(np.mean(measured**2)) / math.sqrt(np.mean(predicted**2))
+        assert 1 / CALIB_UNCERTAINTY_RATIO <= ratio <= CALIB_UNCERTAINTY_RATIO
