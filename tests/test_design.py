@@ -195,7 +195,13 @@ SCATTER_CASES = {
     "one face 5x5": (lambda: dz.planar_array_rig(5, 5, 0.01, _camera(90.0)), 5.0, 1),
     # six faces of 3x3 arrays, viewpoints between the cameras interpolated (the default xy_oversample 2)
     "six faces 3x3, interpolated viewpoints": (lambda: dz.cube_array_rig(3, 0.02, _camera(90.0)), 5.0, 2),
+    # ill-conditioned: one face of a 3x3 array of 70 deg cameras 4 cm apart (the webcam3x3 layout),
+    # t_x~w_y correlation -0.89, condition ~20, model error above the noise (misfit > 1)
+    "one face 3x3, t~w ambiguity": (lambda: dz.planar_array_rig(3, 3, 0.04, _camera(70.0)), 2.5, 2),
 }
+WHITENED_CASES = ("one face 5x5", "six faces 3x3, interpolated viewpoints")
+"""Designs whose whole covariance (not only std_t, std_w) is checked: on the ill-conditioned
+face the whitened statistic is ~1.2 (docs/design.md)."""
 
 
 @pytest.mark.parametrize("case", sorted(SCATTER_CASES))
@@ -225,7 +231,8 @@ def test_predicted_sigma_matches_the_solver_scatter(renderer, case):
     dev = m.errors[0] - m.errors[0].mean(axis=0)
     z = np.linalg.solve(np.linalg.cholesky(p.covariance), dev.T)
     whitened = math.sqrt(np.mean(np.sum(z * z, axis=0)) * SCATTER_DRAWS / (SCATTER_DRAWS - 1) / 6)
-    assert whitened == pytest.approx(1.0, rel=DESIGN_SCATTER_REL)
+    if case in WHITENED_CASES:
+        assert whitened == pytest.approx(1.0, rel=DESIGN_SCATTER_REL)
 
 
 def test_single_camera_cannot_see_the_scale_of_translation(hierarchy):
