@@ -89,11 +89,15 @@ class RunOptions:
     per-pair error with 1)."""
     xy_oversample: int | None = None
     """Viewpoints of the light-field grid per camera spacing (``resample.auto_grid``).
-    None: 1 (views where the cameras are) when that gives at least ``MIN_VIEWS`` views
-    along x and y, else 2. In-between views (2) are filled by the resampler without
-    knowing the depth; on the demo they made the motion 3x (translation) and 7x
-    (rotation) worse (10.8% / 4.9% median per-pair error against 3.2% / 0.7% with 1; a
-    direct render of the 2x grid gives 3.1% / 0.7%) at twice the time."""
+    None: 1 (about one view per camera) when that gives at least ``MIN_VIEWS`` views
+    along x and y, else 2. On three calibrated 5x5 sessions (seeds 1-3, docs/end_to_end.md)
+    1 gave a median per-pair error of 6.1% / 1.8% (with ``smooth_c`` 0) against 11.3% /
+    3.3% with 2, at 60% of the time: the resampler fills in-between views without
+    knowing the depth, which hurts when the cameras are off the regular layout."""
+    smooth_c: float = 0.0
+    """The motion solver's discontinuity-weight constant (:class:`polycam.motion.MotionOptions`;
+    0 disables it). On the same sessions its default 0.5 gave 7.3% / 1.8% with a worst
+    session at 15.5% / 6.1%; 0 gave at most 6.5% / 2.5%."""
     calib_plots: bool = False
     """Also write the calibration stage's own plots (per-camera residual maps; slow for many cameras)."""
     depth_views: int = 3
@@ -248,7 +252,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     lf = open_lightfield(out / "lightfield.zarr")
     t0 = time.perf_counter()
     with bar("5/6 plenoptic motion", len(lf) - 1) as adv, _stage("motion"):
-        traj, results = estimate_trajectory(lf, progress=adv)
+        traj, results = estimate_trajectory(lf, progress=adv, smooth_c=opts.smooth_c)
     s = time.perf_counter() - t0
     write_tum(out / "trajectory.tum", traj)
     failed = [r for r in results if not r]
