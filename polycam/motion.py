@@ -105,7 +105,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, correlate_axis, min_filter_axis, plenoptic_derivatives
+from .derivatives import FILTERS, Derivatives, correlate_axis, filter_taps, parallel_chunks, uv_view, xy_view
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
 from .lightfield import Axis, LightFieldGrid
@@ -373,174 +373,410 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
                         out[k, jy, ix, jv, iu] = acc
 
 
-@numba.njit(parallel=True, cache=True)
-def _normal_kernel(Lx, Ly, Lu, Lv, Lt, w, xs, ys, us, vs, z_pi, f, acc):
-    """Per (y, x, v) row: sums of w c cᵀ (21 unique), w c b (6), w b², w into acc (rows, 29).
+_NACC = 29
+"""Sums per (u, v) tile: the 21 unique entries of Σ w c cᵀ, Σ w c b (6), Σ w b², Σ w."""
+_NSTAT = 25
+"""Statistics per view image: rays with w > 0, rays with base weight > 0, IRLS inliers
+(weight > 0.5), Σ w |∇L · h|², and the 21 unique entries of the noise energy E."""
+_ROBUST_KIND = {"none": 0, "tukey": 1, "huber": 2}
 
-    c = the Eq. 5 coefficients of (t, ω) in face coordinates, b = −L_t.
+
+@numba.njit(cache=True, inline="always")
+def _row_energy(x, y, v, z_pi, f, S, var, poly, st):
+    """Add one (x, y, v) row's Σ_u w Σ_j var_j m_j m_jᵀ to st[4:25] (upper triangle) from the
+    row's weight moments S[k] = Σ_u w u^k (k = 0..4). m_j are the Eq. 5 coefficients of a
+    unit derivative along axis j (x, y, u, v), quadratic in u: poly[0] + poly[1] u + poly[2] u²."""
+    inv_f = 1.0 / f
+    for jax in range(4):
+        vj = var[jax]
+        if vj == 0.0:
+            continue
+        poly[:, :] = 0.0
+        if jax == 0:                   # unit L_x
+            poly[0, 0] = 1.0
+            poly[0, 4] = z_pi
+            poly[0, 5] = -y
+            poly[1, 2] = -inv_f
+            poly[1, 3] = -y * inv_f
+            poly[1, 4] = x * inv_f
+        elif jax == 1:                 # unit L_y
+            poly[0, 1] = 1.0
+            poly[0, 2] = -v * inv_f
+            poly[0, 3] = -(v * y * inv_f + z_pi)
+            poly[0, 4] = v * x * inv_f
+            poly[0, 5] = x
+        elif jax == 2:                 # unit L_u
+            poly[0, 4] = f
+            poly[0, 5] = -v
+            poly[1, 3] = -v * inv_f
+            poly[2, 4] = inv_f
+        else:                          # unit L_v
+            poly[0, 3] = -(v * v * inv_f + f)
+            poly[1, 4] = v * inv_f
+            poly[1, 5] = 1.0
+        k = 4
+        for a in range(6):
+            for b in range(a, 6):
+                e = 0.0
+                for d1 in range(3):
+                    pa = poly[d1, a]
+                    if pa == 0.0:
+                        continue
+                    for d2 in range(3):
+                        e += pa * poly[d2, b] * S[d1 + d2]
+                st[k] += vj * e
+                k += 1
+
+
+@numba.njit(cache=True, inline="always")
+def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv_sc, tile,
+                     v_lo, v_hi, u_lo, u_hi, h, var, final, acc, st, poly, S):
+    """Eq. 5 normal-equation sums of one view image's rays (samples v_lo:v_hi, u_lo:u_hi).
+
+    gx .. lt, wb: (Nv, Nu) derivatives and base weights of the view; c = the ray's Eq. 5
+    coefficients in face coordinates, b = −L_t. With ``kind`` 1 (Tukey) or 2 (Huber) the
+    weight is wb times the IRLS weight of the residual ``r = L_t + c · p`` normalised by
+    1 / inv_sc. Adds the sums to acc (n_tv, n_tu, 29) per (u, v) tile of ``tile`` samples
+    and counts to st (25,); with ``final`` also the texture and the noise energy.
     """
-    Ny, Nx, Nv, Nu = Lx.shape
     inv_f = 1.0 / f
-    for row in numba.prange(Ny * Nx * Nv):
-        jy = row // (Nx * Nv)
-        rem = row - jy * Nx * Nv
-        ix = rem // Nv
-        jv = rem - ix * Nv
-        x = xs[ix]
-        y = ys[jy]
+    tx = p[0]
+    ty = p[1]
+    tz = p[2]
+    wx = p[3]
+    wy = p[4]
+    wz = p[5]
+    hx2 = h[0] * h[0]
+    hy2 = h[1] * h[1]
+    hu2 = h[2] * h[2]
+    hv2 = h[3] * h[3]
+    n_w = 0.0
+    n_base = 0.0
+    n_in = 0.0
+    tex = 0.0
+    for jv in range(v_lo, v_hi):
         v = vs[jv]
-        n00 = n01 = n02 = n03 = n04 = n05 = 0.0
-        n11 = n12 = n13 = n14 = n15 = 0.0
-        n22 = n23 = n24 = n25 = 0.0
-        n33 = n34 = n35 = 0.0
-        n44 = n45 = 0.0
-        n55 = 0.0
-        r0 = r1 = r2 = r3 = r4 = r5 = 0.0
-        sbb = 0.0
-        sw = 0.0
-        for iu in range(Nu):
-            wi = w[jy, ix, jv, iu]
-            if wi <= 0.0:
-                continue
-            u = us[iu]
-            gx = Lx[jy, ix, jv, iu]
-            gy = Ly[jy, ix, jv, iu]
-            gu = Lu[jy, ix, jv, iu]
-            gv = Lv[jy, ix, jv, iu]
-            b = -Lt[jy, ix, jv, iu]
-            c0 = gx
-            c1 = gy
-            c2 = -(u * gx + v * gy) * inv_f
-            c3 = -(u * y * inv_f) * gx - (v * y * inv_f + z_pi) * gy - (u * v * inv_f) * gu \
-                - (v * v * inv_f + f) * gv
-            c4 = (u * x * inv_f + z_pi) * gx + (v * x * inv_f) * gy + (u * u * inv_f + f) * gu \
-                + (u * v * inv_f) * gv
-            c5 = -y * gx + x * gy - v * gu + u * gv
-            w0 = wi * c0
-            w1 = wi * c1
-            w2 = wi * c2
-            w3 = wi * c3
-            w4 = wi * c4
-            w5 = wi * c5
-            n00 += w0 * c0
-            n01 += w0 * c1
-            n02 += w0 * c2
-            n03 += w0 * c3
-            n04 += w0 * c4
-            n05 += w0 * c5
-            n11 += w1 * c1
-            n12 += w1 * c2
-            n13 += w1 * c3
-            n14 += w1 * c4
-            n15 += w1 * c5
-            n22 += w2 * c2
-            n23 += w2 * c3
-            n24 += w2 * c4
-            n25 += w2 * c5
-            n33 += w3 * c3
-            n34 += w3 * c4
-            n35 += w3 * c5
-            n44 += w4 * c4
-            n45 += w4 * c5
-            n55 += w5 * c5
-            r0 += w0 * b
-            r1 += w1 * b
-            r2 += w2 * b
-            r3 += w3 * b
-            r4 += w4 * b
-            r5 += w5 * b
-            sbb += wi * b * b
-            sw += wi
-        a = acc[row]
-        a[0] = n00
-        a[1] = n01
-        a[2] = n02
-        a[3] = n03
-        a[4] = n04
-        a[5] = n05
-        a[6] = n11
-        a[7] = n12
-        a[8] = n13
-        a[9] = n14
-        a[10] = n15
-        a[11] = n22
-        a[12] = n23
-        a[13] = n24
-        a[14] = n25
-        a[15] = n33
-        a[16] = n34
-        a[17] = n35
-        a[18] = n44
-        a[19] = n45
-        a[20] = n55
-        a[21] = r0
-        a[22] = r1
-        a[23] = r2
-        a[24] = r3
-        a[25] = r4
-        a[26] = r5
-        a[27] = sbb
-        a[28] = sw
+        tv = jv // tile
+        S[:] = 0.0
+        for tu in range(u_lo // tile, (u_hi - 1) // tile + 1):
+            n00 = n01 = n02 = n03 = n04 = n05 = 0.0
+            n11 = n12 = n13 = n14 = n15 = 0.0
+            n22 = n23 = n24 = n25 = 0.0
+            n33 = n34 = n35 = 0.0
+            n44 = n45 = 0.0
+            n55 = 0.0
+            r0 = r1 = r2 = r3 = r4 = r5 = 0.0
+            sbb = 0.0
+            sw = 0.0
+            for iu in range(max(tu * tile, u_lo), min((tu + 1) * tile, u_hi)):
+                wi = np.float64(wb[jv, iu])
+                if not wi > 0.0:
+                    continue
+                n_base += 1.0
+                u = us[iu]
+                g0 = np.float64(gx[jv, iu])
+                g1 = np.float64(gy[jv, iu])
+                g2 = np.float64(gu[jv, iu])
+                g3 = np.float64(gv[jv, iu])
+                b = -np.float64(lt[jv, iu])
+                c0 = g0
+                c1 = g1
+                c2 = -(u * g0 + v * g1) * inv_f
+                c3 = -(u * y * inv_f) * g0 - (v * y * inv_f + z_pi) * g1 - (u * v * inv_f) * g2 \
+                    - (v * v * inv_f + f) * g3
+                c4 = (u * x * inv_f + z_pi) * g0 + (v * x * inv_f) * g1 + (u * u * inv_f + f) * g2 \
+                    + (u * v * inv_f) * g3
+                c5 = -y * g0 + x * g1 - v * g2 + u * g3
+                if kind != 0:
+                    r = c0 * tx + c1 * ty + c2 * tz + c3 * wx + c4 * wy + c5 * wz - b
+                    zz = abs(r) * inv_sc
+                    if kind == 1:
+                        wr = (1.0 - zz * zz) ** 2 if zz < 1.0 else 0.0
+                    else:
+                        wr = 1.0 if zz <= 1.0 else 1.0 / zz
+                    if wr > 0.5:
+                        n_in += 1.0
+                    wi = wi * wr
+                    if not wi > 0.0:
+                        continue
+                n_w += 1.0
+                w0 = wi * c0
+                w1 = wi * c1
+                w2 = wi * c2
+                w3 = wi * c3
+                w4 = wi * c4
+                w5 = wi * c5
+                n00 += w0 * c0
+                n01 += w0 * c1
+                n02 += w0 * c2
+                n03 += w0 * c3
+                n04 += w0 * c4
+                n05 += w0 * c5
+                n11 += w1 * c1
+                n12 += w1 * c2
+                n13 += w1 * c3
+                n14 += w1 * c4
+                n15 += w1 * c5
+                n22 += w2 * c2
+                n23 += w2 * c3
+                n24 += w2 * c4
+                n25 += w2 * c5
+                n33 += w3 * c3
+                n34 += w3 * c4
+                n35 += w3 * c5
+                n44 += w4 * c4
+                n45 += w4 * c5
+                n55 += w5 * c5
+                r0 += w0 * b
+                r1 += w1 * b
+                r2 += w2 * b
+                r3 += w3 * b
+                r4 += w4 * b
+                r5 += w5 * b
+                sbb += wi * b * b
+                sw += wi
+                if final:
+                    tex += wi * (g0 * g0 * hx2 + g1 * g1 * hy2 + g2 * g2 * hu2 + g3 * g3 * hv2)
+                    m = wi
+                    S[0] += m
+                    m *= u
+                    S[1] += m
+                    m *= u
+                    S[2] += m
+                    m *= u
+                    S[3] += m
+                    m *= u
+                    S[4] += m
+            a = acc[tv, tu]
+            a[0] += n00
+            a[1] += n01
+            a[2] += n02
+            a[3] += n03
+            a[4] += n04
+            a[5] += n05
+            a[6] += n11
+            a[7] += n12
+            a[8] += n13
+            a[9] += n14
+            a[10] += n15
+            a[11] += n22
+            a[12] += n23
+            a[13] += n24
+            a[14] += n25
+            a[15] += n33
+            a[16] += n34
+            a[17] += n35
+            a[18] += n44
+            a[19] += n45
+            a[20] += n55
+            a[21] += r0
+            a[22] += r1
+            a[23] += r2
+            a[24] += r3
+            a[25] += r4
+            a[26] += r5
+            a[27] += sbb
+            a[28] += sw
+        if final and S[0] > 0.0:
+            _row_energy(x, y, v, z_pi, f, S, var, poly, st)
+    st[0] += n_w
+    st[1] += n_base
+    st[2] += n_in
+    st[3] += tex
 
 
 @numba.njit(parallel=True, cache=True)
-def _residual_kernel(Lx, Ly, Lu, Lv, Lt, xs, ys, us, vs, z_pi, f, p, out):
-    """out = L_t + c · p: the Eq. 5 residual for face-frame parameters p (6,)."""
-    Ny, Nx, Nv, Nu = Lx.shape
-    inv_f = 1.0 / f
-    tx, ty, tz, wx, wy, wz = p[0], p[1], p[2], p[3], p[4], p[5]
-    for row in numba.prange(Ny * Nx * Nv):
-        jy = row // (Nx * Nv)
-        rem = row - jy * Nx * Nv
-        ix = rem // Nv
-        jv = rem - ix * Nv
-        x = xs[ix]
-        y = ys[jy]
-        v = vs[jv]
-        # flow of this row: δx = ax0 + ax1 u, etc. (linear / quadratic in u)
-        for iu in range(Nu):
-            u = us[iu]
-            dxp = tx - u * inv_f * tz - u * y * inv_f * wx + (u * x * inv_f + z_pi) * wy - y * wz
-            dyp = ty - v * inv_f * tz - (v * y * inv_f + z_pi) * wx + v * x * inv_f * wy + x * wz
-            dup = -u * v * inv_f * wx + (u * u * inv_f + f) * wy - v * wz
-            dvp = -(v * v * inv_f + f) * wx + u * v * inv_f * wy + u * wz
-            out[jy, ix, jv, iu] = (Lt[jy, ix, jv, iu] + Lx[jy, ix, jv, iu] * dxp
-                                   + Ly[jy, ix, jv, iu] * dyp + Lu[jy, ix, jv, iu] * dup
-                                   + Lv[jy, ix, jv, iu] * dvp)
+def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
+                 box, h, var, final, acc, st, chunks):
+    """One pass over the rays of the view images box[0]:box[1] (y) x box[2]:box[3] (x),
+    samples box[4]:box[5] (v) x box[6]:box[7] (u) of every face: :func:`_accumulate_view`
+    with the stored derivatives (F, Ny, Nx, Nv, Nu) and base weights (unit weights
+    without ``has_base``). P (F, 6): the parameters in each face's frame.
+    acc (n_views, n_tv, n_tu, 29), st (n_views, 25), views ordered (face, y, x)."""
+    F, Ny, Nx, Nv, Nu = Lx.shape
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    n = F * ny * nx
+    chunks = max(1, min(n, chunks))
+    for c in numba.prange(chunks):
+        poly = np.empty((3, 6))
+        S = np.empty(5)
+        ones = np.ones((Nv if not has_base else 1, Nu if not has_base else 1), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (ny * nx)
+            rem = idx - fc * ny * nx
+            j = box[0] + rem // nx
+            i = box[2] + rem - (rem // nx) * nx
+            a = acc[idx]
+            a[:, :, :] = 0.0
+            s = st[idx]
+            s[:] = 0.0
+            wb = base[fc, j, i] if has_base else ones
+            _accumulate_view(Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i], wb,
+                             xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], kind, inv_sc, tile,
+                             box[4], box[5], box[6], box[7], h, var, final, a, s, poly, S)
 
 
 @numba.njit(parallel=True, cache=True)
-def _score_kernel(Lx, Ly, Lu, Lv, w, res, xs, ys, us, vs, z_pi, f, tile, out):
-    """Per (y, x, v) row and u tile: sums of w c r (6) into out (Ny, Nx, Nv, n_tiles, 6)."""
-    Ny, Nx, Nv, Nu = Lx.shape
-    inv_f = 1.0 / f
-    for row in numba.prange(Ny * Nx * Nv):
-        jy = row // (Nx * Nv)
-        rem = row - jy * Nx * Nv
-        ix = rem // Nv
-        jv = rem - ix * Nv
-        x = xs[ix]
-        y = ys[jy]
+def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
+                    sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, h,
+                    var, final, acc, st, chunks):
+    """Per valid view image, in cache: the plenoptic derivatives of the (warped) pair
+    (L0, L1), the base weight = confidence ``conf`` minimised over the filter support
+    (``need_min``) × valid × ``smooth``, and the unit-IRLS-weight normal sums
+    (:func:`_accumulate_view`). box as in :func:`_pass_kernel` (the filter radii)."""
+    F, Ny, Nx, Nv, Nu = L0.shape
+    ry = box[0]
+    rx = box[2]
+    rv = box[4]
+    ru = box[6]
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    n = F * ny * nx
+    chunks = max(1, min(n, chunks))
+    for c in numba.prange(chunks):
+        buf = np.empty((7, Nv, Nu), np.float32)
+        poly = np.empty((3, 6))
+        S = np.empty(5)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (ny * nx)
+            rem = idx - fc * ny * nx
+            j = box[0] + rem // nx
+            i = box[2] + rem - (rem // nx) * nx
+            xy_view(L0, L1, fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
+            uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4],
+                    Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i])
+            cm = buf[5]
+            t2 = buf[6]
+            cm[:, :] = conf[fc, j, i]
+            if need_min:
+                for jj in range(j - ry, j + ry + 1):
+                    for ii in range(i - rx, i + rx + 1):
+                        src = conf[fc, jj, ii]
+                        for v in range(Nv):
+                            for u in range(Nu):
+                                if src[v, u] < cm[v, u]:
+                                    cm[v, u] = src[v, u]
+                for v in range(rv, Nv - rv):
+                    for u in range(Nu):
+                        m = cm[v - rv, u]
+                        for d in range(v - rv + 1, v + rv + 1):
+                            m = min(m, cm[d, u])
+                        t2[v, u] = m
+                for v in range(rv, Nv - rv):
+                    for u in range(ru, Nu - ru):
+                        m = t2[v, u - ru]
+                        for d in range(u - ru + 1, u + ru + 1):
+                            m = min(m, t2[v, d])
+                        cm[v, u] = m
+            b = base[fc, j, i]
+            b[:, :] = 0.0
+            for v in range(rv, Nv - rv):
+                for u in range(ru, Nu - ru):
+                    b[v, u] = cm[v, u] * smooth[fc, j, i, v, u] if has_smooth else cm[v, u]
+            a = acc[idx]
+            a[:, :, :] = 0.0
+            s = st[idx]
+            s[:] = 0.0
+            _accumulate_view(Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i], b,
+                             xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], 0, 0.0, tile,
+                             rv, Nv - rv, ru, Nu - ru, h, var, final, a, s, poly, S)
+
+
+@numba.njit(parallel=True, cache=True)
+def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, stride, out_a, out_w):
+    """|Eq. 5 residual| and base weight of the rays of every ``stride``-th (v) row of the
+    box's view images (rows numbered in C order over (face, y, x, v) inside box; whole
+    rows keep the memory access contiguous). out_a, out_w: (n_rows, box u width)."""
+    F, Ny, Nx, Nv, Nu = Lx.shape
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    nv = box[5] - box[4]
+    u0 = box[6]
+    for k in numba.prange(out_a.shape[0]):
+        q = k * stride
+        jv = box[4] + q % nv
+        q //= nv
+        i = box[2] + q % nx
+        q //= nx
+        j = box[0] + q % ny
+        fc = q // ny
+        f = fs[fc]
+        z_pi = zs[fc]
+        inv_f = 1.0 / f
+        x = xs[i]
+        y = ys[j]
         v = vs[jv]
-        for iu in range(Nu):
-            wi = w[jy, ix, jv, iu]
-            if wi <= 0.0:
+        p = P[fc]
+        for m in range(out_a.shape[1]):
+            iu = u0 + m
+            wb = base[fc, j, i, jv, iu]
+            out_a[k, m] = 0.0
+            out_w[k, m] = 0.0
+            if not wb > 0.0:
                 continue
             u = us[iu]
-            gx = Lx[jy, ix, jv, iu]
-            gy = Ly[jy, ix, jv, iu]
-            gu = Lu[jy, ix, jv, iu]
-            gv = Lv[jy, ix, jv, iu]
-            s = wi * res[jy, ix, jv, iu]
-            o = out[jy, ix, jv, iu // tile]
-            o[0] += s * gx
-            o[1] += s * gy
-            o[2] += s * (-(u * gx + v * gy) * inv_f)
-            o[3] += s * (-(u * y * inv_f) * gx - (v * y * inv_f + z_pi) * gy - (u * v * inv_f) * gu
-                         - (v * v * inv_f + f) * gv)
-            o[4] += s * ((u * x * inv_f + z_pi) * gx + (v * x * inv_f) * gy + (u * u * inv_f + f) * gu
-                         + (u * v * inv_f) * gv)
-            o[5] += s * (-y * gx + x * gy - v * gu + u * gv)
+            g0 = np.float64(Lx[fc, j, i, jv, iu])
+            g1 = np.float64(Ly[fc, j, i, jv, iu])
+            g2 = np.float64(Lu[fc, j, i, jv, iu])
+            g3 = np.float64(Lv[fc, j, i, jv, iu])
+            c2 = -(u * g0 + v * g1) * inv_f
+            c3 = -(u * y * inv_f) * g0 - (v * y * inv_f + z_pi) * g1 - (u * v * inv_f) * g2 \
+                - (v * v * inv_f + f) * g3
+            c4 = (u * x * inv_f + z_pi) * g0 + (v * x * inv_f) * g1 + (u * u * inv_f + f) * g2 \
+                + (u * v * inv_f) * g3
+            c5 = -y * g0 + x * g1 - v * g2 + u * g3
+            r = Lt[fc, j, i, jv, iu] + g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5]
+            out_a[k, m] = abs(r)
+            out_w[k, m] = wb
+
+
+@numba.njit(cache=True)
+def _weighted_median(a, w):
+    """Weighted median of a >= 0 (the smallest a_k with Σ_{a_i <= a_k} w_i >= Σ w / 2) over
+    w > 0: a histogram finds the bin, a sort of that bin's values the sample."""
+    tot = 0.0
+    mean = 0.0
+    for k in range(a.shape[0]):
+        if w[k] > 0.0:
+            tot += w[k]
+            mean += w[k] * a[k]
+    if not tot > 0.0:
+        return 0.0
+    hi = 4.0 * mean / tot
+    if not hi > 0.0:
+        return 0.0
+    nb = 4096
+    hist = np.zeros(nb + 1)
+    for k in range(a.shape[0]):
+        if w[k] > 0.0:
+            hist[min(int(a[k] / hi * nb), nb)] += w[k]
+    half = 0.5 * tot
+    cum = 0.0
+    bi = 0
+    while bi < nb and cum + hist[bi] < half:
+        cum += hist[bi]
+        bi += 1
+    cnt = 0
+    for k in range(a.shape[0]):
+        if w[k] > 0.0 and min(int(a[k] / hi * nb), nb) == bi:
+            cnt += 1
+    vals = np.empty(cnt)
+    ws = np.empty(cnt)
+    cnt = 0
+    for k in range(a.shape[0]):
+        if w[k] > 0.0 and min(int(a[k] / hi * nb), nb) == bi:
+            vals[cnt] = a[k]
+            ws[cnt] = w[k]
+            cnt += 1
+    if cnt == 0:
+        return 0.0
+    order = np.argsort(vals)
+    for o in order:
+        cum += ws[o]
+        if cum >= half:
+            return vals[o]
+    return vals[order[cnt - 1]]
 
 
 # ============================================================================ building blocks
@@ -576,20 +812,72 @@ def solve_ray_motion(der: Derivatives, grid: LightFieldGrid, weights: np.ndarray
     ``p`` (6,) = (t [m], ω [rad]) of the *ray* motion G in rig coordinates (the rig
     moved by ``G⁻¹``) and the normal matrix N (6, 6).
     """
-    w = (np.broadcast_to(der.valid, der.Lx.shape) if weights is None else weights).astype(np.float32)
+    F, Ny, Nx, Nv, Nu = der.Lx.shape
+    if weights is None:                     # unit weights on the valid box only
+        box, base, has_base = _valid_box(der.valid), np.zeros((1,) * 5, np.float32), False
+    else:
+        box = np.array([0, Ny, 0, Nx, 0, Nv, 0, Nu], np.int64)
+        base, has_base = np.ascontiguousarray(np.broadcast_to(weights, der.Lx.shape), dtype=np.float32), True
+    acc, _ = _accumulate(der, base, has_base, grid, np.zeros((F, 6)), 0, 0.0, max(Nv, Nu), box,
+                         np.zeros(4), np.zeros(4), False)
+    N, rhs, _, _, _ = _reduce(acc, [_face_B(face) for face in grid.faces])
+    return _solve_normal(N, rhs, rcond)["p"], N
+
+
+def _valid_box(valid: np.ndarray) -> np.ndarray:
+    """(8,) int64 [y0, y1, x0, x1, v0, v1, u0, u1]: the box of a (Ny, Nx, Nv, Nu) valid mask."""
+    box = []
+    for ax in range(4):
+        idx = np.flatnonzero(valid.any(axis=tuple(a for a in range(4) if a != ax)))
+        box += [int(idx[0]), int(idx[-1]) + 1] if idx.size else [0, 0]
+    return np.array(box, np.int64)
+
+
+def _accumulate(der, base: np.ndarray, has_base: bool, grid: LightFieldGrid, P: np.ndarray, kind: int,
+                inv_sc: float, tile: int, box: np.ndarray, h: np.ndarray, var: np.ndarray,
+                final: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Run :func:`_pass_kernel` over ``der`` (anything with Lx .. Lt (F, Ny, Nx, Nv, Nu));
+    returns acc (F, n_views_per_face, n_tiles, 29) and st (F, n_views_per_face, 25)."""
+    F, Ny, Nx, Nv, Nu = der.Lx.shape
+    nv_ = max(int(box[1] - box[0]), 0) * max(int(box[3] - box[2]), 0)
+    nt = (-(-Nv // tile), -(-Nu // tile))
+    acc = np.empty((F * nv_,) + nt + (_NACC,))
+    st = np.empty((F * nv_, _NSTAT))
     vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    zs = np.array([face.z_pi for face in grid.faces], float)
+    fs = np.array([face.f for face in grid.faces], float)
+    if nv_ and box[5] > box[4] and box[7] > box[6]:
+        _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, base, has_base, *vals, zs, fs,
+                     np.ascontiguousarray(P, dtype=np.float64), kind, float(inv_sc), int(tile), box, h, var,
+                     final, acc, st, parallel_chunks())
+    else:
+        acc[:] = 0.0
+        st[:] = 0.0
+    return acc.reshape(F, nv_, nt[0] * nt[1], _NACC), st.reshape(F, nv_, _NSTAT)
+
+
+_IU = np.triu_indices(6)
+
+
+def _unpack_sym(a: np.ndarray) -> np.ndarray:
+    """(..., 21) upper-triangle entries → (..., 6, 6) symmetric matrices."""
+    N = np.zeros(a.shape[:-1] + (6, 6))
+    N[..., _IU[0], _IU[1]] = a
+    N[..., _IU[1], _IU[0]] = a
+    return N
+
+
+def _reduce(acc: np.ndarray, B: list) -> tuple:
+    """Rig-frame N (6, 6), rhs (6,), Σ w b², Σ w and the per-face tile sums (F, n_tiles, 29)
+    of acc (F, n_views, n_tiles, 29); B: per face the (6, 6) rig → face map."""
+    tiles = acc.sum(axis=1)
+    tot = tiles.sum(axis=1)                              # (F, 29)
     N = np.zeros((6, 6))
     rhs = np.zeros(6)
-    for k, face in enumerate(grid.faces):
-        Ny, Nx, Nv, Nu = der.Lx.shape[1:]
-        acc = np.empty((Ny * Nx * Nv, 29))
-        _normal_kernel(der.Lx[k], der.Ly[k], der.Lu[k], der.Lv[k], der.Lt[k], np.ascontiguousarray(w[k]),
-                       *vals, float(face.z_pi), float(face.f), acc)
-        Nk, rk, _, _ = _unpack_normal(acc.sum(axis=0))
-        B = _face_B(face)
-        N += B.T @ Nk @ B
-        rhs += B.T @ rk
-    return _solve_normal(N, rhs, rcond)["p"], N
+    for k, Bk in enumerate(B):
+        N += Bk.T @ _unpack_sym(tot[k, :21]) @ Bk
+        rhs += Bk.T @ tot[k, 21:27]
+    return N, rhs, float(tot[:, 27].sum()), float(tot[:, 28].sum()), tiles
 
 
 def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
@@ -597,7 +885,8 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
     ``R (u, v, f)`` re-projected on the face's image plane depends on (u, v) only.
 
     Returns per-(v, u) Lagrange weights and clamped indices along v and u
-    (``(Nv, Nu, T)`` float64 / int64 each) and ``ok_uv`` (Nv, Nu) bool.
+    (``(Nv, Nu, 6)`` float64 / int64 each; fewer taps are padded with zero weights),
+    ``ok_uv`` (Nv, Nu) bool and the moved direction's slopes d_x / d_z, d_y / d_z (Nv, Nu).
     """
     f = float(face.f)
     v, u = np.meshgrid(grid.v.values, grid.u.values, indexing="ij")
@@ -627,84 +916,118 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
         idx = np.clip(base[..., None] - o + np.arange(T), 0, n - 1)
         out += [w, idx]
     wv, iv, wu, iu = out
+    # pad to 6 taps (zero weights on a valid index: the same sums) for the unrolled kernel
+    wv, wu = (np.concatenate([w, np.zeros(w.shape[:2] + (6 - w.shape[2],))], axis=2) for w in (wv, wu))
+    iv, iu = (np.concatenate([i, np.repeat(i[..., :1], 6 - i.shape[2], axis=2)], axis=2) for i in (iv, iu))
+    # moved direction per (v, u), as slopes d_x / d_z and d_y / d_z (the same for every view)
+    sx = np.where(ok, d[..., 0] / dz, 0.0)
+    sy = np.where(ok, d[..., 1] / dz, 0.0)
     return (np.ascontiguousarray(wv), np.ascontiguousarray(iv), np.ascontiguousarray(wu),
-            np.ascontiguousarray(iu), ok)
+            np.ascontiguousarray(iu), ok, np.ascontiguousarray(sx), np.ascontiguousarray(sy))
 
 
-@numba.njit(parallel=True, cache=True)
-def _warp_uv_kernel(src, wv, iv, wu, iu, out):
-    """out[m, v, u] = Σ_q Σ_r wv[v, u, q] wu[v, u, r] src[m, iv[v, u, q], iu[v, u, r]] for
-    every image m of src (M, Nv, Nu): the (u, v) part of the warp, shared by all views."""
-    M, Nv, Nu = src.shape
-    Tv = wv.shape[2]
-    Tu = wu.shape[2]
-    for m in numba.prange(M):
-        img = src[m]
-        o = out[m]
-        for v in range(Nv):
-            for u in range(Nu):
-                acc = 0.0
-                for q in range(Tv):
-                    row = img[iv[v, u, q]]
-                    sacc = 0.0
-                    for r in range(Tu):
-                        sacc += wu[v, u, r] * row[iu[v, u, r]]
-                    acc += wv[v, u, q] * sacc
-                o[v, u] = acc
-
-
-@numba.njit(parallel=True, cache=True)
-def _warp_xy_kernel(U, ok_uv, xs, ys, us, vs, R, tr, z_pi, f, out, ok):
-    """Bilinear interpolation across viewpoints of the (u, v)-warped images U
-    (K, Ny, Nx, Nv, Nu) at each moved ray's focal-plane point (x', y')."""
-    K, Ny, Nx, Nv, Nu = U.shape
-    x0 = xs[0]
-    y0 = ys[0]
-    hx = (xs[Nx - 1] - x0) / (Nx - 1) if Nx > 1 else 1.0
-    hy = (ys[Ny - 1] - y0) / (Ny - 1) if Ny > 1 else 1.0
-    eps = 1e-6
-    for jy in numba.prange(Ny):
-        for ix in range(Nx):
-            ox = xs[ix]
-            oy = ys[jy]
-            px = R[0, 0] * ox + R[0, 1] * oy + R[0, 2] * z_pi + tr[0]
-            py = R[1, 0] * ox + R[1, 1] * oy + R[1, 2] * z_pi + tr[1]
-            pz = R[2, 0] * ox + R[2, 1] * oy + R[2, 2] * z_pi + tr[2]
-            for jv in range(Nv):
-                v = vs[jv]
-                for iu in range(Nu):
-                    good = ok_uv[jv, iu]
-                    fx = 0.0
-                    fy = 0.0
-                    if good:
-                        u = us[iu]
-                        dx = R[0, 0] * u + R[0, 1] * v + R[0, 2] * f
-                        dy = R[1, 0] * u + R[1, 1] * v + R[1, 2] * f
-                        dz = R[2, 0] * u + R[2, 1] * v + R[2, 2] * f
-                        s = (z_pi - pz) / dz
-                        if Nx > 1:
-                            fx = (px + s * dx - x0) / hx
-                        if Ny > 1:
-                            fy = (py + s * dy - y0) / hy
-                        good = fx > -eps and fx < Nx - 1 + eps and fy > -eps and fy < Ny - 1 + eps
-                    ok[jy, ix, jv, iu] = good
-                    if not good:
-                        for k in range(K):
-                            out[k, jy, ix, jv, iu] = 0.0
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def _warp_uv_kernel(srcT, wv, iv, wu, iu, out):
+    """out[v, u, m] = Σ_q Σ_r wv[v, u, q] wu[v, u, r] srcT[iv[v, u, q], iu[v, u, r], m]: the
+    (u, v) part of the warp (6 x 6 taps), shared by all views. Views (and channels) are
+    the innermost axis m of srcT / out (Nv, Nu, M), so each tap is one vectorised
+    multiply-add over all view images."""
+    Nv, Nu, M = srcT.shape
+    for v in numba.prange(Nv):
+        for u in range(Nu):
+            o = out[v, u]
+            o[:] = 0.0
+            for q in range(6):
+                wq = wv[v, u, q]
+                if wq == 0.0:
+                    continue
+                row = srcT[iv[v, u, q]]
+                for r in range(6):
+                    w = np.float32(wq * wu[v, u, r])
+                    if w == 0.0:
                         continue
-                    bx = min(max(int(math.floor(fx)), 0), max(Nx - 2, 0))
-                    by = min(max(int(math.floor(fy)), 0), max(Ny - 2, 0))
-                    ax = min(max(fx - bx, 0.0), 1.0)
-                    ay = min(max(fy - by, 0.0), 1.0)
-                    bx1 = bx + 1 if Nx > 1 else bx
-                    by1 = by + 1 if Ny > 1 else by
-                    w00 = (1.0 - ay) * (1.0 - ax)
-                    w01 = (1.0 - ay) * ax
-                    w10 = ay * (1.0 - ax)
-                    w11 = ay * ax
-                    for k in range(K):
-                        out[k, jy, ix, jv, iu] = (w00 * U[k, by, bx, jv, iu] + w01 * U[k, by, bx1, jv, iu]
-                                                  + w10 * U[k, by1, bx, jv, iu] + w11 * U[k, by1, bx1, jv, iu])
+                    s = row[iu[v, u, r]]
+                    for m in range(M):
+                        o[m] += w * s[m]
+
+
+@numba.njit(parallel=True, cache=True)
+def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok):
+    """Bilinear interpolation across viewpoints of the (u, v)-warped images U
+    (Nv, Nu, K, Ny, Nx) of face ``face`` at each moved ray's focal-plane point in grid
+    units, fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view
+    from its moved origin; slopes (Nv, Nu) per direction), into out[:, face]
+    (K, F, Ny, Nx, Nv, Nu); ok[face] (F, Ny, Nx, Nv, Nu) float32 is 1 where the moved ray
+    lies inside the grid, else 0 (and out 0). Per row v, U[v] (all views) stays in cache
+    while each view's row is written."""
+    Nv, Nu, K, Ny, Nx = U.shape
+    eps = 1e-6
+    bx_max = max(Nx - 2, 0)
+    by_max = max(Ny - 2, 0)
+    dx1 = 1 if Nx > 1 else 0
+    dy1 = 1 if Ny > 1 else 0
+    for jv in numba.prange(Nv):
+        Uv = U[jv]
+        sxr = slope_x[jv]
+        syr = slope_y[jv]
+        okr = ok_uv[jv]
+        for jy in range(Ny):
+            for ix in range(Nx):
+                a_x = ax_[jy, ix]
+                b_x = bx_[jy, ix]
+                a_y = ay_[jy, ix]
+                b_y = by_[jy, ix]
+                okrow = ok[face, jy, ix, jv]
+                for k in range(K):
+                    orow = out[k, face, jy, ix, jv]
+                    for iu in range(Nu):
+                        fx = a_x + b_x * sxr[iu]
+                        fy = a_y + b_y * syr[iu]
+                        if not (okr[iu] and fx > -eps and fx < Nx - 1 + eps and fy > -eps
+                                and fy < Ny - 1 + eps):
+                            okrow[iu] = 0.0
+                            orow[iu] = 0.0
+                            continue
+                        okrow[iu] = 1.0
+                        bx = min(max(int(fx), 0), bx_max)
+                        by = min(max(int(fy), 0), by_max)
+                        wx = min(max(fx - bx, 0.0), 1.0)
+                        wy = min(max(fy - by, 0.0), 1.0)
+                        c = Uv[iu, k]
+                        orow[iu] = ((1.0 - wy) * ((1.0 - wx) * c[by, bx] + wx * c[by, bx + dx1])
+                                    + wy * ((1.0 - wx) * c[by + dy1, bx] + wx * c[by + dy1, bx + dx1]))
+
+
+def _views_inner(arrays: np.ndarray) -> np.ndarray:
+    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout."""
+    return np.ascontiguousarray(np.asarray(arrays, dtype=np.float32).transpose(0, 4, 5, 1, 2, 3))
+
+
+def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
+               out: np.ndarray, ok: np.ndarray, U: np.ndarray) -> None:
+    """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, K, Ny, Nx) float32 C
+    (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
+    float32 (1 inside, 0 outside); U (Nv, Nu, K, Ny, Nx) float32 scratch."""
+    F, Nv, Nu, K, Ny, Nx = srcT.shape
+    xs, ys = grid.x.values, grid.y.values
+    hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
+    hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
+    y, x = np.meshgrid(ys, xs, indexing="ij")
+    for k, face in enumerate(grid.faces):
+        Rk = np.asarray(face.R_rig_face, float)
+        Tk = T_from_Rt(Rk, np.zeros(3))
+        G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
+        R = np.ascontiguousarray(G[:3, :3])
+        wv, iv, wu, iu, ok_uv, slope_x, slope_y = _uv_stencils(grid, face, R, int(uv_taps))
+        _warp_uv_kernel(srcT[k].reshape(Nv, Nu, K * Ny * Nx), wv, iv, wu, iu, U.reshape(Nv, Nu, K * Ny * Nx))
+        o = np.stack([x, y, np.full_like(x, face.z_pi)], axis=-1) @ R.T + G[:3, 3]     # moved origins
+        sz = face.z_pi - o[..., 2]
+        # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis
+        cx = (np.ascontiguousarray((o[..., 0] - xs[0]) / hx), np.ascontiguousarray(sz / hx)) if Nx > 1 \
+            else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
+        cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
+            else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
+        _warp_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, out, ok)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
@@ -718,25 +1041,13 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     moved direction, hence the (u, v) stencil, does not depend on the viewpoint, so
     every view image is first resampled in (u, v), then views are blended.
     """
-    arrays = np.ascontiguousarray(arrays, dtype=np.float32)
+    arrays = np.asarray(arrays, dtype=np.float32)
     K, F, Ny, Nx, Nv, Nu = arrays.shape
-    out = np.empty_like(arrays)
-    ok = np.empty(arrays.shape[1:], bool)
-    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
-    U = np.empty((K, Ny, Nx, Nv, Nu), np.float32)
-    o = np.empty_like(U)
-    for k, face in enumerate(grid.faces):
-        Rk = np.asarray(face.R_rig_face, float)
-        Tk = T_from_Rt(Rk, np.zeros(3))
-        G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
-        R = np.ascontiguousarray(G[:3, :3])
-        wv, iv, wu, iu, ok_uv = _uv_stencils(grid, face, R, int(uv_taps))
-        src = np.ascontiguousarray(arrays[:, k])
-        _warp_uv_kernel(src.reshape(K * Ny * Nx, Nv, Nu), wv, iv, wu, iu, U.reshape(K * Ny * Nx, Nv, Nu))
-        _warp_xy_kernel(U, ok_uv, *vals, R, np.ascontiguousarray(G[:3, 3]), float(face.z_pi),
-                        float(face.f), o, ok[k])
-        out[:, k] = o
-    return out, ok
+    out = np.empty(arrays.shape, np.float32)
+    ok = np.empty(arrays.shape[1:], np.float32)
+    _warp_into(_views_inner(np.moveaxis(arrays, 0, 1)), grid, T_ray, uv_taps, out, ok,
+               np.empty((Nv, Nu, K, Ny, Nx), np.float32))
+    return out, ok > 0
 
 
 def warp_lightfield_reference(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
@@ -783,15 +1094,6 @@ def _face_B(face) -> np.ndarray:
     B[:3, :3] = R.T
     B[3:, 3:] = R.T
     return B
-
-
-def _unpack_normal(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """(29,) sums → N (6, 6), rhs (6,), Σ w b², Σ w."""
-    N = np.zeros((6, 6))
-    iu = np.triu_indices(6)
-    N[iu] = s[:21]
-    N = N + np.triu(N, 1).T
-    return N, s[21:27].copy(), float(s[27]), float(s[28])
 
 
 def _downsample(a: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
@@ -849,66 +1151,127 @@ def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_ra
     return levels
 
 
-def _min_filter_support(c: np.ndarray, radius: dict) -> np.ndarray:
-    """Separable minimum of c (F, Ny, Nx, Nv, Nu) over ±radius per axis (y x v u)."""
-    out = c
-    for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
-        r = radius[name]
-        if r > 0 and out.shape[ax] > 1:
-            out = min_filter_axis(out, r, ax)
-    return out
+@numba.njit(parallel=True, cache=True)
+def _second_differences(L, W, has_w, ax, stride, out):
+    """|L[a-1] − 2 L[a] + L[a+1]| along axis ``ax`` (1..4) of L (F, Ny, Nx, Nv, Nu) on every
+    ``stride``-th (v) row (C order over the interior along ax, whole rows for contiguous
+    access; along u only the interior samples); NaN where the confidence W is not
+    positive (``has_w``). out: (n_rows, n_u)."""
+    F, Ny, Nx, Nv, Nu = L.shape
+    n3 = Nv - 2 if ax == 3 else Nv
+    n2 = Nx - 2 if ax == 2 else Nx
+    n1 = Ny - 2 if ax == 1 else Ny
+    dv = 1 if ax == 3 else 0
+    di = 1 if ax == 2 else 0
+    dj = 1 if ax == 1 else 0
+    du = 1 if ax == 4 else 0
+    two = np.float32(2.0)
+    for k in numba.prange(out.shape[0]):
+        q = k * stride
+        v = q % n3 + dv
+        q //= n3
+        i = q % n2 + di
+        q //= n2
+        j = q % n1 + dj
+        f = q // n1
+        for m in range(out.shape[1]):
+            u = m + du
+            if has_w and not W[f, j, i, v, u] > 0:
+                out[k, m] = np.nan
+                continue
+            out[k, m] = abs(L[f, j - dj, i - di, v - dv, u - du] - two * L[f, j, i, v, u]
+                            + L[f, j + dj, i + di, v + dv, u + du])
 
 
-def _robust_weights(res: np.ndarray, scale: float, kind: str, c: float) -> np.ndarray:
-    """IRLS weights ψ(z)/z for z = res/scale."""
-    if kind == "none" or not scale > 0:
-        return np.ones_like(res)
-    z = np.abs(res) / np.float32(scale * c)
-    if kind == "huber":
-        return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
-    return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
-
-
-def _weighted_mad(res: np.ndarray, w: np.ndarray, max_samples: int = 50_000) -> float:
-    """1.4826 × weighted median of |res| over w > 0 (on a regular subsample of at most
-    ``max_samples`` rays: the scale needs no more precision)."""
-    m = (w > 0).reshape(-1)
-    a = res.reshape(-1)[m]
-    ww = w.reshape(-1)[m]
-    if a.size == 0:
-        return 0.0
-    step = max(1, a.size // max_samples)
-    a = np.abs(a[::step])
-    ww = ww[::step]
-    order = np.argsort(a)
-    cw = np.cumsum(ww[order], dtype=np.float64)
-    i = int(np.searchsorted(cw, 0.5 * cw[-1]))
-    return 1.4826 * float(a[order[min(i, len(a) - 1)]])
-
-
-def _noise_variance(lev: _Level) -> float:
+def _noise_variance(lev: _Level, samples: int = 100_000) -> float:
     """Sensor-noise variance per sample, from the robust spread of second differences
     across viewpoints (the light field is smooth along x and y; the finest available
-    axis is used): σ² = (1.4826 · median |Δ²L|)² / 6."""
+    axis is used) on regularly spaced rows, about ``samples`` per frame:
+    σ² = (1.4826 · median |Δ²L|)² / 6."""
     for ax in (2, 1, 4, 3):                             # x, y, then u, v
         if lev.L0.shape[ax] >= 3:
             break
     else:
         return 0.0
+    shape = list(lev.L0.shape)
+    shape[ax] -= 2
+    n_u = shape[4]
+    n_rows = int(np.prod(shape[:4]))
+    stride = max(1, n_rows * n_u // samples)
     vals = []
     for L, W in ((lev.L0, lev.W0), (lev.L1, lev.W1)):
-        d2 = correlate_axis(L, np.array([1.0, -2.0, 1.0], np.float32), ax)
-        sl = [slice(None)] * 5
-        sl[ax] = slice(1, -1)
-        d2 = d2[tuple(sl)]
-        if W is not None:
-            d2 = d2[(W[tuple(sl)] > 0)]
-        v = np.abs(d2.reshape(-1))
-        vals.append(v[:: max(1, v.size // 200_000)])
+        out = np.empty((-(-n_rows // stride), n_u), np.float32)
+        _second_differences(L, L if W is None else W, W is not None, ax, stride, out)
+        out = out.reshape(-1)
+        vals.append(out[np.isfinite(out)])
     v = np.concatenate(vals)
     if v.size == 0:
         return 0.0
     return float((1.4826 * np.median(v)) ** 2 / 6.0)
+
+
+@numba.njit(parallel=True, cache=True)
+def _discontinuity_energy(L0, L1, W0, has_w, r, out):
+    """out = |∂²S/∂u²| + |∂²S/∂v²| (second differences, clamped borders) of the mean
+    S = (L0 + L1) / 2 (times W0 > 0 with ``has_w``) maximised over ±r samples in (u, v)
+    (windows clipped at the borders), per view image of (F, Ny, Nx, Nv, Nu) arrays."""
+    F, Ny, Nx, Nv, Nu = L0.shape
+    two = np.float32(2.0)
+    half = np.float32(0.5)
+    for idx in numba.prange(F * Ny * Nx):
+        fc = idx // (Ny * Nx)
+        rem = idx - fc * Ny * Nx
+        j = rem // Nx
+        i = rem - j * Nx
+        a0 = L0[fc, j, i]
+        a1 = L1[fc, j, i]
+        o = out[fc, j, i]
+        img = np.empty((Nv, Nu), np.float32)
+        e = np.zeros((Nv, Nu), np.float32)
+        for v in range(Nv):
+            for u in range(Nu):
+                sv = (a0[v, u] + a1[v, u]) * half
+                if has_w and not W0[fc, j, i, v, u] > 0:
+                    sv = np.float32(0.0)
+                img[v, u] = sv
+        for v in range(Nv):
+            for u in range(Nu):
+                acc = np.float32(0.0)
+                if Nv >= 3:
+                    acc += abs(img[max(v - 1, 0), u] - two * img[v, u] + img[min(v + 1, Nv - 1), u])
+                if Nu >= 3:
+                    acc += abs(img[v, max(u - 1, 0)] - two * img[v, u] + img[v, min(u + 1, Nu - 1)])
+                e[v, u] = acc
+        for v in range(Nv):
+            lo = max(v - r, 0)
+            hi = min(v + r, Nv - 1)
+            for u in range(Nu):
+                m = e[lo, u]
+                for d in range(lo + 1, hi + 1):
+                    m = max(m, e[d, u])
+                img[v, u] = m
+        for v in range(Nv):
+            for u in range(Nu):
+                m = img[v, max(u - r, 0)]
+                for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                    m = max(m, img[v, d])
+                o[v, u] = m
+
+
+def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
+                          samples: int = 200_000) -> np.ndarray:
+    """:func:`discontinuity_weight` of S = (L0 + L1) / 2 (zero where W0 <= 0); the median
+    from about ``samples`` values in whole rows."""
+    e = np.empty_like(L0)
+    _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e)
+    rows = e.reshape(-1, e.shape[-1])
+    m = float(np.median(rows[:: max(1, e.size // samples)]))
+    if not m > 0:
+        return np.ones_like(e)
+    e *= np.float32(1.0 / (opts.smooth_c * m))
+    np.multiply(e, e, out=e)
+    e += np.float32(1.0)
+    return np.reciprocal(e, out=e)
 
 
 def discontinuity_weight(S: np.ndarray, opts: MotionOptions) -> np.ndarray:
@@ -920,128 +1283,150 @@ def discontinuity_weight(S: np.ndarray, opts: MotionOptions) -> np.ndarray:
     frame pair; it depends on the data only (not on the motion), so it is the same in
     every iteration of a level. Public so the design study predicts with the same weights.
     """
-    from scipy.ndimage import maximum_filter
-
-    lap = np.array([1.0, -2.0, 1.0], np.float32)
-    e = np.zeros_like(S)
-    for ax in (3, 4):
-        if S.shape[ax] >= 3:
-            e += np.abs(correlate_axis(S, lap, ax))
-    r = int(opts.smooth_radius)
-    if r > 0:
-        e = maximum_filter(e, size=(1, 1, 1, 2 * r + 1, 2 * r + 1), mode="nearest")
-    sample = e.reshape(-1)[:: max(1, e.size // 200_000)]
-    m = float(np.median(sample))
-    if not m > 0:
-        return np.ones_like(e)
-    z = e / np.float32(opts.smooth_c * m)
-    return (1.0 / (1.0 + z * z)).astype(np.float32)
+    S = np.ascontiguousarray(S, dtype=np.float32)
+    return _discontinuity_weight(S, S, None, opts)
 
 
 def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
     """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data)."""
-    S = 0.5 * (lev.L0 + lev.L1)
-    if lev.W0 is not None:
-        S = S * (lev.W0 > 0)
-    return discontinuity_weight(S, opts)
+    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts)
 
 
 # ============================================================================ the solver
 
 
+def _warp_source(L: np.ndarray, W: np.ndarray | None) -> np.ndarray:
+    """Channels warped together, (F, Nv, Nu, K, Ny, Nx) (:func:`_views_inner`): L, and with
+    a confidence W also W and the "no data" indicator (W <= 0), which must not be
+    interpolated into usable samples (any stencil tap on it makes the sample unusable)."""
+    if W is None:
+        return _views_inner(L[:, None])
+    return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1))
+
+
+def _warped_confidence(out: np.ndarray) -> np.ndarray:
+    """Confidence factor of warped channels (K, F, ...) from :func:`_warp_source` with W."""
+    return np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6)
+
+
 class _Solver:
-    """One pyramid level: warp, derivatives, weights and (re-)weighted solves."""
+    """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
     def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
         self.lev = lev
-        self.g = lev.grid
+        self.g = g = lev.grid
         self.opts = opts
         self.filters = filters
-        self.vals = [np.ascontiguousarray(a.values, dtype=np.float64)
-                     for a in (self.g.x, self.g.y, self.g.u, self.g.v)]
-        self.radius = {k: (fp.radius if getattr(self.g, k).count >= 2 * fp.radius + 1 else 0)
-                       for k, fp in filters.items()}
+        self.pairs, self.taps = filter_taps(g, {k: fp.name for k, fp in filters.items()})
+        self.radius = {k: (fp.radius if self.pairs[k] is not None else 0) for k, fp in filters.items()}
+        self.vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (g.x, g.y, g.u, g.v)]
+        self.zs = np.array([face.z_pi for face in g.faces], float)
+        self.fs = np.array([face.f for face in g.faces], float)
+        self.B = [_face_B(face) for face in g.faces]
+        self.h = np.array([g.x.step, g.y.step, g.u.step, g.v.step], float)
+        F, Ny, Nx, Nv, Nu = self.shape = lev.L0.shape
+        r = self.radius
+        self.box = np.array([r["y"], Ny - r["y"], r["x"], Nx - r["x"], r["v"], Nv - r["v"], r["u"], Nu - r["u"]],
+                            np.int64)
+        self.tile = max(1, min(int(opts.tile), max(4, -(-max(Nu, Nv) // 8))))   # >= ~8 x 8 tiles per face
+        self.kind = _ROBUST_KIND[opts.robust]
         self.scale: float | None = None
         self.smooth = _level_discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
-        self.noise_var: float | None = None
+        self.var: np.ndarray | None = None
+        self.src1 = _warp_source(lev.L1, lev.W1)
+        self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
+        self.conf0 = None
+        if lev.W0 is not None and not opts.symmetric:
+            self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
+        K = self.src1.shape[3]
+        self.out1 = np.empty((K,) + self.shape, np.float32)
+        self.conf = np.empty(self.shape, np.float32)
+        self.U = np.empty((Nv, Nu, K, Ny, Nx), np.float32)
+        self.der = [np.empty(self.shape, np.float32) for _ in range(5)]
+        self.base = np.empty(self.shape, np.float32)
+        nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
+        nt = (-(-Nv // self.tile), -(-Nu // self.tile))
+        self.acc = np.empty((nviews,) + nt + (_NACC,))
+        self.st = np.empty((nviews, _NSTAT))
+        self.n_base = 0
 
-    def prepare(self, M: np.ndarray) -> None:
-        """Warp both frames by the estimate M and compute derivatives and base weights."""
+    # --------------------------------------------------------------- passes
+
+    def _face_params(self, p_rig: np.ndarray) -> np.ndarray:
+        return np.stack([Bk @ p_rig for Bk in self.B])
+
+    def _sums(self):
+        F = self.shape[0]
+        acc = self.acc.reshape(F, -1, self.acc.shape[1] * self.acc.shape[2], _NACC)
+        return _reduce(acc, self.B), self.st.reshape(F, -1, _NSTAT)
+
+    def prepare(self, M: np.ndarray, final: bool):
+        """Warp frame 2 (both frames with ``symmetric``) by the estimate M, then the fused
+        kernel: derivatives, base weights, normal sums with unit IRLS weights."""
         lev, opts = self.lev, self.opts
         H = _T_sqrt(M) if opts.symmetric else np.eye(4)
         H1 = T_inverse(H) if opts.symmetric else T_inverse(M)
-        # channels: L, W and the "no data" indicator (W <= 0), which must not be
-        # interpolated into usable samples (any stencil tap on it → unusable)
-        stack0 = [lev.L0] + ([lev.W0, (lev.W0 <= 0)] if lev.W0 is not None else [])
-        stack1 = [lev.L1] + ([lev.W1, (lev.W1 <= 0)] if lev.W1 is not None else [])
+        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf, self.U)
+        conf = self.conf
+        if lev.W1 is not None:
+            conf *= _warped_confidence(self.out1)
         if opts.symmetric:
-            w0, ok0 = warp_lightfield(np.stack(stack0), self.g, H, uv_taps=opts.uv_taps)
+            K0 = self.src0.shape[3]
+            out0 = np.empty((K0,) + self.shape, np.float32)
+            ok0 = np.empty(self.shape, np.float32)
+            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0, 
+                       np.empty(self.U.shape[:2] + (K0,) + self.U.shape[3:], np.float32))
+            conf *= ok0
+            if lev.W0 is not None:
+                conf *= _warped_confidence(out0)
+            L0 = out0[0]
         else:
-            w0, ok0 = np.stack(stack0).astype(np.float32), np.ones(lev.L0.shape, bool)
-        w1, ok1 = warp_lightfield(np.stack(stack1), self.g, H1, uv_taps=opts.uv_taps)
-        conf = (ok0 & ok1).astype(np.float32)
-        for ww in (w0, w1):
-            if len(ww) > 1:
-                conf *= np.clip(ww[1], 0, 1) * (np.abs(ww[2]) < 1e-6)
-        der = plenoptic_derivatives(w0[0], w1[0], self.g, filters={k: v.name for k, v in self.filters.items()},
-                                    out=getattr(self, "der", None))
-        if not (lev.W0 is None and lev.W1 is None and conf.min() > 0):
-            conf = _min_filter_support(conf, self.radius)
-        base = conf * der.valid[None].astype(np.float32)
-        if self.smooth is not None:
-            base *= self.smooth
-        self.der = der
-        self.base = base
+            L0 = lev.L0
+            if self.conf0 is not None:
+                conf *= self.conf0
+        need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
+        smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
+        Lx, Ly, Lu, Lv, Lt = self.der
+        _prepare_kernel(L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
+                        Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
+                        np.zeros((self.shape[0], 6)), self.tile, self.box, self.h, self.var, final,
+                        self.acc, self.st, parallel_chunks())
+        sums = self._sums()
+        self.n_base = int(sums[1][..., 1].sum())
+        return sums
 
-    def normal(self, w: np.ndarray):
-        """Rig-frame N (6, 6), rhs (6,), Σ w b², Σ w for weights w (F, Ny, Nx, Nv, Nu)."""
-        d = self.der
-        N = np.zeros((6, 6))
-        rhs = np.zeros(6)
-        sbb = sw = 0.0
-        for k, face in enumerate(self.g.faces):
-            Ny, Nx, Nv, Nu = d.Lx.shape[1:]
-            acc = np.empty((Ny * Nx * Nv, 29))
-            _normal_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], d.Lt[k], w[k], *self.vals,
-                           float(face.z_pi), float(face.f), acc)
-            Nk, rk, bk, wk = _unpack_normal(acc.sum(axis=0))
-            B = _face_B(face)
-            N += B.T @ Nk @ B
-            rhs += B.T @ rk
-            sbb += bk
-            sw += wk
-        return N, rhs, sbb, sw
+    def reweighted(self, p_rig: np.ndarray, final: bool):
+        """Normal sums with IRLS weights of the residuals at p_rig (robust scale self.scale)."""
+        Lx, Ly, Lu, Lv, Lt = self.der
+        _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
+                     self._face_params(p_rig), self.kind, 1.0 / (self.scale * self.opts.robust_c), self.tile,
+                     self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
+        return self._sums()
 
-    def residuals(self, p_rig: np.ndarray) -> np.ndarray:
-        d = self.der
-        out = np.empty_like(d.Lt)
-        for k, face in enumerate(self.g.faces):
-            pk = _face_B(face) @ p_rig
-            _residual_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], d.Lt[k], *self.vals,
-                             float(face.z_pi), float(face.f), pk, out[k])
-        return out
-
-    def texture(self, w: np.ndarray) -> float:
-        """Weighted RMS of the intensity change per sample, sqrt(Σ w |∇L · h|² / Σ w)."""
-        d = self.der
-        sw = float(np.sum(w, dtype=np.float64))
-        if not sw > 0:
+    def mad(self, p_rig: np.ndarray, max_samples: int = 50_000) -> float:
+        """1.4826 × weighted median of |residual| over base weight > 0 (weights = base), on
+        every k-th (v) row of the valid views, at least ``max_samples`` rays (the scale
+        needs no more precision)."""
+        if self.n_base == 0:
             return 0.0
-        e = 0.0
-        for arr, h in ((d.Lx, self.g.x.step), (d.Ly, self.g.y.step), (d.Lu, self.g.u.step),
-                       (d.Lv, self.g.v.step)):
-            e += float(np.sum(w * (arr * np.float32(h)) ** 2, dtype=np.float64))
-        return math.sqrt(e / sw)
+        box = self.box
+        nv = int(box[5] - box[4])
+        n_rows = self.shape[0] * int(box[1] - box[0]) * int(box[3] - box[2]) * nv
+        stride = max(1, self.n_base // max_samples)
+        while stride > 1 and math.gcd(stride, nv) != 1:      # visit every v
+            stride -= 1
+        n = -(-n_rows // stride)
+        a = np.empty((n, int(box[7] - box[6])), np.float32)
+        w = np.empty_like(a)
+        _sample_residuals(*self.der, self.base, *self.vals, self.zs, self.fs, self._face_params(p_rig),
+                          box, stride, a, w)
+        return 1.4826 * float(_weighted_median(a.reshape(-1), w.reshape(-1)))
 
-    def noise_energy(self, w: np.ndarray) -> np.ndarray:
-        """(6, 6) rig-frame E = Σ w Mᵀ diag(var L_x, var L_y, var L_u, var L_v) M: the
-        expected contribution of sensor noise to AᵀWA (M = the Eq. 5 ray matrices)."""
-        if self.noise_var is None:
-            self.noise_var = _noise_variance(self.lev)
-        var_S = 0.5 * self.noise_var                    # noise of the frames' mean
+    def derivative_noise(self) -> np.ndarray:
+        """(4,) expected variance of sensor noise in L_x, L_y, L_u, L_v (the frames' mean)."""
+        var_S = 0.5 * _noise_variance(self.lev)
         if not var_S > 0:
-            return np.zeros((6, 6))
-        shape = self.der.Lx.shape[1:]
+            return np.zeros(4)
         pn = {k: (float(np.sum(fp.prefilter ** 2)) if self.radius[k] > 0 else 1.0)
               for k, fp in self.filters.items()}
         step = {"x": self.g.x.step, "y": self.g.y.step, "u": self.g.u.step, "v": self.g.v.step}
@@ -1052,83 +1437,45 @@ class _Solver:
                 continue
             others = math.prod(pn[o] for o in "xyuv" if o != k)
             var.append(var_S * float(np.sum(self.filters[k].derivative ** 2)) * others / step[k] ** 2)
-        # E is a smooth (polynomial) function of the ray coordinates weighted by w: sum it
-        # over every s-th direction and scale up by the weight ratio (a covariance
-        # correction needs no more precision; 16x cheaper on large grids)
-        s = 4 if min(shape[2], shape[3]) >= 32 else 1
-        xs, ys, us, vs = self.vals
-        sub_vals = (xs, ys, np.ascontiguousarray(us[::s]), np.ascontiguousarray(vs[::s]))
-        sub = (shape[0], shape[1], len(sub_vals[3]), len(sub_vals[2]))
-        one = np.ones(sub, np.float32)
-        zero = np.zeros(sub, np.float32)
-        E = np.zeros((6, 6))
-        for kf, face in enumerate(self.g.faces):
-            wk = np.ascontiguousarray(w[kf][:, :, ::s, ::s])
-            sw_sub = float(np.sum(wk, dtype=np.float64))
-            if not sw_sub > 0:
-                continue
-            ratio = float(np.sum(w[kf], dtype=np.float64)) / sw_sub
-            Ek = np.zeros((6, 6))
-            for j in range(4):
-                if var[j] == 0.0:
-                    continue
-                g = [zero, zero, zero, zero]
-                g[j] = one
-                acc = np.empty((sub[0] * sub[1] * sub[2], 29))
-                _normal_kernel(*g, zero, wk, *sub_vals, float(face.z_pi), float(face.f), acc)
-                Ek += var[j] * ratio * _unpack_normal(acc.sum(axis=0))[0]
-            B = _face_B(face)
-            E += B.T @ Ek @ B
-        return E
+        return np.array(var)
 
-    def scores(self, w: np.ndarray, res: np.ndarray) -> np.ndarray:
-        """(n_blocks, 6) per-tile sums of w a r in rig coordinates (tiles of (u, v), whole (x, y))."""
-        d = self.der
-        Nuv = max(self.g.u.count, self.g.v.count)
-        tile = max(1, min(int(self.opts.tile), max(4, -(-Nuv // 8))))   # >= ~8 x 8 tiles per face
-        blocks = []
-        for k, face in enumerate(self.g.faces):
-            Ny, Nx, Nv, Nu = d.Lx.shape[1:]
-            nt = (Nu + tile - 1) // tile
-            out = np.zeros((Ny, Nx, Nv, nt, 6))
-            _score_kernel(d.Lx[k], d.Ly[k], d.Lu[k], d.Lv[k], w[k], res[k], *self.vals,
-                          float(face.z_pi), float(face.f), tile, out)
-            s = out.sum(axis=(0, 1))                                   # (Nv, nt, 6)
-            nv = (Nv + tile - 1) // tile
-            pad = np.zeros((nv * tile, nt, 6))
-            pad[:Nv] = s
-            s = pad.reshape(nv, tile, nt, 6).sum(axis=1).reshape(-1, 6)
-            blocks.append(s @ _face_B(face))
-        return np.concatenate(blocks)
+    # --------------------------------------------------------------- solve
 
-    def solve(self, final: bool) -> dict:
-        """Weighted (IRLS) solve of the increment; returns a dict of the pieces."""
+    def solve(self, M: np.ndarray) -> dict:
+        """Warp by M, then the weighted (IRLS) solve of the increment; returns a dict of the
+        pieces (solution, normal matrix, noise energy, scores, counts)."""
         opts = self.opts
-        w = self.base
-        N, rhs, sbb, sw = self.normal(w)
+        if self.var is None:
+            self.var = self.derivative_noise()
+        steps = opts.irls_steps if self.kind else 0
+        (N, rhs, sbb, sw, tiles), st = self.prepare(M, final=steps == 0)
         sol = _solve_normal(N, rhs, opts.rcond)
-        steps = opts.irls_steps if opts.robust != "none" else 0
-        wr = None
-        res = None
-        for _ in range(steps):
-            res = self.residuals(sol["p"])
-            mad = max(_weighted_mad(res, self.base), _SCALE_FLOOR)
+        for i in range(steps):
+            mad = max(self.mad(sol["p"]), _SCALE_FLOOR)
             # the scale may grow but never shrinks within a level: weights do not
             # tighten as the warp converges
             self.scale = mad if self.scale is None else max(self.scale, mad)
-            wr = _robust_weights(res, self.scale, opts.robust, opts.robust_c)
-            w = self.base * wr
-            N, rhs, sbb, sw = self.normal(w)
+            (N, rhs, sbb, sw, tiles), st = self.reweighted(sol["p"], final=i == steps - 1)
             sol = _solve_normal(N, rhs, opts.rcond)
-        E = self.noise_energy(w)
+        stats = st.sum(axis=1)                                  # (F, 25)
+        E = np.zeros((6, 6))
+        for k, Bk in enumerate(self.B):
+            E += Bk.T @ _unpack_sym(stats[k, 4:25]) @ Bk
         if opts.eiv and np.any(E):
             # step with the noise-free sensitivity N − E (errors in variables): with
             # noisy derivatives N alone under-steps (badly so where t and ω couple)
             sol["p"] = _corrected_pinv(N, E, sol) @ rhs
-        sol.update(N=N, E=E, w=w, wr=wr, sw=sw)
-        if final:
-            res = self.residuals(sol["p"])
-            sol["res"] = res
+        p = sol["p"]
+        # residuals are linear in p: Σ w r² and the per-tile scores Σ w c r follow from the sums
+        chi2 = max(sbb - 2.0 * float(p @ rhs) + float(p @ N @ p), 0.0)
+        scores = []
+        for k, Bk in enumerate(self.B):
+            Nt = _unpack_sym(tiles[k, :, :21])
+            scores.append((Nt @ (Bk @ p) - tiles[k, :, 21:27]) @ Bk)
+        tot = stats.sum(axis=0)
+        sol.update(N=N, E=E, sw=sw, chi2=chi2, scores=np.concatenate(scores), num=int(tot[0]),
+                   base_n=int(tot[1]), inliers=int(tot[2]) if steps else None,
+                   texture=math.sqrt(tot[3] / sw) if sw > 0 else 0.0)
         return sol
 
 
@@ -1164,21 +1511,22 @@ def _name_direction(vec: np.ndarray) -> str:
 
 
 def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray | None = None) -> np.ndarray:
-    """(F, Ny, Nx, Nv, Nu) float32 copy of a frame (colour averaged). Non-finite samples
-    are an error unless the confidence ``W`` is 0 there (they are then set to 0)."""
+    """(F, Ny, Nx, Nv, Nu) float32 C-contiguous frame (colour averaged; the input itself when
+    it already is one: never written). Non-finite samples are an error unless the
+    confidence ``W`` is 0 there (they are then set to 0)."""
     L = np.asarray(L)
     if L.ndim == 6 and L.shape[:5] == grid.shape:        # colour: average the channels
         L = L.mean(axis=-1)
     if L.shape != grid.shape:
         raise InputError(f"motion: {name} has dims {L.shape}, but the grid is {grid.shape} "
                          "(F, Ny, Nx, Nv, Nu)")
-    L = np.array(L, dtype=np.float32, order="C")
-    bad = ~np.isfinite(L)
-    if np.any(bad):
+    L = np.ascontiguousarray(L, dtype=np.float32)     # no copy when it already is (never written)
+    if not np.isfinite(L).all():
+        bad = ~np.isfinite(L)
         if W is None or np.any(bad & (W > 0)):
             raise InputError(f"motion: {name} contains NaN or infinite samples where the "
                              "confidence W is not 0; mask them with W = 0")
-        L[bad] = 0.0
+        L = np.where(bad, np.float32(0.0), L)
     return L
 
 
@@ -1211,11 +1559,11 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     solver = None
     diag = None
     for li in range(len(levels) - 1, -1, -1):
+        solver = None                             # free the previous level's buffers first
         solver = _Solver(levels[li], opts, filters)
         finest = li == 0
         for it in range(opts.iterations):
-            solver.prepare(M)
-            sol = solver.solve(final=True)
+            sol = solver.solve(M)
             n_solves += 1
             p = sol["p"]
             if not np.all(np.isfinite(p)):        # cannot happen with finite input; be safe
@@ -1223,7 +1571,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
             H = _T_sqrt(M) if opts.symmetric else M
             D = T_from_Rt(R_from_r(p[3:]), p[:3])
             M = H @ T_inverse(D) @ H if opts.symmetric else T_inverse(D) @ M
-            diag = (sol, _increment_covariance(sol, solver), H)
+            diag = (sol, _increment_covariance(sol), H)
             if finest or it >= 1:
                 # Stop once the increment is within the noise: re-warping noisy data
                 # only makes the estimate wander (it re-samples the noise). Coarse
@@ -1232,14 +1580,14 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
                 chi2 = float(p @ np.linalg.pinv(C) @ p) if np.all(np.isfinite(C)) else math.inf
                 if chi2 < _CHI2_STOP or np.linalg.norm(p[:3]) + np.linalg.norm(p[3:]) < opts.tol:
                     break
-    return _result(index, M, diag, solver, opts, n_solves)
+    return _result(index, M, diag, opts, n_solves)
 
 
 _CHI2_STOP = 12.6
 """95% quantile of χ² with 6 degrees of freedom: an increment below it is noise."""
 
 
-def _increment_covariance(sol: dict, solver: _Solver) -> tuple[np.ndarray, np.ndarray, float]:
+def _increment_covariance(sol: dict) -> tuple[np.ndarray, np.ndarray, float]:
     """Covariances (6, 6) of the converged estimate: cluster-robust sandwich and
     ``σ² (AᵀWA)⁺``, and σ².
 
@@ -1247,14 +1595,12 @@ def _increment_covariance(sol: dict, solver: _Solver) -> tuple[np.ndarray, np.nd
     converges where the noise's pull balances the *noise-free* sensitivity, which is
     AᵀWA minus the expected noise energy E. Both covariances use ``N − E`` (E shrunk
     if needed to keep it well inside positive definite); with one face, where t and ω
-    couple, this is a factor of several for the translation.
+    couple, this is a factor of several for the translation. The scores are the
+    per-tile sums of w c r over (u, v) tiles of all views (``_Solver.solve``).
     """
-    w, res = sol["w"], sol["res"]
-    sw = float(np.sum(w, dtype=np.float64))
-    chi2 = float(np.sum(w.astype(np.float64) * res.astype(np.float64) ** 2))
-    sigma2 = chi2 / max(sw - 6.0, 1.0)
+    sigma2 = sol["chi2"] / max(sol["sw"] - 6.0, 1.0)
     Np = _corrected_pinv(sol["N"], sol["E"], sol)
-    S = solver.scores(w, res)
+    S = sol["scores"]
     G = S.shape[0]
     meat = S.T @ S * (G / max(G - 1, 1))
     return Np @ meat @ Np, sigma2 * Np, sigma2
@@ -1287,14 +1633,11 @@ def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
     return ((vec * inv) @ vec.T) * s[:, None] * s[None, :]
 
 
-def _result(index, M, diag, solver: _Solver, opts: MotionOptions, n_solves: int) -> PairResult:
+def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
     sol, (C_sand, C_iid, sigma2), H = diag
-    w = sol["w"]
-    num = int(np.count_nonzero(w > 0))
-    base_n = int(np.count_nonzero(solver.base > 0))
-    wr = sol["wr"]
-    inl = float(np.count_nonzero((wr > 0.5) & (solver.base > 0)) / base_n) if (wr is not None and base_n) \
-        else (1.0 if base_n else 0.0)
+    num = sol["num"]
+    base_n = sol["base_n"]
+    inl = sol["inliers"] / base_n if (sol["inliers"] is not None and base_n) else (1.0 if base_n else 0.0)
     # map the increment covariance to the rig's (t, r): M = H exp(−δ) H = M · exp(Ad(H⁻¹)(−δ))
     # (one-sided warping: H = M_e, M = exp(−δ) M_e = M · exp(Ad(M⁻¹)(−δ)))
     J = np.zeros((6, 6))
@@ -1304,7 +1647,7 @@ def _result(index, M, diag, solver: _Solver, opts: MotionOptions, n_solves: int)
     cov = J @ C_sand @ J.T
     cov_iid = J @ C_iid @ J.T
     unobs_vecs = sol["unobs"]
-    texture = solver.texture(w)
+    texture = sol["texture"]
     if texture < _TEXTURE_FLOOR:
         unobs_vecs = np.eye(6)
     if len(unobs_vecs):
