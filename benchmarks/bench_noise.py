@@ -1,6 +1,6 @@
 """Plenoptic motion under image noise against the Cramér–Rao bound of the linear model (issue #3, target 2).
 
-Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--variants]``
+Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--variants] [--probe]``
 
 Set-up (paper Sect. 5, as benchmarks/bench_motion.py): unit spheres filling the
 horizon at D = 8 m, f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions per face
@@ -15,6 +15,9 @@ the trace of the CRB blocks below: the RMS vector error an efficient unbiased
 estimator reaches), and the ratio measured / bound (goal ≤ 1.5). Two further columns
 give the noise-only ratio (RMS of the deviation from the draws' mean / bound) and the
 σ predicted for the solver's own weighted estimator by :func:`polycam.design.predict_pair`.
+``--variants`` repeats the measurement for several :class:`MotionOptions`; ``--probe``
+makes one unweighted linear solve at the true motion with the solver's regressors and
+with depth-regularised positional regressors (Eq. 6; a proposed solver change).
 
 The bound (derivation)
 ----------------------
@@ -69,10 +72,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from polycam.derivatives import FILTERS, plenoptic_derivatives  # noqa: E402
+import dataclasses  # noqa: E402
+
+from polycam.derivatives import FILTERS, correlate_axis, plenoptic_derivatives  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
-from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients  # noqa: E402
+from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -307,6 +312,73 @@ def variant_table(name: str, grid, L0, L1, M, sigmas, draws: int) -> None:
         print(f"| {vname} | " + " | ".join(cells) + " |", flush=True)
 
 
+# ---------------------------------------------------------------------------- linear probe
+
+
+def depth_regularised(der, passes: int = 2):
+    """The derivatives with L_x, L_y replaced by ρ̂ L_u, ρ̂ L_v (Lambertian, paper Eq. 6:
+    L_x = ρ L_u with ρ = f / Z), ρ̂ = Σ L_x L_u / Σ L_u² (L_x regressed on the clean L_u) over a
+    (u, v) window (the fs5 prefilter applied ``passes`` times) — the proposed solver change."""
+    taps = FILTERS["fs5"].prefilter
+
+    def win(a):
+        out = np.ascontiguousarray(a, dtype=np.float32)
+        for _ in range(passes):
+            out = correlate_axis(correlate_axis(out, taps, 3), taps, 4)
+        return out
+
+    suu = win(der.Lu * der.Lu + der.Lv * der.Lv)
+    sxu = win(der.Lx * der.Lu + der.Ly * der.Lv)
+    rho = np.where(suu > 0, sxu / np.maximum(suu, 1e-30), 0.0).astype(np.float32)
+    return dataclasses.replace(der, Lx=rho * der.Lu, Ly=rho * der.Lv)
+
+
+def linear_probe(name: str, grid, L0, L1, M, sigmas, draws: int) -> None:
+    """One unweighted linear solve of Eq. 5 at the true motion (frame 2 warped by it, as the
+    solver sees it at convergence): RMS of the increment over draws / CRB, with the solver's
+    regressors and with depth-regularised positional regressors."""
+    filters = MotionOptions().filters
+    crb1, _ = linear_model_bounds(L0, L1, grid, M, filters)
+    J = _ray_to_rig(np.zeros(6))
+    print(f"\n## {name}: one linear solve at the true motion, RMS increment / CRB (t, ω), {draws} draws\n")
+    print("| regressors | " + " | ".join(f"σ = {s:g}" for s in sigmas) + " |")
+    print("|---|" + "---|" * len(sigmas))
+    cells = {"L_x, L_y as measured (solver)": [], "ρ̂ L_u, ρ̂ L_v (Eq. 6, proposed)": []}
+    for s in sigmas:
+        sig = s / 255.0
+        rng = np.random.default_rng([29, int(s * 1000)])
+        errs = {k: [] for k in cells}
+        for _ in range(draws if s > 0 else 1):
+            a = (L0 + rng.normal(0.0, sig, L0.shape)).astype(np.float32) if s > 0 else L0
+            b = (L1 + rng.normal(0.0, sig, L1.shape)).astype(np.float32) if s > 0 else L1
+            w1, ok = warp_lightfield(b[None], grid, T_inverse(M))
+            der = plenoptic_derivatives(a, w1[0], grid, filters=filters)
+            okv = ok.astype(np.float32)
+            for ax, r in ((1, 1), (2, 1), (3, 2), (4, 2)):
+                okv = np.minimum(okv, np.minimum.reduce([np.roll(okv, d, axis=ax) for d in range(-r, r + 1)]))
+            w = okv * der.valid[None]
+            for key, d in (("L_x, L_y as measured (solver)", der),
+                           ("ρ̂ L_u, ρ̂ L_v (Eq. 6, proposed)", depth_regularised(der))):
+                N = np.zeros((6, 6))
+                rhs = np.zeros(6)
+                for k in range(len(grid.faces)):
+                    A = ray_motion_coefficients(d, grid, k).reshape(-1, 6)
+                    wk = w[k].reshape(-1).astype(np.float64)
+                    N += (A * wk[:, None]).T @ A
+                    rhs -= (A * wk[:, None]).T @ d.Lt[k].reshape(-1)
+                errs[key].append(J @ np.linalg.solve(N, rhs))
+        for key in cells:
+            e = np.array(errs[key])
+            if s == 0:
+                cells[key].append(f"bias {1e3 * rms_norm(e[:, :3]):.4f} mm, {1e6 * rms_norm(e[:, 3:]):.2f} µrad")
+            else:
+                crb = crb1 * sig * sig
+                cells[key].append(f"{rms_norm(e[:, :3]) / math.sqrt(np.trace(crb[:3, :3])):.2f}, "
+                                  f"{rms_norm(e[:, 3:]) / math.sqrt(np.trace(crb[3:, 3:])):.2f}")
+    for key, c in cells.items():
+        print(f"| {key} | " + " | ".join(c) + " |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 draws, fewer levels, supersample 2")
@@ -317,6 +389,7 @@ def main() -> None:
     ap.add_argument("--faces", nargs="+", default=["all", "+z"])
     ap.add_argument("--variant-sigmas", type=float, nargs="+", default=[0.0, 1.0, 8.0])
     ap.add_argument("--variants-only", action="store_true", help="skip the main table")
+    ap.add_argument("--probe", action="store_true", help="also the one-linear-solve regressor probe")
     args = ap.parse_args()
     draws = args.draws or (3 if args.quick else 6)
     sigmas = (0.0, 1.0, 4.0) if args.quick else SIGMAS
@@ -327,6 +400,8 @@ def main() -> None:
         if not args.variants_only:
             noise_table(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, sigmas, draws, MotionOptions(),
                         not args.no_predict)
+        if args.probe:
+            linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, (0.0, 1.0, 8.0), draws)
         if args.variants or args.variants_only:
             variant_table(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.variant_sigmas), draws)
 
