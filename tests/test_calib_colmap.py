@@ -258,3 +258,48 @@ def test_board_scale_from_triangulated_corners(tmp_path):
     T_ref_world[:3, 3] /= k
     scale = _board_scale(s, board, list(true), models_ref, {i: T_ref_world for i in range(len(s))})
     assert scale == pytest.approx(k, rel=0.01)
+
+
+@pytest.mark.slow
+def test_colmap_with_board_scale_end_to_end(tmp_path):
+    """`polycam calibrate SESSION --board B --method colmap`: a 2x2 rig moving through a room
+    with a ChArUco board on a stand; scale from the triangulated board, cameras near the truth."""
+    import tomllib
+
+    from polycam.board import load_board
+    from polycam.cli import main
+    from polycam.geometry import T_from_Rt
+    from polycam.session import open_session
+    from polycam.synth import make_trajectory, room_scene, synth_session
+
+    (tmp_path / "board.toml").write_text('[board]\ntype = "charuco"\nsquares = [5, 7]\nsquare_length = 0.08\n'
+                                         'marker_length = 0.06\ndictionary = "DICT_5X5_100"\n')
+    board = load_board(tmp_path / "board.toml")
+    (tmp_path / "rig.toml").write_text('[rig]\nname = "colmapboard"\n[defaults]\nwidth = 320\nheight = 240\n'
+                                       'fov_deg = 70\n[grid]\nrows = 2\ncols = 2\npitch = 0.06\n')
+    rig = load_rig(tmp_path / "rig.toml")
+    bw, bh = board.size_m
+    pps = 60
+    image, H_image_board = board.render(pps, 0.5)
+    margin = (image.shape[1] - board.cols * pps) / 2.0 * board.square_length / pps
+    T_world_board = T_from_Rt(np.eye(3), np.array([-bw / 2, -bh / 2 + 0.1, 1.2]))      # 1.2 m ahead, facing the rig
+    scene, _ = room_scene(3.0, seed=3).with_image_rect(image, T_world_board, (-margin, bw + margin, -margin,
+                                                                               bh + margin), H_image_board[:2])
+    out = synth_session(rig, tmp_path / "s", scene=scene, perturb_position_m=0.001, perturb_rotation_deg=0.3,
+                        perturb_focal_frac=0.01,
+                        trajectory=make_trajectory("smooth", 8, step_t=0.04, step_r_deg=2.0, seed=3))
+    rc = main(["calibrate", str(out), "--board", str(tmp_path / "board.toml"), "--method", "colmap",
+               "--out", str(tmp_path / "calib")])
+    assert rc == 0
+    report = tomllib.loads((tmp_path / "calib" / "report.toml").read_text())
+    assert report["calibration"]["scale_source"] == "board"
+    s = open_session(out)
+    true, est = s.calibration(), s.calibration(tmp_path / "calib")
+    from calib.align import fit_rig_frame
+
+    cams = list(true)
+    fit = fit_rig_frame(np.stack([T_rig_cam_of(est[c]) for c in cams]), np.stack([T_rig_cam_of(true[c]) for c in cams]),
+                        position_sigma_m=1.0, rotation_sigma_deg=1e-3)
+    assert fit.position_residuals_m.max() <= CALIB_COLMAP_POSITION_M
+    for c in cams:
+        assert abs(est[c].intrinsics()[1][0] / true[c].intrinsics()[1][0] - 1) <= CALIB_COLMAP_FOCAL_REL
