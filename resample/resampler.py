@@ -185,9 +185,33 @@ class Resampler:
         if plan is None:
             if len(self._plans) > self.options.geometry_cache + 1:
                 self._plans.clear()
-            plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill)
+            if self.cameras_on_focal_plane():
+                plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill)
+            else:
+                log.warning("resample: the cameras are not on the focal plane z_pi (a grid view is then a "
+                            "patchwork of several cameras): the views between them are filled by the "
+                            "pull-push alone (depth-free)")
+                plan = plan_view_fill(self.grid, np.zeros(self.grid.shape, np.float32), self.options.fill)
             self._plans[key] = plan
         return plan
+
+    def cameras_on_focal_plane(self, tolerance: float = 0.25) -> bool:
+        """Whether the camera centres lie on the focal plane of the face their optical axis
+        points into, to within ``tolerance`` viewpoint steps (median over the cameras): then a
+        measured grid view is one camera's view from that viewpoint, which the depth-aware
+        fill assumes."""
+        from polycam.cameras import T_rig_cam_of
+
+        steps = [a.step for a in (self.grid.x, self.grid.y) if a.count > 1]
+        if not steps:
+            return True
+        off = []
+        for m in self.models.values():
+            T = T_rig_cam_of(m)
+            normals = np.stack([np.asarray(fc.R_rig_face)[:, 2] for fc in self.grid.faces])
+            k = int(np.argmax(normals @ T[:3, 2]))
+            off.append(abs(float(normals[k] @ T[:3, 3]) - self.grid.faces[k].z_pi))
+        return float(np.median(off)) <= tolerance * min(steps)
 
     def _buffers(self):
         if self._pp is None:

@@ -53,6 +53,10 @@ __all__ = ["ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
 log = logging.getLogger(__name__)
 
 
+_MAX_CANDIDATES = 64
+"""Most disparity candidates swept at full resolution (a larger range gets a coarser step)."""
+
+
 @dataclass(frozen=True)
 class ViewFillOptions:
     """Settings of the depth-aware view filling (see the module docstring)."""
@@ -75,6 +79,9 @@ class ViewFillOptions:
     step is ``downsample`` times ``disparity_step``): much faster, and the box is wider."""
     refine: bool = False
     """After the sweep, try ``±disparity_step`` around it at full resolution."""
+    holes: bool = False
+    """Also re-fill the holes (``W <= 0.5``) of the measured views, from the measured views
+    around them (the pull-push fills them depth-free from the neighbouring views)."""
 
     def __post_init__(self) -> None:
         if not (self.min_depth > 0 and self.disparity_step > 0 and self.window >= 0 and self.max_radius >= 1):
@@ -99,6 +106,8 @@ class ViewFillPlan:
     """(K,) float64 candidate disparities [u-steps per x-step], ascending."""
     r_y: tuple[float, ...]
     """Per face: v-steps per y-step for one u-step per x-step (``(step_y / step_x)(step_u / step_v)``)."""
+    holes_only: tuple[bool, ...] = ()
+    """Per target: a measured view of which only the holes (``W <= 0.5``) are re-filled."""
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -113,17 +122,20 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     cov = np.mean(np.asarray(w_clamped) >= 1.0, axis=(3, 4))             # (F, Ny, Nx)
     sx = grid.x.step if grid.x.count > 1 else 0.0
     sy = grid.y.step if grid.y.count > 1 else 0.0
-    targets, sources, offsets, weights = [], [], [], []
+    targets, sources, offsets, weights, holes_only = [], [], [], [], []
     for f in range(F):
         src = cov[f] >= opts.source_coverage
         if src.sum() < 2:
             continue
         for j in range(Ny):
             for i in range(Nx):
-                if cov[f, j, i] >= opts.target_coverage:
+                own = bool(src[j, i])
+                if cov[f, j, i] >= opts.target_coverage and not (opts.holes and own):
                     continue
+                others = src.copy()
+                others[j, i] = False
                 for r in range(1, opts.max_radius + 1):
-                    jj, ii = np.nonzero(src[max(0, j - r):j + r + 1, max(0, i - r):i + r + 1])
+                    jj, ii = np.nonzero(others[max(0, j - r):j + r + 1, max(0, i - r):i + r + 1])
                     if jj.size >= 2:
                         break
                 if jj.size < 2:
@@ -133,6 +145,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
                 d2 = ((jj - j) * sy) ** 2 + ((ii - i) * sx) ** 2
                 w = 1.0 / np.maximum(d2, 1e-30)
                 targets.append((f, j, i))
+                holes_only.append(own)
                 sources.append(np.stack([jj, ii], axis=1).astype(np.int64))
                 offsets.append(np.stack([jj - j, ii - i], axis=1).astype(np.float64))
                 weights.append((w / w.sum()).astype(np.float32))
@@ -147,9 +160,16 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
         r_y.append((step_y / step_x) * (su / sv) if step_x > 0 else 1.0)
         if step_x > 0:
             dmax = max(dmax, fc.f * step_x / (su * opts.min_depth))
-    n = int(math.ceil(dmax / opts.disparity_step)) + 1
-    disp = np.arange(-1, n + 1) * opts.disparity_step          # one step beyond each end for the refinement
-    plan = ViewFillPlan(tuple(targets), tuple(sources), tuple(offsets), tuple(weights), disp, tuple(r_y))
+    step = opts.disparity_step
+    if dmax / step > _MAX_CANDIDATES:
+        log.warning("view fill: disparities up to %.3g u-steps per x-step (min_depth %.3g m) would need %d "
+                    "candidates; using %d, %.3g apart", dmax, opts.min_depth, int(dmax / step), _MAX_CANDIDATES,
+                    dmax / _MAX_CANDIDATES)
+        step = dmax / _MAX_CANDIDATES
+    n = int(math.ceil(dmax / step)) + 1
+    disp = np.arange(-1, n + 1) * step                          # one step beyond each end for the refinement
+    plan = ViewFillPlan(tuple(targets), tuple(sources), tuple(offsets), tuple(weights), disp, tuple(r_y),
+                        tuple(holes_only))
     log.info("view fill: %d views filled from their neighbours over %d disparities (0..%.2f u-steps per x-step)",
              len(plan), disp.size, dmax)
     return plan
@@ -423,8 +443,11 @@ def _blend(X, A, S, dy, dx, sw, r_y, d, out):
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_all(grey, L, W, targets, srcs, offs, sws, nsrc, r_y, coarse, k_down, fine, window, disp_out):
-    """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place; disp_out (T, Nv, Nu)."""
+def _fill_all(grey, Lsrc, L, W, targets, holes, srcs, offs, sws, nsrc, r_y, coarse, k_down, fine, window,
+              disp_out):
+    """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place from the source views of
+    Lsrc (L itself when no target is a source); disp_out (T, Nv, Nu). A target with holes[t]
+    keeps its samples with W > 0.5."""
     F, Ny, Nx, Nv, Nu, C = L.shape
     Mv, Mu = (Nv + k_down - 1) // k_down, (Nu + k_down - 1) // k_down
     T = targets.shape[0]
@@ -438,7 +461,7 @@ def _fill_all(grey, L, W, targets, srcs, offs, sws, nsrc, r_y, coarse, k_down, f
         for s in range(S):
             G[s] = grey[f, srcs[t, s, 0], srcs[t, s, 1]]
             A[s] = W[f, srcs[t, s, 0], srcs[t, s, 1]]
-            X[s] = L[f, srcs[t, s, 0], srcs[t, s, 1]]
+            X[s] = Lsrc[f, srcs[t, s, 0], srcs[t, s, 1]]
         dy = offs[t, :, 0].copy()
         dx = offs[t, :, 1].copy()
         sw = sws[t]
@@ -453,7 +476,15 @@ def _fill_all(grey, L, W, targets, srcs, offs, sws, nsrc, r_y, coarse, k_down, f
         if fine.shape[0] > 1:       # a few steps around it at full resolution
             base = d.copy()
             _sweep(G, S, dy, dx, sw, base, fine, 1.0, ry, window, d, False)
-        _blend(X, A, S, dy, dx, sw, ry, d, L[f, j, i])
+        if holes[t]:
+            tmp = Lsrc[f, j, i].copy()
+            _blend(X, A, S, dy, dx, sw, ry, d, tmp)
+            for v in range(Nv):
+                for u in range(Nu):
+                    if W[f, j, i, v, u] <= 0.5:
+                        L[f, j, i, v, u] = tmp[v, u]
+        else:
+            _blend(X, A, S, dy, dx, sw, ry, d, L[f, j, i])
 
 
 # ----------------------------------------------------------------------------- driver
@@ -488,13 +519,15 @@ def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFi
         sws[t, :n] = plan.weights[t]
         nsrc[t] = n
     disp = np.empty((T, Nv, Nu), np.float32)
-    step = opts.disparity_step
+    step = float(plan.disparities[1] - plan.disparities[0])
     k = int(opts.downsample)
     d_max = plan.disparities[-1]
     coarse = np.arange(-1, int(math.ceil(d_max / (k * step))) + 1) * (k * step)   # same step at 1/k resolution
     fine = np.array([-step, 0.0, step]) if opts.refine else np.zeros(1)
-    _fill_all(grey, L, np.ascontiguousarray(W, np.float32), np.array(plan.targets, np.int64), srcs, offs, sws,
-              nsrc, np.array(plan.r_y, np.float64), coarse, k, fine, int(opts.window), disp)
+    holes = np.array(plan.holes_only if plan.holes_only else [False] * T, np.bool_)
+    Lsrc = L.copy() if holes.any() else L          # sources are re-filled too: read a snapshot
+    _fill_all(grey, Lsrc, L, np.ascontiguousarray(W, np.float32), np.array(plan.targets, np.int64), holes, srcs,
+              offs, sws, nsrc, np.array(plan.r_y, np.float64), coarse, k, fine, int(opts.window), disp)
     if disparity_out is not None:
         for t, (f, j, i) in enumerate(plan.targets):
             disparity_out[f, j, i] = disp[t]

@@ -323,6 +323,12 @@ def test_view_fill_plan_on_an_auto_grid(tmp_path):
         np.testing.assert_array_equal(off, src - [j, i])
         assert math.isclose(float(w.sum()), 1.0, rel_tol=1e-6)
     assert plan.disparities[0] < 0 < plan.disparities[-1]
+    assert rs.cameras_on_focal_plane()
+    # cameras 5 cm behind the focal plane: a grid view is a patchwork of cameras, no fill
+    fc = grid.faces[0]
+    off = LightFieldGrid.cube(["+z"], f=fc.f, z_pi=0.05, x=grid.x, y=grid.y, u=grid.u, v=grid.v)
+    rs_off = Resampler(models, off)
+    assert not rs_off.cameras_on_focal_plane() and len(rs_off.fill_plan()) == 0
 
 
 def test_view_fill_recovers_the_views_of_a_plane():
