@@ -517,7 +517,9 @@ class DesignPrediction:
     """The classical rotation–translation ambiguity when present: the most correlated
     translation/rotation pair, e.g. ``t_x~w_y (corr -0.95)`` (|corr| >= 0.7), else ''."""
     bias: np.ndarray
-    """(6,) linearised systematic error of (t, r) from the noise-free pair (model error, one step)."""
+    """(6,) one linearised step of (t, r) from the truth on the noise-free pair: the direction
+    of the model error's pull only — the solver's actual systematic error (its fixed point,
+    often several times larger on one face) is :attr:`DesignMeasurement.bias_t` / ``clean``."""
     misfit: float
     """Robust scale of the noise-free residual / that of the noise: > 1 means model error
     (occlusions, aliasing) dominates and the solver scatters more than predicted."""

@@ -85,8 +85,10 @@ def cmd_design(args: argparse.Namespace) -> int:
     from polycam.design_report import write_design_report
 
     if args.hierarchy:
+        from polycam.gridrules import camera_spacing
+
         cam = rigs[0].cameras[0]
-        pitch = _spacing(rigs[0]) or 0.02
+        pitch = camera_spacing(rigs[0].positions) or 0.02
         rigs += hierarchy_rigs(cam, pitch=pitch)
     names = [r.name for r in rigs]
     seen: dict[str, int] = {}
@@ -105,19 +107,6 @@ def cmd_design(args: argparse.Namespace) -> int:
     _print_table(results)
     print(f"wrote {out / 'summary.csv'} and the tables and plots beside it (see {out / 'report.md'})")
     return 0
-
-
-def _spacing(rig) -> float:
-    import numpy as np
-
-    c = rig.positions
-    if len(c) < 2:
-        return 0.0
-    d = np.linalg.norm(c[:, None] - c[None], axis=-1)
-    np.fill_diagonal(d, np.inf)
-    nn = d.min(axis=1)
-    nn = nn[nn > 1e-9]
-    return float(np.median(nn)) if nn.size else 0.0
 
 
 def _renamed(rig, name: str):
