@@ -20,8 +20,12 @@ Speed: one face of 9 x 9 views x 128 x 128 directions (1.33 M rays): derivatives
 frame pair + one linear solve of Eq. 5, ours (numba kernels) against a numpy / scipy
 implementation of the same computation (``scipy.ndimage.correlate1d`` passes, the
 coefficient matrix A formed in numpy and AᵀWA by a matrix product), both measured in
-this run; plus the full default estimate per pair. Timings are the best of
-``--repeat`` runs after a warm-up; the machine (2 cores) may be shared.
+this run; plus the full default estimate per pair against the same algorithm written
+in numpy / scipy (:func:`numpy_full_solve`: same pyramid, warp stencils, filters,
+weights, IRLS, covariance scores and the same number of solves per level as our run),
+and the peak memory of one full estimate in a fresh process relative to one frame.
+Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
+machine (2 cores) may be shared, which inflates both (numba's threads spin-wait).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -163,26 +168,28 @@ def noise_table(L0, L1, M, grid) -> list[str]:
 
 
 def numpy_derivatives(L0, L1, grid, name="fs5"):
-    """The same separable derivatives with scipy.ndimage.correlate1d (baseline)."""
+    """The same separable derivatives with scipy.ndimage.correlate1d (baseline); ``name``: one
+    FILTERS name for all axes or axis → name."""
     from scipy.ndimage import correlate1d
 
-    fp = FILTERS[name]
-    p, d = fp.prefilter.astype(np.float32), fp.derivative.astype(np.float32)
+    names = name if isinstance(name, dict) else {k: name for k in "xyuv"}
+    taps = {k: (FILTERS[names.get(k, "fs5")].prefilter.astype(np.float32),
+                FILTERS[names.get(k, "fs5")].derivative.astype(np.float32)) for k in "xyuv"}
     S = 0.5 * (L0 + L1)
     D = L1 - L0
     axes = {"y": 1, "x": 2, "v": 3, "u": 4}
     step = {"x": grid.x.step, "y": grid.y.step, "u": grid.u.step, "v": grid.v.step}
 
     def filt(a, which):
-        for ax_name, taps in which.items():
-            a = correlate1d(a, taps, axis=axes[ax_name], mode="nearest")
+        for ax_name, t in which.items():
+            a = correlate1d(a, t, axis=axes[ax_name], mode="nearest")
         return a
 
     out = {}
     for n in ("x", "y", "u", "v"):
-        which = {m: (d if m == n else p) for m in axes}
+        which = {m: taps[m][1 if m == n else 0] for m in axes}
         out[n] = filt(S, which) / np.float32(step[n])
-    Lt = filt(D, {m: p for m in axes})
+    Lt = filt(D, {m: taps[m][0] for m in axes})
     return out, Lt
 
 
@@ -197,6 +204,166 @@ def numpy_solve(der_np, Lt, grid, valid):
     b = -Lt.reshape(-1).astype(np.float64)
     Aw = A * w[:, None]
     return np.linalg.lstsq(Aw.T @ A, Aw.T @ b, rcond=None)[0]
+
+
+def numpy_full_solve(L0, L1, grid, schedule: list[int], opts: MotionOptions):
+    """The default estimate's algorithm in plain numpy / scipy (baseline for the full solve):
+    the same (u, v) pyramid; per iteration a warp of frame 2 (numpy gathers with the same
+    6 x 6 Lagrange (u, v) stencils, then bilinear across views), scipy derivatives with the
+    same filters, weights = warp validity minimised over the filter support x valid x the
+    discontinuity weight, the coefficient matrix A (float64), a weighted solve and
+    ``irls_steps`` Tukey re-weightings (weighted MAD by sorting a 50 000-ray subsample),
+    and the per-tile scores and sandwich covariance. ``schedule``: iterations per level,
+    coarse to fine, taken from our run, so both do the same number of solves. One face."""
+    from scipy.ndimage import correlate1d, maximum_filter, minimum_filter
+
+    from polycam.geometry import T_inverse
+    from polycam.lightfield import Axis
+    from polycam.motion import _uv_stencils
+
+    def down(a):
+        for ax in (3, 4):
+            a = correlate1d(a, np.array([1, 4, 6, 4, 1], np.float32) / 16, axis=ax, mode="nearest")
+            a = a[(slice(None),) * ax + (slice(None, None, 2),)]
+        return np.ascontiguousarray(a)
+
+    levels = [(grid, L0, L1)]
+    for _ in range(len(schedule) - 1):
+        g, a, b = levels[-1]
+        half = {k: Axis(getattr(g, k).min, getattr(g, k).min + ((getattr(g, k).count - 1) // 2) * 2
+                        * getattr(g, k).step, (getattr(g, k).count - 1) // 2 + 1) for k in "uv"}
+        levels.append((replace(g, **half), down(a), down(b)))
+    fnames = opts.filters
+    radius = {k: FILTERS[fnames[k]].radius for k in "xyuv"}
+    M = np.eye(4)
+    face = grid.faces[0]
+    for (g, A0, A1), n_it in zip(levels[::-1], schedule):
+        F, Ny, Nx, Nv, Nu = A0.shape
+        S = 0.5 * (A0 + A1)
+        lap = np.array([1, -2, 1], np.float32)
+        e = np.abs(correlate1d(S, lap, axis=3, mode="nearest")) + np.abs(correlate1d(S, lap, axis=4, mode="nearest"))
+        e = maximum_filter(e, size=(1, 1, 1, 5, 5), mode="nearest")
+        smooth = 1 / (1 + (e / (opts.smooth_c * np.median(e))) ** 2)
+        valid = np.zeros((Ny, Nx, Nv, Nu), bool)
+        valid[radius["y"]:Ny - radius["y"], radius["x"]:Nx - radius["x"], radius["v"]:Nv - radius["v"],
+              radius["u"]:Nu - radius["u"]] = True
+        y, x, v, u = np.meshgrid(g.y.values, g.x.values, g.v.values, g.u.values, indexing="ij")
+        scale = None
+        for _ in range(n_it):
+            G = T_inverse(M)
+            R, tr = G[:3, :3], G[:3, 3]
+            wv, iv, wu, iu, ok_uv, sx, sy = _uv_stencils(g, face, R, opts.uv_taps)
+            U = np.zeros(A1.shape[1:], np.float32)
+            for q in range(6):
+                for r in range(6):
+                    U += (wv[..., q] * wu[..., r]).astype(np.float32) * A1[0][:, :, iv[..., q], iu[..., r]]
+            o = np.stack([x, y, np.full_like(x, face.z_pi)], -1) @ R.T + tr
+            fx = (o[..., 0] + (face.z_pi - o[..., 2]) * sx - g.x.min) / g.x.step
+            fy = (o[..., 1] + (face.z_pi - o[..., 2]) * sy - g.y.min) / g.y.step
+            ok = ok_uv & (fx > -1e-6) & (fx < Nx - 1 + 1e-6) & (fy > -1e-6) & (fy < Ny - 1 + 1e-6)
+            bx = np.clip(np.floor(fx), 0, Nx - 2).astype(int)
+            by = np.clip(np.floor(fy), 0, Ny - 2).astype(int)
+            ax_, ay_ = np.clip(fx - bx, 0, 1), np.clip(fy - by, 0, 1)
+            vi, ui = np.meshgrid(np.arange(Nv), np.arange(Nu), indexing="ij")
+            L1w = ((1 - ay_) * ((1 - ax_) * U[by, bx, vi, ui] + ax_ * U[by, bx + 1, vi, ui])
+                   + ay_ * ((1 - ax_) * U[by + 1, bx, vi, ui] + ax_ * U[by + 1, bx + 1, vi, ui]))
+            L1w = np.where(ok, L1w, 0).astype(np.float32)[None]
+            der, Lt = numpy_derivatives(A0, L1w, g, fnames)
+            conf = minimum_filter(ok.astype(np.float32), size=tuple(2 * radius[k] + 1 for k in "yxvu"),
+                                  mode="nearest")
+            base = (conf * valid * smooth[0]).reshape(-1)
+
+            class D:
+                pass
+            dd = D()
+            dd.Lx, dd.Ly, dd.Lu, dd.Lv = der["x"], der["y"], der["u"], der["v"]
+            A = ray_motion_coefficients(dd, g, 0).reshape(-1, 6)
+            b = -Lt.reshape(-1).astype(np.float64)
+            w = base
+            p = np.linalg.lstsq((A * w[:, None]).T @ A, (A * w[:, None]).T @ b, rcond=None)[0]
+            for _ in range(opts.irls_steps):
+                res = A @ p - b
+                m = base > 0
+                a, ww = np.abs(res[m]), base[m]
+                k = max(1, a.size // 50_000)
+                a, ww = a[::k], ww[::k]
+                order = np.argsort(a)
+                cw = np.cumsum(ww[order])
+                mad = max(1.4826 * a[order[np.searchsorted(cw, 0.5 * cw[-1])]], 1e-5)
+                scale = mad if scale is None else max(scale, mad)
+                z = np.abs(res) / (scale * opts.robust_c)
+                w = base * np.where(z < 1, (1 - z * z) ** 2, 0)
+                p = np.linalg.lstsq((A * w[:, None]).T @ A, (A * w[:, None]).T @ b, rcond=None)[0]
+            res = A @ p - b
+            t = 16 if Nu >= 128 else max(4, -(-Nu // 8))
+            sc = (w * res)[:, None] * A
+            scores = sc.reshape(Ny * Nx, Nv // t, t, Nu // t, t, 6).sum(axis=(0, 2, 4)).reshape(-1, 6)
+            Np = np.linalg.pinv((A * w[:, None]).T @ A)
+            cov = Np @ (scores.T @ scores) @ Np                   # noqa: F841 (the covariance's cost)
+            M = T_inverse(T_from_Rt(R_from_r(p[3:]), p[:3])) @ M
+    return M
+
+
+def solve_schedule(L0, L1, grid) -> list[int]:
+    """Linear solves per pyramid level (coarse to fine) of our default estimate."""
+    import polycam.motion as pm
+
+    counts: dict[int, int] = {}
+    orig = pm._Solver.solve
+
+    def counting(self, M):
+        counts[self.g.u.count] = counts.get(self.g.u.count, 0) + 1
+        return orig(self, M)
+
+    pm._Solver.solve = counting
+    try:
+        estimate_motion(L0, L1, grid)
+    finally:
+        pm._Solver.solve = orig
+    return [counts[k] for k in sorted(counts)]
+
+
+MEMORY_CHILD = """
+import sys
+import numpy as np
+sys.path.insert(0, {repo!r})
+from polycam.motion import estimate_motion
+from polycam.synth import default_lightfield_grid
+
+
+def status(key):
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) * 1024
+
+
+small = default_lightfield_grid("+z", views=5, directions=32)
+a = np.random.default_rng(0).random(small.shape).astype(np.float32)
+estimate_motion(a, a * 0.99 + 0.005, small)              # load the compiled kernels
+L0, L1 = np.load({f0!r}), np.load({f1!r})
+grid = default_lightfield_grid("+z", directions={directions})
+with open("/proc/self/clear_refs", "w") as f:            # reset the peak resident set (VmHWM)
+    f.write("5")
+before = status("VmRSS")
+estimate_motion(L0, L1, grid)
+print(status("VmHWM") - before)
+"""
+
+
+def peak_memory(L0, L1, directions: int) -> int:
+    """Peak growth of the resident set [bytes] during one full estimate, in a fresh process
+    (frames loaded and kernels warmed up on a small grid first; Linux: the peak is reset
+    through /proc/self/clear_refs, so earlier peaks such as imports do not hide it)."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        f0, f1 = str(Path(tmp) / "L0.npy"), str(Path(tmp) / "L1.npy")
+        np.save(f0, L0)
+        np.save(f1, L1)
+        code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions)
+        out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    return int(out.stdout.split()[-1])
 
 
 def speed(repeat: int, directions: int) -> None:
@@ -222,14 +389,20 @@ def speed(repeat: int, directions: int) -> None:
     def ours_der():
         ws["der"] = plenoptic_derivatives(L0, L1, grid, filters=filters, out=ws.get("der"))
 
+    schedule = solve_schedule(L0, L1, grid)
+    T_np = numpy_full_solve(L0, L1, grid, schedule, MotionOptions())
+    T_ours = estimate_motion(L0, L1, grid).T_prev_next
     t_ours = best_time(ours, repeat)
     t_der = best_time(ours_der, repeat)
     t_base = best_time(base, max(1, repeat // 2))
-    t_full = best_time(lambda: estimate_motion(L0, L1, grid), max(1, repeat // 2))
+    t_full = best_time(lambda: estimate_motion(L0, L1, grid), repeat)
+    t_full_np = best_time(lambda: numpy_full_solve(L0, L1, grid, schedule, MotionOptions()), 1)
     c_ours = cpu_time(ours, repeat)
     c_der = cpu_time(ours_der, repeat)
     c_base = cpu_time(base, max(1, repeat // 2))
-    c_full = cpu_time(lambda: estimate_motion(L0, L1, grid), max(1, repeat // 2))
+    c_full = cpu_time(lambda: estimate_motion(L0, L1, grid), repeat)
+    c_full_np = cpu_time(lambda: numpy_full_solve(L0, L1, grid, schedule, MotionOptions()), 1)
+    mem = peak_memory(L0, L1, directions)
     import numba
 
     threads = numba.get_num_threads()
@@ -241,12 +414,21 @@ def speed(repeat: int, directions: int) -> None:
           f"| {1e3 * c_ours:.1f} |")
     print(f"|   of which derivatives | {1e3 * t_der:.1f} | {n / t_der / 1e6:.0f} | {1e3 * c_der:.1f} |")
     print(f"| derivatives + one linear solve, numpy/scipy baseline | {1e3 * t_base:.1f} | "
-          f"{n / t_base / 1e6:.0f} | {1e3 * c_base:.1f} |")
-    print(f"| full default estimate (pyramid, warps, IRLS, covariance) | {1e3 * t_full:.0f} | "
+          f"{n / t_base / 1e6:.1f} | {1e3 * c_base:.1f} |")
+    print(f"| full default estimate (pyramid, warps, IRLS, covariance), ours | {1e3 * t_full:.0f} | "
           f"{n / t_full / 1e6:.1f} | {1e3 * c_full:.0f} |")
-    print(f"\nspeed-up of ours over the baseline: {t_base / t_ours:.1f}x (CPU time {c_base / c_ours:.1f}x); "
-          f"target 33 ms (40 M rays/s) {'met' if t_ours <= 0.033 else 'NOT met'} in wall time "
-          f"(CPU time / {threads} threads: {1e3 * c_ours / threads:.1f} ms)")
+    print(f"| the same algorithm and solve schedule {schedule} in numpy/scipy | {1e3 * t_full_np:.0f} | "
+          f"{n / t_full_np / 1e6:.2f} | {1e3 * c_full_np:.0f} |")
+    print(f"\nspeed-up of ours over the baselines: derivatives + solve {t_base / t_ours:.1f}x "
+          f"(CPU time {c_base / c_ours:.1f}x), full estimate {t_full_np / t_full:.1f}x (CPU time "
+          f"{c_full_np / c_full:.1f}x); targets 33 ms (40 M rays/s) "
+          f"{'met' if t_ours <= 0.033 else 'NOT met'} and 133 ms (10 M rays/s) "
+          f"{'met' if t_full <= 0.133 else 'NOT met'} in wall time (CPU time / {threads} threads: "
+          f"{1e3 * c_ours / threads:.1f} ms and {1e3 * c_full / threads:.0f} ms)")
+    d = np.abs(rt_from_T(T_np) - rt_from_T(T_ours))
+    print(f"numpy baseline vs ours: max |Δr| = {d[:3].max():.1e} rad, max |Δt| = {d[3:].max():.1e} m")
+    print(f"peak memory of one full estimate (growth of the resident set, fresh process): "
+          f"{mem / 2**20:.0f} MiB = {mem / L0.nbytes:.1f} x one frame ({L0.nbytes / 2**20:.1f} MiB)")
 
 
 def main() -> None:
