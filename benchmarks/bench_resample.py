@@ -113,6 +113,19 @@ class _Direct:
         return None if self._weights is None else self._weights[t]
 
 
+def _time_frames(rs, frame, repeat: int) -> tuple[list[float], list[float]]:
+    """Wall and CPU seconds of ``repeat`` resamplings of one frame, after a warm-up (numba
+    cache, buffers)."""
+    rs.resample_into(frame)
+    times, cpu = [], []
+    for _ in range(repeat):
+        t, c = time.perf_counter(), time.process_time()
+        rs.resample_into(frame)
+        times.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return times, cpu
+
+
 def _kdtree_baseline(models, grid, pixels: np.ndarray, k: int = 8):
     """Inverse-distance weighting of the k nearest scattered samples per cell (grid-step units)."""
     from scipy.spatial import cKDTree
@@ -220,21 +233,9 @@ def quality_and_speed(args, work: Path) -> dict:
 
     # --- speed: one frame, geometry built
     fr = s.read_frame(0)
-    rs.resample_into(fr)                                  # warm-up (numba cache, buffers)
-    times, cpu = [], []
-    for _ in range(args.repeat):
-        t, c = time.perf_counter(), time.process_time()
-        rs.resample_into(fr)
-        times.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
+    times, cpu = _time_frames(rs, fr, args.repeat)
     best, med = min(times), float(np.median(times))
-    rs_pp.resample_into(fr)
-    times_pp, cpu_pp = [], []
-    for _ in range(args.repeat):
-        t, c = time.perf_counter(), time.process_time()
-        rs_pp.resample_into(fr)
-        times_pp.append(time.perf_counter() - t)
-        cpu_pp.append(time.process_time() - c)
+    times_pp, cpu_pp = _time_frames(rs_pp, fr, args.repeat)
     bp, mp = min(times_pp), float(np.median(times_pp))
     pix, _ = rs.pixels(fr)
     pixels = pix[:, 0].copy()

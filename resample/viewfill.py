@@ -162,7 +162,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
             dmax = max(dmax, fc.f * step_x / (su * opts.min_depth))
     step = opts.disparity_step
     if dmax / step > _MAX_CANDIDATES:
-        log.warning("view fill: disparities up to %.3g u-steps per x-step (min_depth %.3g m) would need %d "
+        (log.warning if targets else log.debug)("view fill: disparities up to %.3g u-steps per x-step (min_depth %.3g m) would need %d "
                     "candidates; using %d, %.3g apart", dmax, opts.min_depth, int(dmax / step), _MAX_CANDIDATES,
                     dmax / _MAX_CANDIDATES)
         step = dmax / _MAX_CANDIDATES
@@ -183,17 +183,23 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
 
 
 @numba.njit(cache=True, inline="always")
+def _corners(y, x, Nv, Nu):
+    """Bilinear corners of (y, x) inside an Nv x Nu image (y, x >= 0 and within the image):
+    (y0, x0, y1, x1, fy, fx)."""
+    y0 = min(int(y), Nv - 2) if Nv > 1 else 0
+    x0 = min(int(x), Nu - 2) if Nu > 1 else 0
+    y1 = y0 + 1 if Nv > 1 else 0
+    x1 = x0 + 1 if Nu > 1 else 0
+    return y0, x0, y1, x1, np.float32(y - y0), np.float32(x - x0)
+
+
+@numba.njit(cache=True, inline="always")
 def _bilinear(img, y, x):
     """Bilinear sample of img (Nv, Nu) at (y, x); (value, inside)."""
     Nv, Nu = img.shape
     if not (y >= 0.0 and x >= 0.0 and y <= Nv - 1 and x <= Nu - 1):
         return np.float32(0.0), False
-    y0 = min(int(y), Nv - 2) if Nv > 1 else 0
-    x0 = min(int(x), Nu - 2) if Nu > 1 else 0
-    fy = np.float32(y - y0)
-    fx = np.float32(x - x0)
-    y1 = y0 + 1 if Nv > 1 else 0
-    x1 = x0 + 1 if Nu > 1 else 0
+    y0, x0, y1, x1, fy, fx = _corners(y, x, Nv, Nu)
     a = img[y0, x0] + fx * (img[y0, x1] - img[y0, x0])
     if fy == 0.0:
         return a, True
@@ -425,12 +431,7 @@ def _blend(X, A, S, dy, dx, sw, r_y, d, out):
                 xx = u - dd * dx[s]
                 if not (yy >= 0.0 and xx >= 0.0 and yy <= Nv - 1 and xx <= Nu - 1):
                     continue
-                y0 = min(int(yy), Nv - 2) if Nv > 1 else 0
-                x0 = min(int(xx), Nu - 2) if Nu > 1 else 0
-                fy = np.float32(yy - y0)
-                fx = np.float32(xx - x0)
-                y1 = y0 + 1 if Nv > 1 else 0
-                x1 = x0 + 1 if Nu > 1 else 0
+                y0, x0, y1, x1, fy, fx = _corners(yy, xx, Nv, Nu)
                 a = sw[s] * max(A[s, y0 + (fy > 0.5), x0 + (fx > 0.5)], np.float32(1e-3))
                 tw += a
                 for c in range(C):
