@@ -22,7 +22,8 @@ import numpy as np
 from polycam.geometry import r_from_R
 from polycam.tomlio import atomic_write_bytes, atomic_write_text
 
-from .board_solve import BoardCalibration, board_distance, observation_residuals, uncertainty_grid
+from .board_solve import (BoardCalibration, board_distance, extrinsics_uncertainty, observation_residuals,
+                          uncertainty_grid)
 
 __all__ = ["report_dict", "write_report"]
 
@@ -64,6 +65,12 @@ def report_dict(cal: BoardCalibration, *, uncertainty: dict | None = None) -> di
         "graph": {"cameras": list(cal.cameras), "shared_frames": cal.shared_frames.astype(int).tolist()},
     }
     T = cal.T_rig_cam
+    sigma = None
+    if uncertainty is not None:
+        try:        # predicted pose errors relative to camera 0 at the solve's residual noise level
+            sigma = extrinsics_uncertainty(inputs, cal.rms_px)
+        except Exception as e:  # degenerate solves: leave the keys out rather than fail the report
+            log.warning("pose uncertainty not computed: %s", str(e).strip().splitlines()[0] if str(e) else e)
     for ci, cam in enumerate(cal.cameras):
         st = cal.stats[cam]
         lens, intr = cal.models[cam].intrinsics()
@@ -87,6 +94,9 @@ def report_dict(cal: BoardCalibration, *, uncertainty: dict | None = None) -> di
             ny, nx = u.shape
             entry["uncertainty_px"] = {"centre": _f(u[ny // 2, nx // 2]), "median": _f(np.nanmedian(u)),
                                        "worst": _f(np.nanmax(u))}
+        if sigma is not None:
+            entry["pose_sigma_vs_first_camera"] = {"position_m": _f(sigma[ci, 1], 7),
+                                                   "rotation_deg": _f(math.degrees(sigma[ci, 0]), 5)}
         doc["camera"][cam] = entry
     return doc
 

@@ -140,6 +140,8 @@ def test_rendered_board_session_end_to_end(truth, request, tmp_path):
     report = tomllib.loads((out / "report.toml").read_text())
     assert report["calibration"]["rms_px"] <= CALIB_RENDERED_RMS_PX
     assert report["graph"]["shared_frames"][0][1] >= 2
+    sigma = report["camera"][cams[1]]["pose_sigma_vs_first_camera"]      # mrcal's predicted pose errors
+    assert 0 < sigma["position_m"] < CALIB_RENDERED_POSITION_M and 0 < sigma["rotation_deg"] < CALIB_RENDERED_ROTATION_DEG
     for cam in cams:
         m = est[cam]
         assert m.optimization_inputs() is not None           # mrcal's tools work on the files
