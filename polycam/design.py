@@ -771,6 +771,12 @@ def analyse_covariance(C: np.ndarray, n_unobservable: int = 0) -> tuple[tuple[Di
     return tuple(dirs), cond, amb
 
 
+def _normal(A_faces: list[np.ndarray], w: np.ndarray) -> np.ndarray:
+    """N = Σ w A Aᵀ (6, 6) over faces; A_faces[k]: (Ny, Nx, Nv, Nu, 6), w: (F, Ny, Nx, Nv, Nu)."""
+    return sum((w[k].astype(np.float64)[..., None] * A).reshape(-1, 6).T @ A.reshape(-1, 6)
+               for k, A in enumerate(A_faces))
+
+
 def _sandwich(A_faces: list[np.ndarray], w: np.ndarray, sampling: RigSampling, sigma_src: np.ndarray,
               pairs: dict) -> tuple[np.ndarray, np.ndarray]:
     """N = Σ w A Aᵀ and the noise meat 2 Σ_src σ² ‖(K P)ᵀ (w A)‖² over faces.
@@ -895,8 +901,7 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
 
     A_faces = [ray_motion_coefficients(der, g, k) for k in range(F)]
     Jm = _ray_to_rig_jacobian(M)
-    N = sum((w[k].astype(np.float64)[..., None] * A_faces[k]).reshape(-1, 6).T @ A_faces[k].reshape(-1, 6)
-            for k in range(F))
+    N = _normal(A_faces, w)
     pinv, bad, good = _observable(N, opts.rcond)
 
     # linearised bias from the noise-free residual (model error) and the misfit ratio
@@ -914,18 +919,21 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     scale = max(_weighted_mad(r_fix, base), _SCALE_FLOOR)
     w = base * _robust_weight(r_fix, scale, opts)
     num = int(np.count_nonzero(w > 0))
-    N, meat = _sandwich(A_faces, w, sampling, sigma_src, pairs)
+    N = _normal(A_faces, w)
     pinv, bad, good = _observable(N, opts.rcond)
+    w_cov = w
     if not len(bad) and opts.robust != "none" and opts.irls_steps > 0:
         # IRLS converges to the M-estimate Σ base a ψ(r) = 0; noise n moves it through
         # ψ'(r) at the model-error residual r = res0, not through the weight w(r): rays whose
         # model error is a sizeable part of the robust scale respond less (or oppositely)
         w_m = base * _robust_slope(res0, scale, opts)
-        N_m, meat_m = _sandwich(A_faces, w_m, sampling, sigma_src, pairs)
-        ev = np.linalg.eigvalsh(N_m * np.outer(1 / np.sqrt(np.diag(N)), 1 / np.sqrt(np.diag(N))))
+        d = 1.0 / np.sqrt(np.diag(N))
+        ev = np.linalg.eigvalsh(_normal(A_faces, w_m) * np.outer(d, d))
         if ev.min() > 0.05 * ev.max() * opts.rcond ** 0.5:
-            N, meat = N_m, meat_m
-            pinv, _, _ = _observable(N, opts.rcond)
+            w_cov = w_m
+    N, meat = _sandwich(A_faces, w_cov, sampling, sigma_src, pairs)
+    if w_cov is not w:
+        pinv, _, _ = _observable(N, opts.rcond)
     solver_unobs = tuple(_component_name(Jm @ b / np.linalg.norm(Jm @ b)) for b in bad)
 
     model = "plenoptic"
