@@ -112,26 +112,15 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
 
 
 def cmd_motion(args: argparse.Namespace) -> int:
-    from .errors import InputError
+    from .depth_cli import open_source
 
     src = Path(args.source)
-    if (src / "session.toml").exists():
-        if args.calib is not None and not Path(args.calib).is_dir():
-            raise InputError(f"{args.calib}: no such calibration folder")
-        from resample.stream import SessionLightField   # the CLI layer may import stages
-
-        store = SessionLightField(src, calib_dir=args.calib, uv_step_px=args.uv_step)
+    store = open_source(src, calib=args.calib, uv_step=args.uv_step)  # validates before the solver import
+    truth_name = src / "groundtruth.tum"
+    if hasattr(store, "resampler"):
         F, Ny, Nx, Nv, Nu = store.grid.shape
         print(f"resampling {src} on the fly: {len(store.resampler.cameras)} calibrated cameras onto "
               f"{F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions (geometry {store.seconds_geometry:.1f} s)")
-        truth_name = src / "groundtruth.tum"
-    else:
-        if args.calib is not None:
-            raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
-        from .lfstore import open_lightfield
-
-        store = open_lightfield(src)  # validates before the heavy solver import
-        truth_name = src / "groundtruth.tum"
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
