@@ -15,13 +15,13 @@ from polycam.errors import InputError
 from polycam.geometry import T_from_rt, T_inverse, rt_from_T
 from polycam.lightfield import Axis, LightFieldGrid
 from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory,
-                            ray_motion_coefficients, warp_lightfield)
+                            ray_motion_coefficients, solve_ray_motion, warp_lightfield)
 from polycam.derivatives import plenoptic_derivatives
 from polycam.trajectory import Trajectory
 
 from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
-                        MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_PURE_LEAK, MOTION_PURE_REL,
-                        MOTION_SPHERES_REL)
+                        MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
+                        MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL)
 
 ROOM_RADIUS = 6.0
 
@@ -331,6 +331,24 @@ def test_coefficients_predict_temporal_difference(scene):
         corr = np.corrcoef(pred[m], -lt[m])[0, 1]
         assert corr > 0.95
         assert 0.9 < np.sum(pred[m] * -lt[m]) / np.sum(pred[m] ** 2) < 1.1
+
+
+def test_fused_normal_sums_match_coefficient_matrix(scene, rng):
+    """The fused accumulation (per-tile sums over the valid box) gives AᵀWA and Aᵀb of the
+    numpy coefficient rows, with given weights and with the default valid mask."""
+    grid = make_grid(("+z", "-x"), directions=20)
+    M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
+    der = plenoptic_derivatives(scene.render(grid, np.eye(4)), scene.render(grid, M), grid,
+                                filters=MotionOptions().filters)
+    A = np.concatenate([ray_motion_coefficients(der, grid, k).reshape(-1, 6) for k in range(len(grid.faces))])
+    b = -der.Lt.reshape(-1).astype(np.float64)
+    w = rng.random(grid.shape).astype(np.float32)
+    for weights, wf in ((w, w.reshape(-1)), (None, np.broadcast_to(der.valid, der.Lx.shape).reshape(-1))):
+        p, N = solve_ray_motion(der, grid, weights)
+        N_ref = A.T @ (wf[:, None] * A)
+        assert np.allclose(N, N_ref, rtol=MOTION_NORMAL_SUMS_RTOL, atol=MOTION_NORMAL_SUMS_RTOL * np.abs(N_ref).max())
+        p_ref = np.linalg.solve(N_ref, A.T @ (wf * b))
+        assert np.allclose(p, p_ref, rtol=MOTION_SOLVE_RTOL, atol=MOTION_SOLVE_RTOL * np.abs(p_ref).max())
 
 
 def test_pair_report_csv(scene, tmp_path):

@@ -79,3 +79,5 @@ CALIB_UNCERTAINTY_DRAWS = 8           # noise draws comparing calib.extrinsics_u
 CALIB_UNCERTAINTY_RATIO = 1.6         # allowed factor between measured RMS pose error and mrcal's predicted sigma (8 draws x 2 cameras)
 CALIB_SPLINED_BUNDLE_DEG = 0.01       # [deg] noise-free splined solve: spread of the per-camera rig-frame ray-bundle rotations vs truth
 CALIB_SPLINED_RIG_DEG = 1.0           # [deg] the same bundles' common rotation (rig frame from the bundles' orientations; was 3.1 deg from the raw extrinsics)
+MOTION_NORMAL_SUMS_RTOL = 1e-9  # fused-kernel normal matrix AᵀWA vs the numpy coefficient matrix (float64 sums, order only)
+MOTION_SOLVE_RTOL = 1e-6        # solve_ray_motion (Jacobi-scaled eigen pseudo-inverse) vs np.linalg.solve of the same normal equations
