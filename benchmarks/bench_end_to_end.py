@@ -229,8 +229,8 @@ def main() -> int:
     print(f"ratios pycolmap / plenoptic: translation error {c['t'] / p['t']:.2f}x, "
           f"rotation error {c['w'] / p['w']:.2f}x, "
           f"time per frame {c['total'] / p['total']:.2f}x (goal: error > 1x, time >= 5x); "
-          f"CPU time per frame {c['cpu'] / p['cpu']:.2f}x (both cores' work; the solver and the resampler "
-          "use both, so this is the conservative figure)")
+          f"CPU time per frame {c['cpu'] / p['cpu']:.2f}x (process CPU time of all threads: less "
+          "sensitive to other load on the machine than wall time)")
     return 0
 
 
