@@ -74,8 +74,9 @@ the solver on the noise-free pair, :class:`DesignMeasurement` ``bias_*`` — is 
 separate quantity: on one face it is often several times the noise σ
 (interpolation error of the warp amplified along the weak t~w direction;
 docs/design.md). Noise in the derivatives themselves and the noise dependence
-of the discontinuity weights are left out (the latter is the ~1.2x left on the
-ill-conditioned face: without discontinuity weights it matches to 5%).
+of the discontinuity weights are left out (the ~1.2x left on the ill-conditioned
+face comes with those weights: without them it matches to 5%; their first-order
+noise response is negligible, so a non-linear one is the likely cause).
 
 One viewpoint per face: the translation scale
 ---------------------------------------------
