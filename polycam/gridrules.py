@@ -39,6 +39,7 @@ __all__ = [
     "GridChoice",
     "face_of_direction",
     "camera_spacing",
+    "column_spacing",
     "axis_from_range",
     "max_side_tan",
     "choose_grid",
@@ -65,6 +66,24 @@ def camera_spacing(centres: np.ndarray) -> float:
     d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=-1)
     np.fill_diagonal(d, np.inf)
     return float(np.median(d.min(axis=1)))
+
+
+def column_spacing(coords: np.ndarray, spacing: float) -> float:
+    """[m] spacing of the camera columns (or rows) along one axis.
+
+    coords: (N,) [m] camera coordinates along the axis; spacing: [m] the nearest-neighbour
+    camera spacing. Coordinates closer than half ``spacing`` are one column; the result is
+    the median gap between consecutive column centres (``spacing`` when there is one
+    column). Unlike the nearest-neighbour distance, which small position errors bias low
+    (the minimum over several neighbours), this keeps a perturbed regular array's
+    cameras on viewpoints.
+    """
+    c = np.sort(np.asarray(coords, float).ravel())
+    if spacing <= 0 or c.size < 2:
+        return spacing
+    breaks = np.flatnonzero(np.diff(c) > 0.5 * spacing) + 1
+    centres = np.array([g.mean() for g in np.split(c, breaks)])
+    return float(np.median(np.diff(centres))) if centres.size > 1 else spacing
 
 
 def axis_from_range(lo: float, hi: float, spacing: float, oversample: int) -> Axis:
@@ -133,8 +152,8 @@ def choose_grid(centres: np.ndarray, optical_axes: np.ndarray, directions: Seque
     xs = np.concatenate(xs)
     ys = np.concatenate(ys)
     spacing = float(np.median([s for s in steps if s > 0])) if any(s > 0 for s in steps) else 0.0
-    x_axis = axis_from_range(float(xs.min()), float(xs.max()), spacing, xy_oversample)
-    y_axis = axis_from_range(float(ys.min()), float(ys.max()), spacing, xy_oversample)
+    x_axis = axis_from_range(float(xs.min()), float(xs.max()), column_spacing(xs, spacing), xy_oversample)
+    y_axis = axis_from_range(float(ys.min()), float(ys.max()), column_spacing(ys, spacing), xy_oversample)
 
     # u, v: union of the fields of view, in grid units
     lo = np.array([np.inf, np.inf])

@@ -159,3 +159,25 @@ def test_grid_rules_shared_by_resample_and_design():
     assert (d.x, d.y, d.faces[0].z_pi) == (g.x, g.y, g.faces[0].z_pi)
     assert gridrules.axis_from_range(0.0, 0.004, 0.01, 2) == Axis(0.002, 0.002, 1)
     assert gridrules.max_side_tan(1) > gridrules.max_side_tan(2) == 1.0
+
+
+def test_perturbed_array_keeps_cameras_on_viewpoints(rng):
+    """Position errors of a few mm bias the nearest-neighbour spacing low (the minimum over
+    several neighbours); the column spacing keeps a perturbed 5x5 array at 5 x 5 views
+    (one per camera), each camera within a fraction of a step of its viewpoint."""
+    from polycam import gridrules
+
+    pitch = 0.02
+    j, i = np.mgrid[0:5, 0:5]
+    c = np.stack([(i - 2) * pitch, (j - 2) * pitch, np.zeros_like(i, float)], axis=-1).reshape(-1, 3)
+    c = c + rng.normal(scale=0.0015, size=c.shape)
+    nn = gridrules.camera_spacing(c[:, :2])
+    assert nn < 0.95 * pitch   # the bias this rule is for
+    for axis in (0, 1):
+        s = gridrules.column_spacing(c[:, axis], nn)
+        assert s == pytest.approx(pitch, rel=0.1)
+        a = gridrules.axis_from_range(c[:, axis].min(), c[:, axis].max(), s, 1)
+        assert a.count == 5
+        off = np.abs((c[:, axis] - a.min) / a.step - np.round((c[:, axis] - a.min) / a.step))
+        assert off.max() < 0.3
+    assert gridrules.column_spacing(np.array([0.0]), 0.02) == 0.02
