@@ -572,6 +572,11 @@ def _blend(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
                 a = w * max(A[ya, xa], np.float32(1e-3))
                 tw[u] += a
                 uy0, ux0, uy1, ux1 = numba.uint64(y0), numba.uint64(x0), numba.uint64(y1), numba.uint64(x1)
+                if C == 1:
+                    p0 = X[uy0, ux0, 0] + fx * (X[uy0, ux1, 0] - X[uy0, ux0, 0])
+                    p1 = X[uy1, ux0, 0] + fx * (X[uy1, ux1, 0] - X[uy1, ux0, 0])
+                    acc[u, 0] += a * (p0 + fy * (p1 - p0))
+                    continue
                 for c in range(C):
                     uc = numba.uint64(c)
                     p0 = X[uy0, ux0, uc] + fx * (X[uy0, ux1, uc] - X[uy0, ux0, uc])
