@@ -394,6 +394,19 @@ _ROBUST_KIND = {"none": 0, "tukey": 1, "huber": 2}
 
 
 @numba.njit(cache=True, inline="always")
+def _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f):
+    """Coefficients of (t_z, ω_x, ω_y, ω_z) in one ray's Eq. 5 row ``[L_x, L_y, L_u, L_v]
+    [M_t, M_ω]`` (those of t_x and t_y are L_x = g0 and L_y = g1); inv_f = 1 / f."""
+    c2 = -(u * g0 + v * g1) * inv_f
+    c3 = -(u * y * inv_f) * g0 - (v * y * inv_f + z_pi) * g1 - (u * v * inv_f) * g2 \
+        - (v * v * inv_f + f) * g3
+    c4 = (u * x * inv_f + z_pi) * g0 + (v * x * inv_f) * g1 + (u * u * inv_f + f) * g2 \
+        + (u * v * inv_f) * g3
+    c5 = -y * g0 + x * g1 - v * g2 + u * g3
+    return c2, c3, c4, c5
+
+
+@numba.njit(cache=True, inline="always")
 def _row_energy(x, y, v, z_pi, f, S, var, poly, st):
     """Add one (x, y, v) row's Σ_u w Σ_j var_j m_j m_jᵀ to st[4:25] (upper triangle) from the
     row's weight moments S[k] = Σ_u w u^k (k = 0..4). m_j are the Eq. 5 coefficients of a
@@ -493,12 +506,7 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
                 b = -np.float64(lt[jv, iu])
                 c0 = g0
                 c1 = g1
-                c2 = -(u * g0 + v * g1) * inv_f
-                c3 = -(u * y * inv_f) * g0 - (v * y * inv_f + z_pi) * g1 - (u * v * inv_f) * g2 \
-                    - (v * v * inv_f + f) * g3
-                c4 = (u * x * inv_f + z_pi) * g0 + (v * x * inv_f) * g1 + (u * u * inv_f + f) * g2 \
-                    + (u * v * inv_f) * g3
-                c5 = -y * g0 + x * g1 - v * g2 + u * g3
+                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
                 if kind != 0:
                     r = c0 * tx + c1 * ty + c2 * tz + c3 * wx + c4 * wy + c5 * wz - b
                     zz = abs(r) * inv_sc
@@ -732,12 +740,7 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
             g1 = np.float64(Ly[fc, j, i, jv, iu])
             g2 = np.float64(Lu[fc, j, i, jv, iu])
             g3 = np.float64(Lv[fc, j, i, jv, iu])
-            c2 = -(u * g0 + v * g1) * inv_f
-            c3 = -(u * y * inv_f) * g0 - (v * y * inv_f + z_pi) * g1 - (u * v * inv_f) * g2 \
-                - (v * v * inv_f + f) * g3
-            c4 = (u * x * inv_f + z_pi) * g0 + (v * x * inv_f) * g1 + (u * u * inv_f + f) * g2 \
-                + (u * v * inv_f) * g3
-            c5 = -y * g0 + x * g1 - v * g2 + u * g3
+            c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
             r = Lt[fc, j, i, jv, iu] + g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5]
             out_a[k, m] = abs(r)
             out_w[k, m] = wb
