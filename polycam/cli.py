@@ -195,6 +195,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .depth_cli import add_source_options
+
     p = argparse.ArgumentParser(prog="polycam", description="Polydioptric camera arrays: "
                                 "capture, calibrate, resample, plenoptic egomotion.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="log more (-v info, -vv debug)")
@@ -247,10 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("source", metavar="LF.zarr|SESSION",
                     help="light-field store, or a recorded session (resampled on the fly, frame by frame)")
     pm.add_argument("--out", required=True, help="output trajectory TRAJ.tum (T_world_rig per frame)")
-    pm.add_argument("--calib", metavar="CALIB_DIR",
-                    help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
-    pm.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
-                    help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
+    add_source_options(pm)
     pm.add_argument("--report", metavar="DIR", help="also write per-pair diagnostics (pairs.csv) and plots")
     pm.set_defaults(func=cmd_motion)
 

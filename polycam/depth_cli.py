@@ -13,10 +13,19 @@ from pathlib import Path
 from .cliargs import nonneg_int as _nonneg_int
 from .cliargs import positive_float as _positive_float
 
-__all__ = ["add_parsers", "cmd_depth", "open_source", "pair_motion_from_trajectory"]
+__all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory"]
 
 TIMESTAMP_TOLERANCE_NS = 1_000_000
 """A --traj pose belongs to a frame when their timestamps differ by at most this (1 ms)."""
+
+
+def add_source_options(p: argparse.ArgumentParser) -> None:
+    """``--calib`` and ``--uv-step``: how a SESSION source is resampled on the fly (see
+    :func:`open_source`); shared by the verbs that read a store or a session."""
+    p.add_argument("--calib", metavar="CALIB_DIR",
+                   help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
+    p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
+                   help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
 
 
 def add_parsers(sub) -> None:
@@ -41,10 +50,7 @@ def add_parsers(sub) -> None:
                         "--views central, off with --views all (docs/depth.md)")
     p.add_argument("--keep", type=_positive_float, default=0.5, metavar="FRAC",
                    help="keep the most confident FRAC of the rays (default 0.5)")
-    p.add_argument("--calib", metavar="CALIB_DIR",
-                   help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
-    p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
-                   help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
+    add_source_options(p)
     p.add_argument("--ascii-ply", action="store_true", help="write an ASCII PLY (default binary little-endian)")
     p.set_defaults(func=cmd_depth)
 
