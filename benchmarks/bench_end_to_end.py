@@ -76,7 +76,7 @@ def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c: float
 
 
 def colmap_generalized(session: Path, *, neighbours: bool = False,
-                       max_error_px: float = 1.0) -> tuple[Trajectory, dict]:
+                       max_error_px: float = 1.0, max_trials: int | None = None) -> tuple[Trajectory, dict]:
     """(trajectory, timing): SIFT + generalized relative pose; timing in seconds per pair:
     ``total``, ``read`` (PNG decoding), ``image`` (SIFT), ``pair`` (matching + RANSAC), and
     ``failed`` (pairs without an estimate).
@@ -116,6 +116,9 @@ def colmap_generalized(session: Path, *, neighbours: bool = False,
     opts = pycolmap.RANSACOptions()
     opts.max_error = max_error_px
     opts.random_seed = 0
+    if max_trials is not None:
+        opts.max_num_trials = max_trials
+        opts.min_num_trials = min(opts.min_num_trials, max_trials)
 
     clock = {"read": 0.0, "image": 0.0}
 
@@ -188,6 +191,9 @@ def main() -> int:
                     help="plenoptic: the solver's discontinuity-weight constant (default: polycam run's)")
     ap.add_argument("--repeat", type=int, default=2, help="runs per method and session; the fastest counts")
     ap.add_argument("--rig", default=str(REPO / "rigs" / "mock5x5.toml"))
+    ap.add_argument("--max-trials", type=int, default=None,
+                    help="pycolmap: cap on RANSAC trials (default pycolmap's 100000; with --neighbours the "
+                         "default cap takes minutes per pair)")
     ap.add_argument("--neighbours", action="store_true",
                     help="pycolmap: also match each camera to its 4-neighbours in the next frame (slow)")
     args = ap.parse_args()
@@ -200,7 +206,8 @@ def main() -> int:
 
             gt = open_session(sess).groundtruth()
             for name, fn in (("plenoptic", lambda: plenoptic(sess, args.uv_step, args.xy_oversample, args.smooth_c)),
-                             ("pycolmap", lambda: colmap_generalized(sess, neighbours=args.neighbours))):
+                             ("pycolmap", lambda: colmap_generalized(sess, neighbours=args.neighbours,
+                                                                        max_trials=args.max_trials))):
                 traj, tm = best_of(fn, args.repeat)
                 e = pair_errors(traj, gt)
                 rows.append((seed, name, float(np.median(e.t_rel)), float(np.median(e.w_rel)),
