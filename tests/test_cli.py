@@ -181,3 +181,18 @@ def test_motion_on_a_broken_store_names_it(tmp_path):
     (tmp_path / "bad.zarr").mkdir()
     assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),
                           "bad.zarr")
+
+
+def test_cli_sets_a_passive_omp_wait_policy_unless_chosen(monkeypatch, capsys):
+    """numba's OpenMP threads must not spin on a shared machine (polycam.cli docstring);
+    a user's own OMP_WAIT_POLICY wins."""
+    from polycam.cli import main
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
