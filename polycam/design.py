@@ -110,7 +110,7 @@ from .gridrules import choose_grid
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
 from .lightfield import FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for
 from .motion import (PARAM_NAMES, MotionOptions, discontinuity_weight, estimate_motion, ray_motion_coefficients,
-                     warp_lightfield)
+                     scaled_eigen, warp_lightfield)
 from .rig import CameraSpec, MockSpec, Rig
 
 __all__ = [
@@ -689,21 +689,13 @@ def _ray_to_rig_jacobian(M: np.ndarray) -> np.ndarray:
 
 
 def _observable(N: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Jacobi-scaled eigen-analysis of a normal matrix N (6, 6), as the solver does it.
+    """Jacobi-scaled eigen-analysis of a normal matrix N (6, 6), the solver's own
+    (:func:`polycam.motion.scaled_eigen`).
 
     Returns (pinv (6, 6) of N on the observable subspace, unobservable unit vectors
     (k, 6) in the *unscaled* parameters, good (6,) bool over the scaled eigenvalues)."""
-    d = np.diag(N).copy()
-    dmax = float(d.max()) if d.size else 0.0
-    live = d > max(dmax, 1e-300) * 1e-14
-    s = np.where(live, 1.0 / np.sqrt(np.where(live, d, 1.0)), 0.0)
-    Ns = N * s[:, None] * s[None, :]
-    ev, vec = np.linalg.eigh(Ns)
-    lmax = float(ev.max()) if ev.size else 0.0
-    good = ev > rcond * lmax if lmax > 0 else np.zeros(6, bool)
-    inv = np.zeros(6)
-    inv[good] = 1.0 / ev[good]
-    pinv = ((vec * inv) @ vec.T) * s[:, None] * s[None, :]
+    eig = scaled_eigen(N, rcond)
+    pinv, vec, good, live, s = eig.N_pinv, eig.evecs, eig.good, eig.live, eig.scale
     bad = []
     for j in np.where(~good)[0]:
         v = vec[:, j].copy()

@@ -130,6 +130,8 @@ __all__ = [
     "estimate_motion",
     "estimate_trajectory",
     "discontinuity_weight",
+    "ScaledEigen",
+    "scaled_eigen",
     "ray_motion_coefficients",
     "solve_ray_motion",
     "warp_lightfield",
@@ -1494,8 +1496,28 @@ class _Solver:
         return sol
 
 
-def _solve_normal(N: np.ndarray, rhs: np.ndarray, rcond: float) -> dict:
-    """Solve N p = rhs with Jacobi scaling; directions with tiny scaled eigenvalues are dropped."""
+@dataclass(frozen=True)
+class ScaledEigen:
+    """Jacobi-scaled eigen-analysis of a 6x6 normal matrix N: what the solver can observe."""
+
+    N_pinv: np.ndarray
+    """(6, 6) pseudo-inverse of N on the observable subspace."""
+    evals: np.ndarray
+    """(6,) eigenvalues of the scaled matrix ``S N S`` (ascending)."""
+    evecs: np.ndarray
+    """(6, 6) its unit eigenvectors (columns), in scaled parameters."""
+    scale: np.ndarray
+    """(6,) the Jacobi scaling ``S = diag(1 / sqrt(N_ii))`` (0 for dead columns)."""
+    live: np.ndarray
+    """(6,) bool: columns of N that are not (numerically) zero."""
+    good: np.ndarray
+    """(6,) bool: eigenvalues above ``rcond`` times the largest (observable directions)."""
+
+
+def scaled_eigen(N: np.ndarray, rcond: float) -> ScaledEigen:
+    """Jacobi-scaled eigen-analysis of N (6, 6): directions whose scaled eigenvalue is below
+    ``rcond`` times the largest are unobservable (dead columns give zero eigenvalues whose
+    eigenvectors are axis vectors)."""
     d = np.diag(N).copy()
     dmax = float(d.max()) if d.size else 0.0
     live = d > max(dmax, 1e-300) * 1e-14
@@ -1504,11 +1526,17 @@ def _solve_normal(N: np.ndarray, rhs: np.ndarray, rcond: float) -> dict:
     evals, evecs = np.linalg.eigh(Ns)
     lmax = float(evals.max()) if evals.size else 0.0
     good = evals > rcond * lmax if lmax > 0 else np.zeros(6, bool)
-    # dead columns give zero eigenvalues whose eigenvectors are axis vectors: unobservable
     inv = np.zeros(6)
     inv[good] = 1.0 / evals[good]
-    Ns_pinv = (evecs * inv) @ evecs.T
-    N_pinv = Ns_pinv * s[:, None] * s[None, :]
+    N_pinv = ((evecs * inv) @ evecs.T) * s[:, None] * s[None, :]
+    return ScaledEigen(N_pinv=N_pinv, evals=evals, evecs=evecs, scale=s, live=live, good=good)
+
+
+def _solve_normal(N: np.ndarray, rhs: np.ndarray, rcond: float) -> dict:
+    """Solve N p = rhs with Jacobi scaling; directions with tiny scaled eigenvalues are dropped."""
+    eig = scaled_eigen(N, rcond)
+    evals, evecs, good, N_pinv = eig.evals, eig.evecs, eig.good, eig.N_pinv
+    lmax = float(evals.max()) if evals.size else 0.0
     p = N_pinv @ rhs
     bad_dirs = evecs[:, ~good].T
     cond = float(lmax / evals[good].min()) if good.all() and lmax > 0 else math.inf
