@@ -51,3 +51,14 @@ motion = "smooth"
 seed = 1
 noise = 0.004
 """
+
+
+def assert_one_line_error(capsys, code: int, *fragments: str) -> None:
+    """A CLI call made in-process returned ``code`` 1 with exactly one stderr line
+    ``polycam: error: ...`` containing every fragment."""
+    err = capsys.readouterr().err
+    assert code == 1, err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("polycam: error: "), err
+    for frag in fragments:
+        assert frag in lines[0], err

@@ -14,6 +14,7 @@ from polycam.cli import main
 from polycam.rig import load_rig
 from polycam.synth import synth_session
 from polycam.trajectory import read_tum
+from conftest import assert_one_line_error as _one_line_error
 from conftest import mock_grid_rig_text
 from tolerances import E2E_SMALL_RIG_MOTION_REL, E2E_STREAM_VS_STORE_ATOL
 
@@ -26,15 +27,6 @@ def session(tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("e2e")
     (tmp / "rig.toml").write_text(RIG_TEXT)
     return synth_session(load_rig(tmp / "rig.toml"), tmp / "session", frames=3, seed=1)
-
-
-def _one_line_error(capsys, code: int, *fragments: str) -> None:
-    err = capsys.readouterr().err
-    assert code == 1, err
-    lines = [l for l in err.splitlines() if l.strip()]
-    assert len(lines) == 1 and lines[0].startswith("polycam: error: "), err
-    for frag in fragments:
-        assert frag in lines[0], err
 
 
 def test_session_lightfield_equals_resampled_store(session, tmp_path):

@@ -8,19 +8,11 @@ import numpy as np
 
 from polycam.cli import main
 from polycam.trajectory import read_tum
+from conftest import assert_one_line_error as _one_line_error
 from conftest import mock_grid_rig_text
 from tolerances import E2E_RUN_DEPTH_REL, E2E_RUN_MOTION_REL
 
 RUN_RIG_TEXT = mock_grid_rig_text("run3x3", 160, 120)
-
-
-def _one_line_error(capsys, code: int, *fragments: str) -> None:
-    err = capsys.readouterr().err
-    assert code == 1, err
-    lines = [l for l in err.splitlines() if l.strip()]
-    assert len(lines) == 1 and lines[0].startswith("polycam: error: "), err
-    for frag in fragments:
-        assert frag in lines[0], err
 
 
 def test_run_small_rig_end_to_end(tmp_path, capsys):
