@@ -107,7 +107,7 @@ import numpy as np
 from .derivatives import FILTERS, min_filter_axis, plenoptic_derivatives, smooth_all
 from .errors import InputError
 from .gridrules import choose_grid
-from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
+from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for
 from .motion import (PARAM_NAMES, MotionOptions, discontinuity_weight, estimate_motion, ray_motion_coefficients,
                      scaled_eigen, warp_lightfield)
@@ -671,21 +671,12 @@ def _robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndar
     return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
 
 
-def _adjoint(T: np.ndarray) -> np.ndarray:
-    R, p = T[:3, :3], T[:3, 3]
-    A = np.zeros((6, 6))
-    A[:3, :3] = R
-    A[:3, 3:] = skew(p) @ R
-    A[3:, 3:] = R
-    return A
-
-
 def _ray_to_rig_jacobian(M: np.ndarray) -> np.ndarray:
     """(6, 6) d(t, r of the rig motion M) / d(ray-motion increment), as the solver maps it."""
     J = np.zeros((6, 6))
     J[:3, :3] = M[:3, :3]
     J[3:, 3:] = np.eye(3)
-    return -J @ _adjoint(T_inverse(M))
+    return -J @ adjoint(T_inverse(M))
 
 
 def _observable(N: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ import numpy as np
 
 __all__ = [
     "skew",
+    "adjoint",
     "R_from_r",
     "r_from_R",
     "quat_from_R",
@@ -34,6 +35,17 @@ def skew(w: np.ndarray) -> np.ndarray:
     S[..., 1, 0], S[..., 1, 2] = w[..., 2], -w[..., 0]
     S[..., 2, 0], S[..., 2, 1] = -w[..., 1], w[..., 0]
     return S
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) adjoint of a rigid transform T (4, 4) acting on twists ordered (v, ω):
+    ``[[R, [p]ₓ R], [0, R]]``."""
+    R, p = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[:3, 3:] = skew(p) @ R
+    A[3:, 3:] = R
+    return A
 
 
 def R_from_r(r: np.ndarray) -> np.ndarray:

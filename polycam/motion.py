@@ -119,7 +119,7 @@ import numpy as np
 
 from .derivatives import FILTERS, Derivatives, correlate_axis, filter_taps, parallel_chunks, uv_view, xy_view
 from .errors import InputError
-from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, skew
+from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid
 from .trajectory import Trajectory
 
@@ -1094,16 +1094,6 @@ def _T_sqrt(T: np.ndarray) -> np.ndarray:
     return T_from_Rt(Rh, th)
 
 
-def _adjoint(T: np.ndarray) -> np.ndarray:
-    """(6, 6) adjoint of T acting on twists ordered (v, ω)."""
-    R, p = T[:3, :3], T[:3, 3]
-    A = np.zeros((6, 6))
-    A[:3, :3] = R
-    A[:3, 3:] = skew(p) @ R
-    A[3:, 3:] = R
-    return A
-
-
 def _face_B(face) -> np.ndarray:
     """(6, 6) map from rig-frame (t, ω) to face-frame (t, ω)."""
     R = np.asarray(face.R_rig_face, float)
@@ -1686,7 +1676,7 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
     J = np.zeros((6, 6))
     J[:3, :3] = M[:3, :3]
     J[3:, 3:] = np.eye(3)
-    J = -J @ _adjoint(T_inverse(H) if opts.symmetric else T_inverse(M))
+    J = -J @ adjoint(T_inverse(H) if opts.symmetric else T_inverse(M))
     cov = J @ C_sand @ J.T
     cov_iid = J @ C_iid @ J.T
     unobs_vecs = sol["unobs"]

@@ -63,3 +63,16 @@ def test_cube_faces_are_rotations_looking_along_their_name(name):
 def test_cube_faces_cover_all_directions():
     zs = np.stack([R_rig_face_for(n)[:, 2] for n in FACE_NAMES])
     assert np.allclose(np.abs(zs).sum(axis=0), 2.0)
+
+
+def test_adjoint_maps_twists_between_frames(rng):
+    """adjoint(T) carries a small motion's twist (v, ω) from frame b into frame a:
+    T exp(ξ) T⁻¹ = exp(Ad_T ξ) to first order."""
+    from polycam.geometry import R_from_r, T_from_Rt, T_inverse, adjoint
+
+    T = T_from_Rt(R_from_r(rng.normal(size=3)), rng.normal(size=3))
+    xi = 1e-6 * rng.normal(size=6)
+    small = T_from_Rt(R_from_r(xi[3:]), xi[:3])
+    moved = T @ small @ T_inverse(T)
+    got = np.concatenate([moved[:3, 3], r_from_R(moved[:3, :3])])
+    np.testing.assert_allclose(got, adjoint(T) @ xi, atol=GEOMETRY_ATOL)
