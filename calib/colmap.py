@@ -163,8 +163,12 @@ def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike,
             pycolmap.apply_rig_config(list(rig_configs), database)
         finally:
             database.close()
+    # the incremental mapper is reproducible only on one thread (its multi-threaded bundle
+    # adjustments and registration order vary from run to run: seen as 2 of 8 frames registered
+    # in one run of a session that registers 8 of 8 in others); extraction and matching stay threaded
+    pycolmap.set_random_seed(int(seed))
     opts = pycolmap.IncrementalPipelineOptions()
-    opts.num_threads = int(num_threads)
+    opts.num_threads = 1
     opts.random_seed = int(seed)
     opts.multiple_models = False
     sparse = workdir / "sparse"
