@@ -40,6 +40,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numba
 import numpy as np
@@ -359,28 +360,28 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
 
 
 @numba.njit(cache=True, parallel=True)
-def _csr_matvec(indptr, indices, data, x, out):
-    """out[r, :] = Σ_j data[j] x[indices[j], :] over the row's entries (x: (P, C))."""
-    nrows = indptr.shape[0] - 1
+def _csr_matvec(rows, rptr, indices, data, x, out):
+    """out[rows[r], :] = Σ_j data[j] x[indices[j], :] over the entries rptr[r]..rptr[r+1] of
+    the non-empty rows (x: (P, C); out: (nrows, C); the other rows are not touched)."""
     C = x.shape[1]
-    for r in numba.prange(nrows):
-        j0, j1 = indptr[r], indptr[r + 1]
+    for r in numba.prange(rows.shape[0]):
+        j0, j1 = rptr[r], rptr[r + 1]
+        q = rows[r]
         for c in range(C):
             acc = np.float32(0.0)
             for j in range(j0, j1):
                 acc += data[j] * x[indices[j], c]
-            out[r, c] = acc
+            out[q, c] = acc
 
 
 @numba.njit(cache=True, parallel=True)
-def _csr_matvec1(indptr, indices, data, x, out):
-    """out[r] = Σ_j data[j] x[indices[j]] (single channel)."""
-    nrows = indptr.shape[0] - 1
-    for r in numba.prange(nrows):
+def _csr_matvec1(rows, rptr, indices, data, x, out):
+    """:func:`_csr_matvec` for a single channel (x: (P,); out: (nrows,))."""
+    for r in numba.prange(rows.shape[0]):
         acc = np.float32(0.0)
-        for j in range(indptr[r], indptr[r + 1]):
+        for j in range(rptr[r], rptr[r + 1]):
             acc += data[j] * x[indices[j]]
-        out[r] = acc
+        out[rows[r]] = acc
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -413,6 +414,16 @@ class SplatGeometry:
     @property
     def nnz(self) -> int:
         return int(self.data.shape[0])
+
+    @cached_property
+    def nonempty_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """The rows with entries, (R,) int64 ascending, and their entries' pointers (R + 1,)
+        int64 (row ``rows[r]`` holds entries ``ptr[r]..ptr[r + 1]``): most cells get no sample
+        (the views between cameras), and skipping them keeps the per-frame product from reading
+        the full row-pointer array."""
+        rows = np.flatnonzero(np.diff(self.indptr))
+        ptr = np.append(self.indptr[rows], self.indptr[-1])
+        return rows, ptr
 
     def to_scipy(self):
         """The splat as a ``scipy.sparse.csr_array`` (cells × input pixels)."""
@@ -471,9 +482,13 @@ def splat(geo: SplatGeometry, pixels: np.ndarray, out: np.ndarray | None = None)
     x = np.ascontiguousarray(pixels, np.float32)
     nrows = geo.indptr.shape[0] - 1
     if x.ndim == 1:
-        o = np.empty(nrows, np.float32) if out is None else out.reshape(nrows)
-        _csr_matvec1(geo.indptr, geo.indices, geo.data, x, o)
+        o = np.zeros(nrows, np.float32) if out is None else out.reshape(nrows)
+        if out is not None:
+            o.fill(0.0)                 # (empty rows; a memset is cheaper than the rows' own loop)
+        _csr_matvec1(*geo.nonempty_rows, geo.indices, geo.data, x, o)
         return o.reshape(geo.grid.shape)
-    o = np.empty((nrows, x.shape[1]), np.float32) if out is None else out.reshape(nrows, x.shape[1])
-    _csr_matvec(geo.indptr, geo.indices, geo.data, x, o)
+    o = np.zeros((nrows, x.shape[1]), np.float32) if out is None else out.reshape(nrows, x.shape[1])
+    if out is not None:
+        o.fill(0.0)
+    _csr_matvec(*geo.nonempty_rows, geo.indices, geo.data, x, o)
     return o.reshape(*geo.grid.shape, x.shape[1])
