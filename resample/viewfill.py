@@ -588,13 +588,91 @@ def _blend(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
                     out[v, u, c] = acc[u, c] / tw[u]
 
 
+@numba.njit(cache=True, fastmath=True, inline="always")
+def _blend_sample(X, A, v, u, dd, kx, ky, w, Nv, Nu):
+    """One source's (weight a, a times its bilinear sample) for :func:`_blend_grey` at the
+    target sample (v, u) with disparity dd; (0, 0) when the shifted sample leaves the view."""
+    xx = u - dd * kx
+    yy = v - dd * ky
+    if not (xx >= 0.0 and xx <= Nu - 1 and yy >= 0.0 and yy <= Nv - 1):
+        return np.float32(0.0), np.float32(0.0)
+    y0 = min(int(yy), Nv - 2)
+    fy = np.float32(yy - y0)
+    x0 = min(int(xx), Nu - 2)
+    fx = np.float32(xx - x0)
+    uy0, ux0 = numba.uint64(y0), numba.uint64(x0)
+    uy1, ux1 = uy0 + numba.uint64(1), ux0 + numba.uint64(1)
+    a = w * max(A[uy0 + numba.uint64(fy > 0.5), ux0 + numba.uint64(fx > 0.5)], np.float32(1e-3))
+    p0 = X[uy0, ux0] + fx * (X[uy0, ux1] - X[uy0, ux0])
+    p1 = X[uy1, ux0] + fx * (X[uy1, ux1] - X[uy1, ux0])
+    return a, a * (p0 + fy * (p1 - p0))
+
+
+@numba.njit(cache=True, fastmath=True)
+def _blend_grey(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
+    """:func:`_blend` for grey views (Xf: (Ny, Nx, Nv, Nu); out: (Nv, Nu); tw, acc: (Nu,)
+    scratch), the same arithmetic: a source beside the target (dy = 0) is read along its
+    row and one above or below (dx = 0) along its column (the bilinear weight across is 0),
+    and the nearest sample's confidence is picked without branches."""
+    Nv, Nu = d.shape
+    one = numba.uint64(1)
+    for v in range(Nv):
+        dv = d[v]
+        tw[:] = 0.0
+        acc[:] = 0.0
+        for s in range(S):
+            X = Xf[src[s, 0], src[s, 1]]
+            A = Af[src[s, 0], src[s, 1]]
+            ky = r_y * dy[s]
+            kx = dx[s]
+            w = sw[s]
+            if ky == 0.0 and v < Nv - 1:
+                Xr = X[v]
+                Ar = A[v]
+                for u in range(Nu):
+                    xx = u - dv[u] * kx
+                    if not (xx >= 0.0 and xx <= Nu - 1):
+                        continue
+                    x0 = min(int(xx), Nu - 2)
+                    fx = np.float32(xx - x0)
+                    ux0 = numba.uint64(x0)
+                    a = w * max(Ar[ux0 + numba.uint64(fx > 0.5)], np.float32(1e-3))
+                    tw[u] += a
+                    acc[u] += a * (Xr[ux0] + fx * (Xr[ux0 + one] - Xr[ux0]))
+            elif kx == 0.0:
+                for u in range(Nu - 1):
+                    yy = v - dv[u] * ky
+                    if not (yy >= 0.0 and yy <= Nv - 1):
+                        continue
+                    y0 = min(int(yy), Nv - 2)
+                    fy = np.float32(yy - y0)
+                    uy0 = numba.uint64(y0)
+                    uu = numba.uint64(u)
+                    a = w * max(A[uy0 + numba.uint64(fy > 0.5), uu], np.float32(1e-3))
+                    tw[u] += a
+                    acc[u] += a * (X[uy0, uu] + fy * (X[uy0 + one, uu] - X[uy0, uu]))
+                a, ap = _blend_sample(X, A, v, Nu - 1, dv[Nu - 1], kx, ky, w, Nv, Nu)
+                tw[Nu - 1] += a
+                acc[Nu - 1] += ap
+            else:
+                for u in range(Nu):
+                    a, ap = _blend_sample(X, A, v, u, dv[u], kx, ky, w, Nv, Nu)
+                    tw[u] += a
+                    acc[u] += ap
+        orow = out[v]
+        for u in range(Nu):
+            if tw[u] > 0.0:
+                orow[u] = acc[u] / tw[u]
+
+
 @numba.njit(cache=True, parallel=True)
-def _fill_all(grey, grey_c, Lsrc, L, W, targets, holes, srcs, offs, sws, nsrc, r_y, coarse, k_down, fine, window,
+def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws, nsrc, r_y, coarse, k_down, fine, window,
               disp_out):
     """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place from the source views of
     Lsrc (L itself when no target is a source), their grey values grey (F, Ny, Nx, Nv, Nu) and
     k_down x k_down averages of those grey_c (F, Ny, Nx, Mv, Mu); disp_out (T, Nv, Nu). A target
-    with holes[t] keeps its samples with W > 0.5."""
+    with holes[t] keeps its samples with W > 0.5. With C = 1, L_grey is L's (F, Ny, Nx, Nv, Nu)
+    view, grey Lsrc's, and the blend runs on those."""
     F, Ny, Nx, Nv, Nu, C = L.shape
     Mv, Mu = (Nv + k_down - 1) // k_down, (Nu + k_down - 1) // k_down
     T = targets.shape[0]
@@ -619,6 +697,18 @@ def _fill_all(grey, grey_c, Lsrc, L, W, targets, holes, srcs, offs, sws, nsrc, r
             base = d.copy()
             _sweep(G, S, dy, dx, sw, base, fine, 1.0, ry, window, d)
         tw = np.empty(Nu, np.float32)
+        if C == 1:              # grey: L_grey is L without its channel axis, grey the sources
+            acc1 = np.empty(Nu, np.float32)
+            if holes[t]:
+                tmp1 = grey[f, j, i].copy()
+                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, tmp1, tw, acc1)
+                for v in range(Nv):
+                    for u in range(Nu):
+                        if W[f, j, i, v, u] <= 0.5:
+                            L_grey[f, j, i, v, u] = tmp1[v, u]
+            else:
+                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, L_grey[f, j, i], tw, acc1)
+            continue
         acc = np.empty((Nu, C), np.float32)
         if holes[t]:
             tmp = Lsrc[f, j, i].copy()
@@ -675,7 +765,8 @@ def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFi
                                       for (f, _, _), sv in zip(plan.targets, plan.sources)]), axis=0)
     grey_c = np.empty((*L.shape[:3], Mv, Mu), np.float32)    # only the source views are set
     _shrink_views(grey, views, k, grey_c)
-    _fill_all(grey, grey_c, Lsrc, L, np.ascontiguousarray(W, np.float32), np.array(plan.targets, np.int64), holes, srcs,
+    L_grey = L.reshape(L.shape[:5]) if L.shape[5] == 1 else grey                 # (unused for colour)
+    _fill_all(grey, grey_c, Lsrc, L, L_grey, np.ascontiguousarray(W, np.float32), np.array(plan.targets, np.int64), holes, srcs,
               offs, sws, nsrc, np.array(plan.r_y, np.float64), coarse, k, fine, int(opts.window), disp)
     if disparity_out is not None:
         for t, (f, j, i) in enumerate(plan.targets):

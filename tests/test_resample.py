@@ -383,5 +383,46 @@ def test_view_fill_options_and_colour(tmp_path):
     assert np.abs(r.L - r_pp.L)[~cam].max() > 1e-3
     for k in range(3):   # (float rounding may break a tie between two disparities differently)
         assert np.mean(np.abs(r3.L[..., k] - r.L) > RESAMPLE_CONSTANT_ATOL) < 1e-3
+    # re-filling the holes of the camera views too: measured samples stay, grey and colour agree
+    from resample import ViewFillOptions
+
+    holes = ResampleOptions(fill=ViewFillOptions(holes=True))
+    rh = Resampler(models, grid, options=holes).resample(frame)
+    rh3 = Resampler(models, grid, channels=3, options=holes).resample(frame)
+    keep = cam & (r.W > 0.5)
+    np.testing.assert_array_equal(rh.L[keep], r.L[keep])
+    assert np.abs(rh.L - r.L)[cam & (r.W <= 0.5)].max() > 1e-3
+    for k in range(3):
+        assert np.mean(np.abs(rh3.L[..., k] - rh.L) > RESAMPLE_CONSTANT_ATOL) < 1e-3
     with pytest.raises(ValueError):
         ResampleOptions(view_fill="bogus")
+
+
+def test_grey_blend_matches_the_general_blend():
+    """The grey blend's shortcuts (sources beside, above or below the target read along one
+    row or column) give the general blend's result, with sources reaching off their views and
+    confidences of 0 included."""
+    from resample.viewfill import _blend, _blend_grey
+
+    rng = np.random.default_rng(5)
+    Nv, Nu = 23, 31
+    X = rng.random((3, 3, Nv, Nu)).astype(np.float32)
+    A = rng.random((3, 3, Nv, Nu)).astype(np.float32)
+    A[A < 0.2] = 0.0
+    d = rng.uniform(-3.0, 4.0, (Nv, Nu)).astype(np.float32)
+    unreached = 0
+    for src in ([[1, 0], [1, 2]], [[0, 1], [2, 1]], [[0, 0], [0, 2], [2, 0], [2, 2]], [[1, 0], [0, 1], [2, 2]], [[1, 2], [2, 2]]):
+        src = np.array(src, np.int64)
+        S = src.shape[0]
+        off = (src - 1).astype(np.float64)
+        sw = rng.uniform(0.5, 1.0, S).astype(np.float32)
+        sw /= sw.sum()
+        out = np.full((Nv, Nu, 1), -1.0, np.float32)
+        _blend(X[..., None], A, src, S, off[:, 0].copy(), off[:, 1].copy(), sw, 1.3, d, out,
+               np.empty(Nu, np.float32), np.empty((Nu, 1), np.float32))
+        out_g = np.full((Nv, Nu), -1.0, np.float32)
+        _blend_grey(X, A, src, S, off[:, 0].copy(), off[:, 1].copy(), sw, 1.3, d, out_g,
+                    np.empty(Nu, np.float32), np.empty(Nu, np.float32))
+        np.testing.assert_allclose(out_g, out[..., 0], atol=RESAMPLE_CONSTANT_ATOL)
+        unreached += int(np.sum(out_g == -1.0))
+    assert unreached > 0                    # some samples reach no source and keep their value
