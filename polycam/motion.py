@@ -455,6 +455,12 @@ def _row_energy(x, y, v, z_pi, f, S, var, poly, st):
                 k += 1
 
 
+_FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+"""LLVM fast-math flags of the accumulating kernels: re-associated sums let the ray loops
+vectorise (results change by float rounding only); no ``nnan`` / ``ninf``, so the
+``not w > 0`` tests keep their meaning."""
+
+
 @numba.njit(cache=True, inline="always")
 def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv_sc, tile,
                      v_lo, v_hi, u_lo, u_hi, h, var, final, acc, st, poly, S):
@@ -465,6 +471,8 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     weight is wb times the IRLS weight of the residual ``r = L_t + c · p`` normalised by
     1 / inv_sc. Adds the sums to acc (n_tv, n_tu, 29) per (u, v) tile of ``tile`` samples
     and counts to st (25,); with ``final`` also the texture and the noise energy.
+    The ray loop has no branches (rays with weight <= 0 add zeros; their derivatives
+    are finite) and unsigned indices, so that it vectorises (callers use ``_FASTMATH``).
     """
     inv_f = 1.0 / f
     tx = p[0]
@@ -484,7 +492,13 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     for jv in range(v_lo, v_hi):
         v = vs[jv]
         tv = jv // tile
-        S[:] = 0.0
+        rx = gx[jv]
+        ry = gy[jv]
+        ru = gu[jv]
+        rv = gv[jv]
+        rt = lt[jv]
+        rw = wb[jv]
+        s0 = s1 = s2 = s3 = s4 = 0.0
         for tu in range(u_lo // tile, (u_hi - 1) // tile + 1):
             n00 = n01 = n02 = n03 = n04 = n05 = 0.0
             n11 = n12 = n13 = n14 = n15 = 0.0
@@ -495,17 +509,17 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
             r0 = r1 = r2 = r3 = r4 = r5 = 0.0
             sbb = 0.0
             sw = 0.0
-            for iu in range(max(tu * tile, u_lo), min((tu + 1) * tile, u_hi)):
-                wi = np.float64(wb[jv, iu])
-                if not wi > 0.0:
-                    continue
-                n_base += 1.0
+            for iu in range(numba.uint64(max(tu * tile, u_lo)), numba.uint64(min((tu + 1) * tile, u_hi))):
+                wraw = np.float64(rw[iu])
+                pos = wraw > 0.0
+                wi = wraw if pos else 0.0
+                n_base += 1.0 if pos else 0.0
                 u = us[iu]
-                g0 = np.float64(gx[jv, iu])
-                g1 = np.float64(gy[jv, iu])
-                g2 = np.float64(gu[jv, iu])
-                g3 = np.float64(gv[jv, iu])
-                b = -np.float64(lt[jv, iu])
+                g0 = np.float64(rx[iu])
+                g1 = np.float64(ry[iu])
+                g2 = np.float64(ru[iu])
+                g3 = np.float64(rv[iu])
+                b = -np.float64(rt[iu])
                 c0 = g0
                 c1 = g1
                 c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
@@ -513,15 +527,13 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
                     r = c0 * tx + c1 * ty + c2 * tz + c3 * wx + c4 * wy + c5 * wz - b
                     zz = abs(r) * inv_sc
                     if kind == 1:
-                        wr = (1.0 - zz * zz) ** 2 if zz < 1.0 else 0.0
+                        q = 1.0 - zz * zz
+                        wr = q * q if zz < 1.0 else 0.0
                     else:
                         wr = 1.0 if zz <= 1.0 else 1.0 / zz
-                    if wr > 0.5:
-                        n_in += 1.0
+                    n_in += 1.0 if (pos and wr > 0.5) else 0.0
                     wi = wi * wr
-                    if not wi > 0.0:
-                        continue
-                n_w += 1.0
+                n_w += 1.0 if wi > 0.0 else 0.0
                 w0 = wi * c0
                 w1 = wi * c1
                 w2 = wi * c2
@@ -560,15 +572,15 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
                 if final:
                     tex += wi * (g0 * g0 * hx2 + g1 * g1 * hy2 + g2 * g2 * hu2 + g3 * g3 * hv2)
                     m = wi
-                    S[0] += m
+                    s0 += m
                     m *= u
-                    S[1] += m
+                    s1 += m
                     m *= u
-                    S[2] += m
+                    s2 += m
                     m *= u
-                    S[3] += m
+                    s3 += m
                     m *= u
-                    S[4] += m
+                    s4 += m
             a = acc[tv, tu]
             a[0] += n00
             a[1] += n01
@@ -599,7 +611,12 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
             a[26] += r5
             a[27] += sbb
             a[28] += sw
-        if final and S[0] > 0.0:
+        if final and s0 > 0.0:
+            S[0] = s0
+            S[1] = s1
+            S[2] = s2
+            S[3] = s3
+            S[4] = s4
             _row_energy(x, y, v, z_pi, f, S, var, poly, st)
     st[0] += n_w
     st[1] += n_base
@@ -607,7 +624,7 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     st[3] += tex
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
                  box, h, var, final, acc, st, chunks):
     """One pass over the rays of the view images box[0]:box[1] (y) x box[2]:box[3] (x),
@@ -639,7 +656,7 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, 
                              box[4], box[5], box[6], box[7], h, var, final, a, s, poly, S)
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, h,
                     var, final, acc, st, chunks):
