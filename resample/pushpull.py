@@ -42,7 +42,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["SCHEDULES", "pyramid_schedule", "PushPullResult", "push_pull", "push_pull_reference", "PushPull"]
+__all__ = ["SCHEDULES", "pyramid_schedule", "PushPullResult", "push_pull", "push_pull_reference", "PushPull",
+           "weighted_views"]
 
 SCHEDULES = ("xy-first", "isotropic")
 
@@ -255,11 +256,12 @@ def _pull_any(w, x, hy, hx, hv, hu, wo, xo):
             wo[f, i, j, k, lo] = ws if ws < 1.0 else np.float32(1.0)
 
 
-def _pull_xy_any(w, x, hy, hx, wo, xo):
+def _pull_xy_any(w, x, hy, hx, active, wo, xo):
     """Pull halving (y, x) only, plane by plane: w (F, Ny, Nx, P) clamped weights and
     x (F, Ny, Nx, P*C) values with P = Nv * Nu (C channels interleaved) → wo (F, My, Mx, P)
     clamped, xo (F, My, Mx, P*C). Planes are processed in blocks so the accumulators
-    stay in cache while the children stream past."""
+    stay in cache while the children stream past. Child planes with active[f, y, x] = 0
+    (all weights 0, values finite) are skipped: they would add zeros."""
     F, Ny, Nx, P = w.shape
     _, My, Mx, _ = wo.shape
     C = x.shape[3] // P
@@ -283,7 +285,7 @@ def _pull_xy_any(w, x, hy, hx, wo, xo):
                 continue
             for dx in range(-hx, hx + 1):
                 xx = j * (1 + hx) + dx
-                if xx < 0 or xx >= Nx:
+                if xx < 0 or xx >= Nx or not active[f, yy, xx]:
                     continue
                 h = np.float32(1.0)
                 if dy != 0:
@@ -511,6 +513,7 @@ class PushPull:
         self._x = [None] + [np.zeros((*s, self.channels), np.float32) for s in shapes[1:]]
         self._c = [None] + [np.zeros(s, np.float32) for s in shapes[1:]]
         self._scratch_w0 = None
+        self._all_active = [np.ones(s_[:3], np.bool_) for s_ in shapes]
 
     @staticmethod
     def _plane(a: np.ndarray) -> np.ndarray:
@@ -518,13 +521,16 @@ class PushPull:
         s = a.shape
         return a.reshape(s[0], s[1], s[2], -1)
 
-    def run(self, x0: np.ndarray, w0_clamped: np.ndarray, W_out: np.ndarray | None = None) -> np.ndarray:
+    def run(self, x0: np.ndarray, w0_clamped: np.ndarray, W_out: np.ndarray | None = None,
+            views: np.ndarray | None = None) -> np.ndarray:
         """Fill ``x0`` in place and return the confidence W.
 
         x0: (F, Ny, Nx, Nv, Nu, C) float32 C-contiguous splatted values, 0 where the weight is 0
             (overwritten with L).
         w0_clamped: (F, Ny, Nx, Nv, Nu) float32 ``min(w0, 1)`` (read only).
         W_out: optional (F, Ny, Nx, Nv, Nu) float32 buffer for W.
+        views: optional (F, Ny, Nx) bool, False for views whose weights are all 0
+            (:func:`weighted_views`; computed once per geometry): the finest pull skips them.
         """
         if x0.shape != (*self.shape, self.channels) or x0.dtype != np.float32 or not x0.flags.c_contiguous:
             raise ValueError(f"x0: expected C-contiguous float32 {(*self.shape, self.channels)}, "
@@ -533,13 +539,18 @@ class PushPull:
         if w0.shape != self.shape:
             raise ValueError(f"w0: expected {self.shape}, got {w0.shape}")
         W = np.empty(self.shape, np.float32) if W_out is None else W_out
+        if views is None:
+            views = self._all_active[0]
+        elif views.shape != self.shape[:3] or views.dtype != np.bool_:
+            raise ValueError(f"views: expected bool {self.shape[:3]}, got {views.dtype} {views.shape}")
         ws = [w0] + self._w[1:]
         xs = [x0] + self._x[1:]
         pl = self._plane
         for r, (hy, hx, hv, hu) in enumerate(self._flags):
             k = 0 if ws[r].size >= _PARALLEL_MIN_CELLS else 1
             if hv == 0 and hu == 0:
-                _PULL_XY[k](pl(ws[r]), pl(xs[r]), hy, hx, pl(ws[r + 1]), pl(xs[r + 1]))
+                _PULL_XY[k](pl(ws[r]), pl(xs[r]), hy, hx, views if r == 0 else self._all_active[r],
+                            pl(ws[r + 1]), pl(xs[r + 1]))
             else:
                 _PULL[k](ws[r], xs[r], hy, hx, hv, hu, ws[r + 1], xs[r + 1])
         top = len(self._flags)
@@ -563,6 +574,12 @@ class PushPull:
         return W
 
 
+def weighted_views(w0: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx) bool: the views of w0 (F, Ny, Nx, Nv, Nu) with any weight > 0 (for
+    :meth:`PushPull.run`)."""
+    return np.asarray(w0).reshape(*np.shape(w0)[:3], -1).max(axis=3) > 0
+
+
 def push_pull(x0: np.ndarray, w0: np.ndarray, *, schedule: str = "xy-first",
               attenuation: float = 0.5) -> PushPullResult:
     """Fill a splatted light field by pull-push (numba; see the module docstring).
@@ -581,5 +598,5 @@ def push_pull(x0: np.ndarray, w0: np.ndarray, *, schedule: str = "xy-first",
         x = x[..., None]
     x[w0 <= 0] = 0.0
     pp = PushPull(w0.shape, x.shape[-1], schedule=schedule, attenuation=attenuation)
-    W = pp.run(x, np.minimum(w0, np.float32(1.0)))
+    W = pp.run(x, np.minimum(w0, np.float32(1.0)), views=weighted_views(w0))
     return PushPullResult(L=x if colour else x[..., 0], W=W, levels=len(pp.levels))

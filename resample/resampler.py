@@ -29,7 +29,7 @@ from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
 
 from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
-from .pushpull import SCHEDULES, PushPull
+from .pushpull import SCHEDULES, PushPull, weighted_views
 from .viewfill import ViewFillOptions, ViewFillPlan, fill_views, plan_view_fill
 
 VIEW_FILLS = ("depth", "pushpull")
@@ -135,6 +135,7 @@ class Resampler:
         """Splat geometry for all cameras."""
         self._subsets: OrderedDict[tuple[str, ...], SplatGeometry] = OrderedDict()
         self._w0c: dict[int, np.ndarray] = {}
+        self._views: dict[int, np.ndarray] = {}
         self._plans: dict[int, ViewFillPlan] = {}
         self._pp: PushPull | None = None
         self._pixels: np.ndarray | None = None
@@ -144,7 +145,7 @@ class Resampler:
     # pickling (dask): drop the per-frame buffers, keep the geometry
     def __getstate__(self):
         st = self.__dict__.copy()
-        st.update(_pp=None, _pixels=None, _L=None, _W=None, _w0c={}, _plans={})
+        st.update(_pp=None, _pixels=None, _L=None, _W=None, _w0c={}, _views={}, _plans={})
         return st
 
     @property
@@ -172,8 +173,10 @@ class Resampler:
         if w is None:
             if len(self._w0c) > self.options.geometry_cache + 1:
                 self._w0c.clear()
+                self._views.clear()
             w = np.minimum(geo.w0 * np.float32(1.0 / self.options.full_weight), np.float32(1.0))
             self._w0c[key] = w
+            self._views[key] = weighted_views(w)
         return w
 
     def fill_plan(self, geo: SplatGeometry | None = None) -> ViewFillPlan:
@@ -279,7 +282,8 @@ class Resampler:
             splat(geo, sub[:, 0], out=L.reshape(-1))
         else:
             splat(geo, sub, out=L.reshape(-1, self.channels))
-        pp.run(L, self._clamped(geo), W)
+        w0c = self._clamped(geo)
+        pp.run(L, w0c, W, views=self._views[id(geo)])
         if self.options.view_fill == "depth":
             fill_views(L, W, self.fill_plan(geo), self.options.fill)
         Lv = L[..., 0] if self.channels == 1 else L
