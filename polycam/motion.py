@@ -1730,6 +1730,7 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
 
 def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = None,
                         options: MotionOptions | None = None, constant_velocity: bool = True,
+                        scale_selection: bool = False,
                         **option_overrides) -> tuple[Trajectory, list[PairResult]]:
     """Egomotion of every consecutive frame pair of a light-field store, integrated.
 
@@ -1737,6 +1738,10 @@ def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = 
     (optionally with a colour axis) and ``weights(i)`` → same dims or None. Frames are
     read one at a time (two in memory). ``progress(done, total)`` is called after each
     pair. ``constant_velocity`` starts each pair from the previous pair's estimate.
+    ``scale_selection``: pre-smooth (u, v) at the scale of paper Sect. 4.1
+    (:class:`polycam.scales.ScaleTracker`: chosen where the four depth estimates agree,
+    capped by the disparity per view step; for grids whose views are far apart for the
+    scene, e.g. one view per camera of a 2 cm array in a room).
     Returns the trajectory (``T_world_rig``, world = rig at the first frame) and the
     per-pair results (falsy ones failed; their motion is still integrated).
     """
@@ -1753,11 +1758,18 @@ def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = 
     L_prev = store.frame(0)
     results: list[PairResult] = []
     T_init = None
+    estimate = estimate_motion
+    if scale_selection:
+        from .scales import ScaleTracker
+
+        tracker = ScaleTracker(grid)
+
+        def estimate(L0, L1, grid, **kw):
+            return tracker.estimate(L0, L1, **kw)
     for i in range(n - 1):
         L_next = store.frame(i + 1)
         W_next = get_w(i + 1) if get_w else None
-        res = estimate_motion(L_prev, L_next, grid, W0=W_prev, W1=W_next, T_init=T_init,
-                              options=opts, index=i)
+        res = estimate(L_prev, L_next, grid, W0=W_prev, W1=W_next, T_init=T_init, options=opts, index=i)
         results.append(res)
         if constant_velocity and res.ok:
             T_init = res.T_prev_next

@@ -42,7 +42,9 @@ from .lightfield import LightFieldGrid
 __all__ = [
     "Scale",
     "MOTION_SCALES",
+    "MOTION_UV_SCALES",
     "SCALE_LADDER",
+    "DISPARITY_SIGMA_FACTOR",
     "binomial_taps",
     "smooth_at_scale",
     "scale_derivatives",
@@ -54,6 +56,8 @@ __all__ = [
     "apply_selection",
     "ScaleSelectedMotion",
     "estimate_motion_scale_selected",
+    "view_disparity",
+    "ScaleTracker",
     "depth_scale_selected",
 ]
 
@@ -90,6 +94,21 @@ MOTION_SCALES: tuple[Scale, ...] = (Scale(4, 0), Scale(2, 0), Scale(0, 0), Scale
 σ_xy = 1, 0.71, 0 with no (u, v) smoothing, σ_xy = σ_uv = 0.71, then σ_uv = 0.71, 1, 1.41
 samples with no (x, y) smoothing. On 9 x 9 viewpoints with fs3, ``xy4`` leaves the central
 3 x 3 valid, ``xy2`` the central 5 x 5."""
+
+MOTION_UV_SCALES: tuple[Scale, ...] = (Scale(0, 0), Scale(0, 2), Scale(0, 4), Scale(0, 8))
+"""Candidates of the trajectory loop (:class:`ScaleTracker`): (u, v) smoothing only, σ_uv = 0,
+0.71, 1, 1.41 samples, so every viewpoint keeps its derivatives (the translation is measured
+across them); which ones a face may use is capped by its disparity (:func:`view_disparity`)."""
+
+DISPARITY_SIGMA_FACTOR: float = 2.5
+"""Cap of the (u, v) pre-smoothing: σ_uv ≤ this factor x the face's median disparity per view
+step (in (u, v) samples). A scene point moves by the disparity d from one viewpoint to the next,
+so the (x, y) derivative filter (±1 view) sees the texture over ±d samples: smoothing (u, v) at
+about that scale makes the two derivatives see the same patch (plenoptic sampling; Chai et al.
+2000), while more smoothing only removes texture. Measured on the room scene of the 5x5 mock
+rig (d ≈ 0.85 samples with one view per camera, 0.41 with two): the depth-agreement choice is
+σ_uv ≈ 1.7–2.4 d there, and on the paper's sphere scene (d ≈ 0.05–0.09) the cap keeps the
+unsmoothed frames, where (u, v) smoothing costs motion accuracy (docs/depth.md)."""
 
 SCALE_LADDER: tuple[Scale, ...] = MOTION_SCALES + (Scale(6, 0), Scale(6, 2))
 """Candidates for depth: :data:`MOTION_SCALES` plus σ_xy = 1.22 (``xy6``, with σ_uv 0 or 0.71),
@@ -180,10 +199,11 @@ class DepthEstimates:
     """bool: the filters' support lies inside the grid."""
 
 
-def depth_estimates(der, grid: LightFieldGrid, T_prev_next: np.ndarray, *, ok: np.ndarray | None = None,
+def depth_estimates(der, grid: LightFieldGrid, T_prev_next: np.ndarray | None, *, ok: np.ndarray | None = None,
                     window: int = 4) -> DepthEstimates:
     """Windowed least-squares λ of each depth equation separately (``window`` as in
-    :func:`~polycam.depth.depth_from_derivatives`)."""
+    :func:`~polycam.depth.depth_from_derivatives`); without ``T_prev_next`` only the two
+    stereo equations."""
     m = np.broadcast_to(der.valid, der.Lx.shape) if ok is None else ok
     valid = m.astype(np.float32)
     lam, info = {}, {}
@@ -277,11 +297,14 @@ def _ladder_order(scales) -> list[int]:
 
 def select_scales(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T_prev_next: np.ndarray, *,
                   scales: tuple[Scale, ...] = SCALE_LADDER, per: str = "face", tile: int = 16,
-                  window: int = 4, tie: float = 0.05, W0: np.ndarray | None = None) -> ScaleSelection:
+                  window: int = 4, tie: float = 0.05, W0: np.ndarray | None = None,
+                  max_sigma_uv: np.ndarray | None = None) -> ScaleSelection:
     """Choose per face (``per="face"``) or also per (u, v) tile (``"region"``) the scale at
     which the four depth estimates of the pair (L0, L1) (F, Ny, Nx, Nv, Nu) agree best,
     given the rig motion ``T_prev_next`` (4, 4). ``W0``: optional confidence of L0
-    (rays with W0 ≤ 0.5 are ignored)."""
+    (rays with W0 ≤ 0.5 are ignored). ``max_sigma_uv``: optional (F,) cap [samples] of the
+    (u, v) smoothing per face; candidates above it are not compared there (score NaN),
+    the unsmoothed scale always is."""
     if per not in ("face", "region"):
         raise ValueError(f"per must be 'face' or 'region', got {per!r}")
     F, Ny, Nx, Nv, Nu = grid.shape
@@ -290,12 +313,19 @@ def select_scales(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T_prev_n
     S = len(scales)
     scores = np.full((F, S), np.nan)
     rscores = np.full((F, Tv, Tu, S), np.nan) if per == "region" else None
+    cap = np.full(F, np.inf) if max_sigma_uv is None else np.broadcast_to(np.asarray(max_sigma_uv, float), (F,))
+    allowed = np.array([[scales[si] == Scale() or scales[si].sigma_uv <= cap[k] for si in range(S)]
+                        for k in range(F)])
     for si in range(S):
+        if not allowed[:, si].any():
+            continue
         der, ok = scale_derivatives(L0, L1, grid, scales[si])
         if W0 is not None:
             ok = ok & (np.asarray(W0) > 0.5)
         est = depth_estimates(der, grid, T_prev_next, ok=ok, window=window)
         for k in range(F):
+            if not allowed[k, si]:
+                continue
             scores[k, si] = disagreement(est, (slice(k, k + 1),))
             if rscores is not None:
                 terms = _pair_terms(est, (slice(k, k + 1),))
@@ -364,7 +394,8 @@ def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFi
                                    W0: np.ndarray | None = None, W1: np.ndarray | None = None,
                                    T_init: np.ndarray | None = None, options=None,
                                    scales: tuple[Scale, ...] = MOTION_SCALES, rounds: int = 2,
-                                   tie: float = 0.05, index: int = 0) -> ScaleSelectedMotion:
+                                   tie: float = 0.05, index: int = 0,
+                                   max_sigma_uv: np.ndarray | None = None) -> ScaleSelectedMotion:
     """Rig motion ``T_rig0_rig1`` with the scale-selection feedback loop of Sect. 4.1.
 
     1. ``estimate_motion`` on the frames as given (``options``: a
@@ -373,6 +404,7 @@ def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFi
     3. ``estimate_motion`` again on both frames pre-smoothed at those scales, from the
        previous estimate; repeat 2–3 up to ``rounds`` times or until the choice repeats.
     ``L0``, ``L1``, ``W0``, ``W1``: (F, Ny, Nx, Nv, Nu) (a colour axis is averaged).
+    ``max_sigma_uv``: optional (F,) cap of the (u, v) smoothing (:func:`select_scales`).
     """
     from .motion import estimate_motion
 
@@ -385,7 +417,8 @@ def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFi
     for _ in range(max(0, int(rounds))):
         if not res:
             break
-        sel = select_scales(L0, L1, grid, res.T_prev_next, scales=scales, tie=tie, W0=W0)
+        sel = select_scales(L0, L1, grid, res.T_prev_next, scales=scales, tie=tie, W0=W0,
+                            max_sigma_uv=max_sigma_uv)
         choice = sel.face_choice
         history.append((res.T_prev_next.copy(), tuple(s.name for s in sel.face_scales())))
         if choice == prev:
@@ -399,6 +432,88 @@ def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFi
         sel = ScaleSelection(scales=tuple(scales), face_choice=(0,) * grid.shape[0],
                              scores=np.full((grid.shape[0], len(scales)), np.nan))
     return ScaleSelectedMotion(result=res, selection=sel, history=history)
+
+
+def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: np.ndarray | None = None,
+                   window: int = 4) -> np.ndarray:
+    """(F,) median disparity per view step of each face, in (u, v) samples.
+
+    From the differential-stereo depth estimates of Eq. 6 at the finest scale (no motion
+    needed): λ = Z / f per ray (windowed least squares of ``L_u = λ L_x``, ``L_v = λ L_y``);
+    a point moves by ``Δx / λ`` in u from one viewpoint to the next. The median runs over
+    the rays with a positive λ (and W0 > 0.5 when given); NaN for a face without any.
+    """
+    L0 = _grey(L0, grid)
+    L1 = _grey(L1, grid)
+    der, ok = scale_derivatives(L0, L1, grid, Scale())
+    if W0 is not None:
+        ok = ok & (np.asarray(W0) > 0.5)
+    est = depth_estimates(der, grid, None, ok=ok, window=window)
+    out = np.full(grid.shape[0], np.nan)
+    steps = {"stereo_x": grid.x.step / grid.u.step, "stereo_y": grid.y.step / grid.v.step}
+    for k in range(grid.shape[0]):
+        d = []
+        for name, ratio in steps.items():
+            lam = est.lam[name][k]
+            lam = lam[np.isfinite(lam) & (lam > 0)]
+            if lam.size:
+                d.append(ratio / float(np.median(lam)))
+        if d:
+            out[k] = max(d)
+    return out
+
+
+class ScaleTracker:
+    """Sect. 4.1 scale selection along a sequence of frame pairs.
+
+    The first pair (and every ``reselect_every``-th after it) runs the feedback loop of
+    :func:`estimate_motion_scale_selected` over ``scales`` (default :data:`MOTION_UV_SCALES`),
+    each face's (u, v) smoothing capped at ``factor`` x its disparity (:func:`view_disparity`);
+    the pairs in between reuse that choice: both frames pre-smoothed at it and one
+    :func:`~polycam.motion.estimate_motion` (the depth range changes slowly along a sequence).
+    ``estimate(...)`` takes and returns what ``estimate_motion`` does.
+    """
+
+    def __init__(self, grid: LightFieldGrid, *, scales: tuple[Scale, ...] = MOTION_UV_SCALES,
+                 factor: float = DISPARITY_SIGMA_FACTOR, reselect_every: int = 8, rounds: int = 2):
+        self.grid = grid
+        self.scales = tuple(scales)
+        self.factor = float(factor)
+        self.reselect_every = max(1, int(reselect_every))
+        self.rounds = rounds
+        self.selection: ScaleSelection | None = None
+        """The choice in use (None before the first pair)."""
+        self.disparity: np.ndarray | None = None
+        """(F,) disparity per view step [samples] measured at the last selection."""
+        self._pairs = 0
+
+    def estimate(self, L0: np.ndarray, L1: np.ndarray, *, W0: np.ndarray | None = None,
+                 W1: np.ndarray | None = None, T_init: np.ndarray | None = None, options=None,
+                 index: int = 0):
+        """The :class:`~polycam.motion.PairResult` of one frame pair (F, Ny, Nx, Nv, Nu)."""
+        from .motion import estimate_motion
+
+        grid = self.grid
+        L0 = _grey(L0, grid)
+        L1 = _grey(L1, grid)
+        if self.selection is None or self._pairs % self.reselect_every == 0:
+            self.disparity = view_disparity(L0, L1, grid, W0=W0)
+            cap = np.nan_to_num(self.factor * self.disparity, nan=0.0)
+            out = estimate_motion_scale_selected(L0, L1, grid, W0=W0, W1=W1, T_init=T_init, options=options,
+                                                 scales=self.scales, rounds=self.rounds, index=index,
+                                                 max_sigma_uv=cap)
+            self.selection = out.selection
+            res = out.result
+            log.info("pair %d: disparity %s samples per view step; scales %s", index,
+                     ", ".join(f"{d:.2f}" for d in self.disparity),
+                     ", ".join(s.name for s in self.selection.face_scales()))
+        elif all(s == Scale() for s in self.selection.face_scales()):
+            res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, T_init=T_init, options=options, index=index)
+        else:
+            a, b, w0, w1 = apply_selection(L0, L1, self.selection, W0, W1)
+            res = estimate_motion(a, b, grid, W0=w0, W1=w1, T_init=T_init, options=options, index=index)
+        self._pairs += 1
+        return res
 
 
 def _grey(L: np.ndarray, grid: LightFieldGrid) -> np.ndarray:

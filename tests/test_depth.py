@@ -19,11 +19,12 @@ from polycam.depth import (EQUATIONS, confident_mask, depth_from_derivatives, de
 from polycam.depth_io import read_pfm, read_ply, read_png16, write_pfm, write_ply, write_png16
 from polycam.geometry import T_from_rt
 from polycam.lightfield import Axis, LightFieldGrid
-from polycam.scales import (Scale, depth_estimates, depth_scale_selected, estimate_motion_scale_selected,
-                            scale_derivatives, select_scales)
+from polycam import scales as scales_mod
+from polycam.scales import (MOTION_UV_SCALES, Scale, ScaleTracker, depth_estimates, depth_scale_selected,
+                            estimate_motion_scale_selected, scale_derivatives, select_scales, view_disparity)
 
 from tolerances import (DEPTH_NEAR_SELECTED_REL, DEPTH_PLANE_MEDIAN_REL, DEPTH_PNG_ATOL_M, DEPTH_PLY_ATOL,
-                        DEPTH_SPHERES_MEDIAN_REL)
+                        DEPTH_SPHERES_MEDIAN_REL, VIEW_DISPARITY_REL)
 
 MOTION = T_from_rt(np.array([0.0017, 0.0012, 0.0012, 0.002, -0.0015, 0.001]))   # T_rig0_rig1 from rt = (r [rad], t [m])
 
@@ -163,6 +164,47 @@ def test_motion_feedback_loop_runs_and_records_its_rounds(rng):
     assert 1 <= len(out.history) <= 2
     assert out.history[0][1] == ("xy4_uv0",)
     assert out.selection.face_scales() == (Scale(4, 0),)
+
+
+@pytest.mark.parametrize("Z", [0.3, 6.0])
+def test_view_disparity_of_a_plane(rng, Z):
+    """A fronto-parallel plane at depth Z moves by Δx f / (Z Δu) (u, v) samples per viewpoint."""
+    g = plane_grid()
+    W = waves(rng, [3.0, 5.0])
+    d = view_disparity(render_plane(g, Z, W), render_plane(g, Z, W, MOTION), g)
+    expected = g.x.step * g.faces[0].f / (Z * g.u.step)
+    assert d.shape == (1,)
+    assert abs(d[0] / expected - 1) < VIEW_DISPARITY_REL
+
+
+def test_scale_selection_cap_leaves_only_the_allowed_candidates(rng):
+    g = plane_grid()
+    W = waves(rng, [30.0, 50.0, 250.0])
+    L0, L1 = render_plane(g, 0.3, W), render_plane(g, 0.3, W, MOTION)
+    sel = select_scales(L0, L1, g, MOTION, scales=MOTION_UV_SCALES, max_sigma_uv=np.array([0.8]))
+    allowed = [s == Scale() or s.sigma_uv <= 0.8 for s in MOTION_UV_SCALES]
+    assert np.isfinite(sel.scores[0, allowed]).all()
+    assert np.isnan(sel.scores[0, [not a for a in allowed]]).all()
+    assert sel.face_scales()[0] in [s for s, a in zip(MOTION_UV_SCALES, allowed) if a]
+    none = select_scales(L0, L1, g, MOTION, scales=MOTION_UV_SCALES, max_sigma_uv=np.zeros(1))
+    assert none.face_scales() == (Scale(),)
+
+
+def test_scale_tracker_selects_on_the_first_pair_and_reuses_the_choice(rng, monkeypatch):
+    g = plane_grid(directions=24)
+    W = waves(rng, [3.0, 5.0])
+    frames = [render_plane(g, 0.3, W, np.linalg.matrix_power(MOTION, i)) for i in range(4)]
+    calls = []
+    real = scales_mod.select_scales
+    monkeypatch.setattr(scales_mod, "select_scales", lambda *a, **k: calls.append(k["max_sigma_uv"]) or real(*a, **k))
+    tracker = ScaleTracker(g, reselect_every=2, rounds=1)
+    for i in range(3):
+        res = tracker.estimate(frames[i], frames[i + 1], index=i)
+        assert res.T_prev_next.shape == (4, 4)
+    assert len(calls) == 2                                    # pairs 0 and 2 select, pair 1 reuses
+    expected = g.x.step * g.faces[0].f / (0.3 * g.u.step)
+    assert np.allclose(calls[0], tracker.factor * expected, rtol=VIEW_DISPARITY_REL)
+    assert tracker.selection is not None and abs(tracker.disparity[0] / expected - 1) < VIEW_DISPARITY_REL
 
 
 # ----------------------------------------------------------------------------- files
