@@ -52,7 +52,8 @@ from polycam.synth import synth_session  # noqa: E402
 from polycam.trajectory import Trajectory  # noqa: E402
 
 
-def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c: float) -> tuple[Trajectory, dict]:
+def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c: float,
+              scale_selection: bool = False) -> tuple[Trajectory, dict]:
     """(trajectory, timing): timing in seconds per pair: ``total``, ``read`` (PNG decoding),
     ``image`` (resampling), ``pair`` (solve), and ``geometry`` (once per session)."""
     from polycam.motion import estimate_trajectory
@@ -64,7 +65,7 @@ def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c: float
     lf = SessionLightField(session, models=models,
                            grid=auto_grid(models, uv_step_px=uv_step, xy_oversample=xy_oversample))
     t0, c0 = time.perf_counter(), time.process_time()
-    traj, _ = estimate_trajectory(lf, smooth_c=smooth_c)
+    traj, _ = estimate_trajectory(lf, smooth_c=smooth_c, scale_selection=scale_selection)
     total, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = len(lf) - 1
     t0 = time.perf_counter()                 # the decoding share of lf.seconds_frames, measured apart
@@ -185,8 +186,15 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--uv-step", type=float, default=2.0)
-    ap.add_argument("--xy-oversample", type=int, default=1,
-                    help="plenoptic: light-field views per camera spacing (default 1, as polycam run)")
+    ap.add_argument("--xy-oversample", type=int, default=RunOptions.xy_oversample or 1,
+                    help="plenoptic: light-field views per camera spacing (default: polycam run's)")
+    ap.add_argument("--scale-selection", choices=("on", "off"),
+                    default="on" if RunOptions.scale_selection else "off",
+                    help="plenoptic: (u, v) scale selection of paper Sect. 4.1 (default: polycam run's)")
+    ap.add_argument("--settings", nargs="+", metavar="OVERSAMPLE:SELECTION", default=None,
+                    help="plenoptic: compare several settings in one run, e.g. 1:off 1:on 2:off 2:on "
+                         "(overrides --xy-oversample and --scale-selection)")
+    ap.add_argument("--skip-colmap", action="store_true", help="plenoptic rows only")
     ap.add_argument("--smooth-c", type=float, default=RunOptions.smooth_c,
                     help="plenoptic: the solver's discontinuity-weight constant (default: polycam run's)")
     ap.add_argument("--repeat", type=int, default=2, help="runs per method and session; the fastest counts")
@@ -197,6 +205,17 @@ def main() -> int:
     ap.add_argument("--neighbours", action="store_true",
                     help="pycolmap: also match each camera to its 4-neighbours in the next frame (slow)")
     args = ap.parse_args()
+    settings = args.settings or [f"{args.xy_oversample}:{args.scale_selection}"]
+    try:
+        settings = [(int(a), b == "on") for a, b in (x.split(":") for x in settings)]
+    except ValueError:
+        ap.error("--settings: expected OVERSAMPLE:on|off items, e.g. 2:on")
+    methods = [(f"plenoptic xy{ov} sel {'on' if sel else 'off'}",
+                (lambda ov=ov, sel=sel: lambda sess: plenoptic(sess, args.uv_step, ov, args.smooth_c, sel))())
+               for ov, sel in settings]
+    if not args.skip_colmap:
+        methods.append(("pycolmap", lambda sess: colmap_generalized(sess, neighbours=args.neighbours,
+                                                                    max_trials=args.max_trials)))
     rig = load_rig(args.rig)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -205,39 +224,41 @@ def main() -> int:
             from polycam.session import open_session
 
             gt = open_session(sess).groundtruth()
-            for name, fn in (("plenoptic", lambda: plenoptic(sess, args.uv_step, args.xy_oversample, args.smooth_c)),
-                             ("pycolmap", lambda: colmap_generalized(sess, neighbours=args.neighbours,
-                                                                        max_trials=args.max_trials))):
-                traj, tm = best_of(fn, args.repeat)
+            for name, fn in methods:
+                traj, tm = best_of(lambda: fn(sess), args.repeat)
                 e = pair_errors(traj, gt)
                 rows.append((seed, name, float(np.median(e.t_rel)), float(np.median(e.w_rel)),
                              1e3 * float(np.median(e.t_err)), np.degrees(float(np.median(e.w_err))),
                              1e3 * ate_rmse(traj, gt), tm))
     print(f"{rig.name}: {len(rig.cameras)} cameras of {rig.cameras[0].width}x{rig.cameras[0].height}, "
           f"{args.frames} frames per session, seeds {args.seeds}; plenoptic uv step {args.uv_step} px, "
-          f"xy oversample {args.xy_oversample}, smooth_c {args.smooth_c:g}; best of {args.repeat} runs; times in s per frame pair")
-    print(f"{'seed':>4} {'method':<10} {'t err %':>8} {'r err %':>8} {'t err mm':>9} {'r err deg':>10} "
+          f"smooth_c {args.smooth_c:g}; best of {args.repeat} runs; times in s per frame pair")
+    print(f"{'seed':>4} {'method':<24} {'t err %':>8} {'r err %':>8} {'t err mm':>9} {'r err deg':>10} "
           f"{'ATE mm':>7} {'s/frame':>8} {'read':>6} {'image':>6} {'pair':>6} {'CPU s':>6}  extra")
     for seed, name, tr, wr, tm_, wd, ate, t in rows:
-        ex = f"geometry {t['geometry']:.1f} s (once)" if name == "plenoptic" else f"{t['failed']} failed pairs"
-        print(f"{seed:>4} {name:<10} {100 * tr:>8.2f} {100 * wr:>8.2f} {tm_:>9.3f} {wd:>10.4f} {ate:>7.3f} "
+        ex = f"geometry {t['geometry']:.1f} s (once)" if name != "pycolmap" else f"{t['failed']} failed pairs"
+        print(f"{seed:>4} {name:<24} {100 * tr:>8.2f} {100 * wr:>8.2f} {tm_:>9.3f} {wd:>10.4f} {ate:>7.3f} "
               f"{t['total']:>8.2f} {t['read']:>6.2f} {t['image']:>6.2f} {t['pair']:>6.2f} {t['cpu']:>6.2f}  {ex}")
-    by = {m: [r for r in rows if r[1] == m] for m in ("plenoptic", "pycolmap")}
+    by = {m: [r for r in rows if r[1] == m] for m, _ in methods}
     med = {m: {k: float(np.median([r[i] for r in by[m]])) for k, i in (("t", 2), ("w", 3), ("ate", 6))}
            for m in by}
     for m in by:
         for part in ("total", "read", "image", "pair", "cpu"):
             med[m][part] = float(np.median([r[7][part] for r in by[m]]))
     for m in by:
-        print(f"median over seeds: {m:<9} t {100 * med[m]['t']:.2f}% r {100 * med[m]['w']:.2f}% ATE "
+        print(f"median over seeds: {m:<24} t {100 * med[m]['t']:.2f}% r {100 * med[m]['w']:.2f}% ATE "
               f"{med[m]['ate']:.3f} mm; {med[m]['total']:.3f} s/frame = read {med[m]['read']:.3f} + image "
               f"{med[m]['image']:.3f} + pair {med[m]['pair']:.3f}; CPU {med[m]['cpu']:.3f} s/frame")
-    p, c = med["plenoptic"], med["pycolmap"]
-    print(f"ratios pycolmap / plenoptic: translation error {c['t'] / p['t']:.2f}x, "
-          f"rotation error {c['w'] / p['w']:.2f}x, "
-          f"time per frame {c['total'] / p['total']:.2f}x (goal: error > 1x, time >= 5x); "
-          f"CPU time per frame {c['cpu'] / p['cpu']:.2f}x (process CPU time of all threads: less "
-          "sensitive to other load on the machine than wall time)")
+    if "pycolmap" not in med:
+        return 0
+    c = med["pycolmap"]
+    for m, _ in methods[:-1]:
+        p = med[m]
+        print(f"ratios pycolmap / {m}: translation error {c['t'] / p['t']:.2f}x, "
+              f"rotation error {c['w'] / p['w']:.2f}x, "
+              f"time per frame {c['total'] / p['total']:.2f}x (goal: error > 1x, time >= 5x); "
+              f"CPU time per frame {c['cpu'] / p['cpu']:.2f}x (process CPU time of all threads: less "
+              "sensitive to other load on the machine than wall time)")
     return 0
 
 

@@ -41,7 +41,7 @@ from bench_motion import params, random_motion  # noqa: E402
 from polycam.depth import confident_mask, depth_from_derivatives  # noqa: E402
 from polycam.motion import estimate_motion  # noqa: E402
 from polycam.scales import (MOTION_SCALES, SCALE_LADDER, Scale, depth_scale_selected,  # noqa: E402
-                            estimate_motion_scale_selected, scale_derivatives)
+                            ScaleTracker, estimate_motion_scale_selected, scale_derivatives)
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
 from polycam.synth.raycast import trace_rays  # noqa: E402
 
@@ -72,6 +72,9 @@ def main() -> None:
     ap.add_argument("--motion-only", action="store_true", help="skip the depth tables")
     ap.add_argument("--motion-scales", default=None, metavar="NAMES",
                     help="candidates of the motion loop, e.g. xy2_uv0,xy0_uv0 (default MOTION_SCALES)")
+    ap.add_argument("--tracker", action="store_true",
+                    help="scale-selected motion as estimate_trajectory(scale_selection=True) runs it: "
+                         "polycam.scales.ScaleTracker, (u, v) candidates capped by the disparity")
     a = ap.parse_args()
     distances = [4.0, 16.0] if a.quick else a.distances
     mscales = MOTION_SCALES if a.motion_scales is None else tuple(
@@ -106,10 +109,16 @@ def main() -> None:
             if a.depth_only:
                 continue
             t0 = time.process_time()
-            s = estimate_motion_scale_selected(L0, L1, grid, scales=mscales)
+            if a.tracker:
+                tracker = ScaleTracker(grid)
+                res = tracker.estimate(L0, L1)
+                selection = tracker.selection
+            else:
+                out = estimate_motion_scale_selected(L0, L1, grid, scales=mscales)
+                res, selection = out.result, out.selection
             times["scale-selected"].append(time.process_time() - t0)
-            errs["scale-selected"].append(vec_err(params(s.result.T_prev_next), tru))
-            chosen.append(",".join(sorted(set(x.name for x in s.selection.face_scales()))))
+            errs["scale-selected"].append(vec_err(params(res.T_prev_next), tru))
+            chosen.append(",".join(sorted(set(x.name for x in selection.face_scales()))))
         for name in errs:
             if not errs[name]:
                 continue

@@ -126,7 +126,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
     from .trajectory import write_tum
 
     with _progress(f"motion {src.name}", len(store) - 1) as advance:
-        traj, results = estimate_trajectory(store, progress=advance)
+        traj, results = estimate_trajectory(store, progress=advance, scale_selection=args.scale_selection == "on")
     write_tum(args.out, traj)
     failed = [r for r in results if not r]
     print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"
@@ -252,6 +252,10 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("--out", required=True, help="output trajectory TRAJ.tum (T_world_rig per frame)")
     add_source_options(pm)
     pm.add_argument("--report", metavar="DIR", help="also write per-pair diagnostics (pairs.csv) and plots")
+    pm.add_argument("--scale-selection", choices=("on", "off"), default="off",
+                    help="pre-smooth (u, v) at the scale where the four depth estimates agree (Sect. 4.1), "
+                         "capped by the disparity between views: for grids whose views are far apart for "
+                         "the scene; about 1.5x the time per pair (default off; docs/end_to_end.md)")
     pm.set_defaults(func=cmd_motion)
 
     pi = sub.add_parser("info", help="summarise a session folder or a light-field store")

@@ -157,9 +157,11 @@ def _small_lightfield(tmp_path: Path, frames: int) -> Path:
     return out
 
 
-def test_motion_on_a_lightfield_with_report(tmp_path):
+@pytest.mark.parametrize("selection", ["off", "on"])
+def test_motion_on_a_lightfield_with_report(tmp_path, selection):
     lf = _small_lightfield(tmp_path, 3)
-    res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"))
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"),
+                  "--scale-selection", selection)
     assert res.returncode == 0, res.stderr
     assert "against" in res.stdout  # compared with the store's ground truth
     from polycam.trajectory import read_tum
