@@ -89,11 +89,16 @@ class RunOptions:
     per-pair error with 1)."""
     xy_oversample: int | None = None
     """Viewpoints of the light-field grid per camera spacing (``resample.auto_grid``).
-    None: 1 (about one view per camera) when that gives at least ``MIN_VIEWS`` views
-    along x and y, else 2. On three calibrated 5x5 sessions (seeds 1-3, docs/end_to_end.md)
-    1 gave a median per-pair error of 6.1% / 1.8% (with ``smooth_c`` 0) against 11.3% /
-    3.3% with 2, at 60% of the time: the resampler fills in-between views without
-    knowing the depth, which hurts when the cameras are off the regular layout."""
+    None: 2 (the resampler fills the view between two cameras from the plane-sweep depth,
+    ``resample.viewfill``), or 4 when 2 gives fewer than ``MIN_VIEWS`` views along x or y.
+    On three 5x5 sessions (seeds 1-3, docs/end_to_end.md) 2 gave a median per-pair error of
+    2.9% / 0.9% against 7.1% / 1.7% with 1 (one view per camera: the (x, y) derivatives
+    across views 2 cm apart are aliased in a room), at ~3x the solve time."""
+    scale_selection: bool = True
+    """Pre-smooth the light field in (u, v) at the scale of paper Sect. 4.1 before the motion
+    solve (``estimate_trajectory(scale_selection=True)``, :class:`polycam.scales.ScaleTracker`).
+    With one view per camera (2 cm apart in a room) the (x, y) derivatives across views are
+    aliased; docs/end_to_end.md has the measured effect."""
     smooth_c: float = 0.0
     """The motion solver's discontinuity-weight constant (:class:`polycam.motion.MotionOptions`;
     0 disables it). On the same sessions its default 0.5 gave 7.3% / 1.8% with a worst
@@ -227,9 +232,11 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
 
     t0 = time.perf_counter()
     with bar("4/6 resample", None) as adv, _stage("resample"):
-        grid = auto_grid(cal.models, uv_step_px=opts.uv_step_px, xy_oversample=opts.xy_oversample or 1)
+        xy_oversample = opts.xy_oversample or 2
+        grid = auto_grid(cal.models, uv_step_px=opts.uv_step_px, xy_oversample=xy_oversample)
         if opts.xy_oversample is None and min(grid.x.count, grid.y.count) < MIN_VIEWS:
-            grid = auto_grid(cal.models, uv_step_px=opts.uv_step_px, xy_oversample=2)
+            xy_oversample = 4
+            grid = auto_grid(cal.models, uv_step_px=opts.uv_step_px, xy_oversample=xy_oversample)
         rs = resample_session(out / "session", out / "lightfield.zarr", calib_dir=out / "calib", grid=grid,
                               scheduler="sync", overwrite=True, progress=adv)
     s = time.perf_counter() - t0
@@ -252,7 +259,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     lf = open_lightfield(out / "lightfield.zarr")
     t0 = time.perf_counter()
     with bar("5/6 plenoptic motion", len(lf) - 1) as adv, _stage("motion"):
-        traj, results = estimate_trajectory(lf, progress=adv, smooth_c=opts.smooth_c)
+        traj, results = estimate_trajectory(lf, progress=adv, smooth_c=opts.smooth_c,
+                                            scale_selection=opts.scale_selection)
     s = time.perf_counter() - t0
     write_tum(out / "trajectory.tum", traj)
     failed = [r for r in results if not r]
@@ -279,7 +287,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     L0, L1, W0f = lf.frame(0), lf.frame(1), lf.weights(0)
     from .synth import scene_for_rig
 
-    dsum = _depth(report, lf.grid, L0, L1, W0f, results[0].T_prev_next if results[0] else None, opts,
+    grid_c, (L0c, L1c, W0c) = _views_at_cameras(lf.grid, xy_oversample, L0, L1, W0f)
+    dsum = _depth(report, grid_c, L0c, L1c, W0c, results[0].T_prev_next if results[0] else None, opts,
                   truth=(scene_for_rig(rig), truth.T_world_rig[0]))
     s = time.perf_counter() - t0
     dsum["seconds"] = s
@@ -469,6 +478,24 @@ def write_ply(path: str | os.PathLike, points, values=None) -> None:
     atomic_write_text(path, buf.getvalue())
 
 
+def _views_at_cameras(grid, every: int, *arrays):
+    """The sub-grid of every ``every``-th viewpoint through the central one (the views at the
+    cameras of a grid with ``every`` views per camera spacing) and the arrays (F, Ny, Nx, ...)
+    on it (None stays None). Depth uses these: the (x, y) derivatives of filled in-between
+    views carry the view fill's own depth, not the cameras'."""
+    from .lightfield import Axis
+
+    if every <= 1:
+        return grid, arrays
+    F, Ny, Nx = grid.shape[:3]
+    js, is_ = range((Ny // 2) % every, Ny, every), range((Nx // 2) % every, Nx, every)
+    yv, xv = grid.y.values[list(js)], grid.x.values[list(is_)]
+    sub = dataclasses.replace(grid, x=Axis(float(xv[0]), float(xv[-1]), len(xv)),
+                              y=Axis(float(yv[0]), float(yv[-1]), len(yv)))
+    pick = (slice(None), slice(js.start, None, every), slice(is_.start, None, every))
+    return sub, tuple(None if a is None else a[pick] for a in arrays)
+
+
 def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=None) -> dict:
     """Depth of the first frame pair: depth.png (central view, and against the truth) and
     points.ply. ``truth``: (scene, T_world_rig (4, 4) of frame 0) of the ray tracer the
@@ -618,8 +645,10 @@ def add_parsers(sub) -> None:
     p.add_argument("--uv-step", type=_positive_float, default=RunOptions.uv_step_px, metavar="PX",
                    help="direction spacing of the light field in camera pixels (default 2)")
     p.add_argument("--xy-oversample", type=_positive_int, default=None, metavar="N",
-                   help="light-field viewpoints per camera spacing (default: 1, views at the cameras, "
-                        f"or 2 when 1 gives fewer than {MIN_VIEWS} views along x or y)")
+                   help="light-field viewpoints per camera spacing (default: 2, one depth-filled view "
+                        f"between cameras, or 4 when 2 gives fewer than {MIN_VIEWS} views along x or y)")
+    p.add_argument("--scale-selection", choices=("on", "off"), default="on" if RunOptions.scale_selection else "off",
+                   help="(u, v) scale selection of paper Sect. 4.1 before the motion solve (default %(default)s)")
     p.set_defaults(func=cmd_run)
 
 
@@ -628,6 +657,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     run_chain(args.rig, args.out, board_path=args.board,
               options=RunOptions(frames=args.frames, board_frames=args.board_frames, seed=args.seed,
-                                 uv_step_px=args.uv_step, xy_oversample=args.xy_oversample),
+                                 uv_step_px=args.uv_step, xy_oversample=args.xy_oversample,
+                                 scale_selection=args.scale_selection == "on"),
               progress_factory=_progress, echo=print)
     return 0
