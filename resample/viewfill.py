@@ -588,81 +588,74 @@ def _blend(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
                     out[v, u, c] = acc[u, c] / tw[u]
 
 
-@numba.njit(cache=True, fastmath=True, inline="always")
-def _blend_sample(X, A, v, u, dd, kx, ky, w, Nv, Nu):
-    """One source's (weight a, a times its bilinear sample) for :func:`_blend_grey` at the
-    target sample (v, u) with disparity dd; (0, 0) when the shifted sample leaves the view."""
-    xx = u - dd * kx
-    yy = v - dd * ky
-    if not (xx >= 0.0 and xx <= Nu - 1 and yy >= 0.0 and yy <= Nv - 1):
-        return np.float32(0.0), np.float32(0.0)
-    y0 = min(int(yy), Nv - 2)
-    fy = np.float32(yy - y0)
-    x0 = min(int(xx), Nu - 2)
-    fx = np.float32(xx - x0)
-    uy0, ux0 = numba.uint64(y0), numba.uint64(x0)
-    uy1, ux1 = uy0 + numba.uint64(1), ux0 + numba.uint64(1)
-    a = w * max(A[uy0 + numba.uint64(fy > 0.5), ux0 + numba.uint64(fx > 0.5)], np.float32(1e-3))
-    p0 = X[uy0, ux0] + fx * (X[uy0, ux1] - X[uy0, ux0])
-    p1 = X[uy1, ux0] + fx * (X[uy1, ux1] - X[uy1, ux0])
-    return a, a * (p0 + fy * (p1 - p0))
-
-
 @numba.njit(cache=True, fastmath=True)
-def _blend_grey(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
-    """:func:`_blend` for grey views (Xf: (Ny, Nx, Nv, Nu); out: (Nv, Nu); tw, acc: (Nu,)
-    scratch), the same arithmetic: a source beside the target (dy = 0) is read along its
-    row and one above or below (dx = 0) along its column (the bilinear weight across is 0),
-    and the nearest sample's confidence is picked without branches."""
+def _blend_grey(Xf, Af, src, S, dy, dx, sw, r_y, d, out, scratch):
+    """:func:`_blend` for grey views (Xf: (Ny, Nx, Nv, Nu); out: (Nv, Nu)), the same
+    arithmetic in two passes per row and source: the sample positions, their bilinear
+    corners and weights (vectorised), then the gathers, skipping the second row (column)
+    of the bilinear sample where its weight is 0 (a source beside the target is read
+    along one row, one above or below along one column). scratch: from :func:`_blend_scratch`."""
     Nv, Nu = d.shape
-    one = numba.uint64(1)
+    n = numba.uint64(Nu)
+    NuU = numba.uint64(Nu)
+    Nu2, Nv2 = numba.uint64(Nu - 2), numba.uint64(Nv - 2)
+    tw, acc, fxa, fya = scratch[0], scratch[1], scratch[2], scratch[3]
+    i0 = scratch[4].view(np.uint32)
+    ia = scratch[5].view(np.uint32)
+    ok = scratch[6].view(np.uint32)
     for v in range(Nv):
         dv = d[v]
-        tw[:] = 0.0
-        acc[:] = 0.0
+        for u in range(n):
+            tw[u] = 0.0
+            acc[u] = 0.0
         for s in range(S):
-            X = Xf[src[s, 0], src[s, 1]]
-            A = Af[src[s, 0], src[s, 1]]
+            X = Xf[src[s, 0], src[s, 1]].ravel()
+            A = Af[src[s, 0], src[s, 1]].ravel()
             ky = r_y * dy[s]
             kx = dx[s]
             w = sw[s]
-            if ky == 0.0 and v < Nv - 1:
-                Xr = X[v]
-                Ar = A[v]
-                for u in range(Nu):
-                    xx = u - dv[u] * kx
-                    if not (xx >= 0.0 and xx <= Nu - 1):
-                        continue
-                    x0 = min(int(xx), Nu - 2)
-                    fx = np.float32(xx - x0)
-                    ux0 = numba.uint64(x0)
-                    a = w * max(Ar[ux0 + numba.uint64(fx > 0.5)], np.float32(1e-3))
-                    tw[u] += a
-                    acc[u] += a * (Xr[ux0] + fx * (Xr[ux0 + one] - Xr[ux0]))
-            elif kx == 0.0:
-                for u in range(Nu - 1):
-                    yy = v - dv[u] * ky
-                    if not (yy >= 0.0 and yy <= Nv - 1):
-                        continue
-                    y0 = min(int(yy), Nv - 2)
-                    fy = np.float32(yy - y0)
-                    uy0 = numba.uint64(y0)
-                    uu = numba.uint64(u)
-                    a = w * max(A[uy0 + numba.uint64(fy > 0.5), uu], np.float32(1e-3))
-                    tw[u] += a
-                    acc[u] += a * (X[uy0, uu] + fy * (X[uy0 + one, uu] - X[uy0, uu]))
-                a, ap = _blend_sample(X, A, v, Nu - 1, dv[Nu - 1], kx, ky, w, Nv, Nu)
-                tw[Nu - 1] += a
-                acc[Nu - 1] += ap
-            else:
-                for u in range(Nu):
-                    a, ap = _blend_sample(X, A, v, u, dv[u], kx, ky, w, Nv, Nu)
-                    tw[u] += a
-                    acc[u] += ap
+            for u in range(n):          # positions, corners, weights
+                dd = dv[u]
+                xx = u - dd * kx
+                yy = v - dd * ky
+                ok[u] = (xx >= 0.0) & (xx <= Nu - 1) & (yy >= 0.0) & (yy <= Nv - 1)
+                xc = min(max(xx, 0.0), Nu - 1.0)
+                yc = min(max(yy, 0.0), Nv - 1.0)
+                x0 = min(numba.uint64(xc), Nu2)
+                y0 = min(numba.uint64(yc), Nv2)
+                fx = np.float32(xc - x0)
+                fy = np.float32(yc - y0)
+                fxa[u] = fx
+                fya[u] = fy
+                i0[u] = y0 * NuU + x0
+                ia[u] = (y0 + numba.uint64(fy > 0.5)) * NuU + x0 + numba.uint64(fx > 0.5)   # nearest
+            for u in range(n):          # gathers
+                if not ok[u]:
+                    continue
+                j = numba.uint64(i0[u])
+                fx = fxa[u]
+                fy = fya[u]
+                a = w * max(A[numba.uint64(ia[u])], np.float32(1e-3))
+                p = X[j]
+                if fx != 0.0:
+                    p += fx * (X[j + 1] - p)
+                if fy != 0.0:
+                    q = X[j + NuU]
+                    if fx != 0.0:
+                        q += fx * (X[j + NuU + 1] - q)
+                    p += fy * (q - p)
+                tw[u] += a
+                acc[u] += a * p
         orow = out[v]
-        for u in range(Nu):
+        for u in range(n):
             if tw[u] > 0.0:
                 orow[u] = acc[u] / tw[u]
+
+
+@numba.njit(cache=True)
+def _blend_scratch(Nu):
+    """Row scratch of :func:`_blend_grey`: (7, Nu) float32."""
+    return np.empty((7, Nu), np.float32)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -696,19 +689,19 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
                 G[s] = grey[f, src[s, 0], src[s, 1]]
             base = d.copy()
             _sweep(G, S, dy, dx, sw, base, fine, 1.0, ry, window, d)
-        tw = np.empty(Nu, np.float32)
         if C == 1:              # grey: L_grey is L without its channel axis, grey the sources
-            acc1 = np.empty(Nu, np.float32)
+            scratch = _blend_scratch(Nu)
             if holes[t]:
                 tmp1 = grey[f, j, i].copy()
-                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, tmp1, tw, acc1)
+                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, tmp1, scratch)
                 for v in range(Nv):
                     for u in range(Nu):
                         if W[f, j, i, v, u] <= 0.5:
                             L_grey[f, j, i, v, u] = tmp1[v, u]
             else:
-                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, L_grey[f, j, i], tw, acc1)
+                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, L_grey[f, j, i], scratch)
             continue
+        tw = np.empty(Nu, np.float32)
         acc = np.empty((Nu, C), np.float32)
         if holes[t]:
             tmp = Lsrc[f, j, i].copy()
