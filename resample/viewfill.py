@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -115,6 +115,8 @@ class ViewFillPlan:
     """Per face: v-steps per y-step for one u-step per x-step (``(step_y / step_x)(step_u / step_v)``)."""
     holes_only: tuple[bool, ...] = ()
     """Per target: a measured view of which only the holes (``W <= 0.5``) are re-filled."""
+    _arrays: dict = field(default_factory=dict, repr=False, compare=False)
+    """The plan packed into arrays for the kernels (:func:`_packed`; built on first use)."""
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -663,7 +665,8 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
               disp_out):
     """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place from the source views of
     Lsrc (L itself when no target is a source), their grey values grey (F, Ny, Nx, Nv, Nu) and
-    k_down x k_down averages of those grey_c (F, Ny, Nx, Mv, Mu); disp_out (T, Nv, Nu). A target
+    k_down x k_down averages of those grey_c (F, Ny, Nx, Mv, Mu); disp_out (T, Nv, Nu) receives
+    the disparities (or (0, Nv, Nu): not kept). A target
     with holes[t] keeps its samples with W > 0.5. With C = 1, L_grey is L's (F, Ny, Nx, Nv, Nu)
     view, grey Lsrc's, and the blend runs on those."""
     F, Ny, Nx, Nv, Nu, C = L.shape
@@ -678,7 +681,7 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
         dx = offs[t, :, 1].copy()
         sw = sws[t]
         ry = r_y[f]
-        d = disp_out[t]
+        d = disp_out[t] if disp_out.shape[0] > 0 else np.empty((Nv, Nu), np.float32)
         # coarse: the whole disparity range at 1/k_down resolution
         dc = np.empty((Mv, Mu), np.float32)
         _sweep_const(grey_c[f], src, S, dy, dx, sw, coarse, 1.0 / k_down, ry, window, dc)
@@ -717,6 +720,31 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
 # ----------------------------------------------------------------------------- driver
 
 
+def _packed(plan: ViewFillPlan) -> tuple:
+    """The plan as arrays (built once per plan): targets (T, 3) int64, sources (T, Smax, 2)
+    int64, offsets (T, Smax, 2) float64, weights (T, Smax) float32, source counts (T,) int64,
+    the source views (V, 3) int64 (f, iy, ix), holes_only (T,) bool, r_y (F,) float64."""
+    if "packed" not in plan._arrays:
+        T = len(plan)
+        Smax = max(s.shape[0] for s in plan.sources)
+        srcs = np.zeros((T, Smax, 2), np.int64)
+        offs = np.zeros((T, Smax, 2), np.float64)
+        sws = np.zeros((T, Smax), np.float32)
+        nsrc = np.zeros(T, np.int64)
+        for t in range(T):
+            n = plan.sources[t].shape[0]
+            srcs[t, :n] = plan.sources[t]
+            offs[t, :n] = plan.offsets[t]
+            sws[t, :n] = plan.weights[t]
+            nsrc[t] = n
+        views = np.unique(np.concatenate([np.concatenate([np.full((len(sv), 1), f), sv], axis=1)
+                                          for (f, _, _), sv in zip(plan.targets, plan.sources)]), axis=0)
+        holes = np.array(plan.holes_only if plan.holes_only else [False] * T, np.bool_)
+        plan._arrays["packed"] = (np.array(plan.targets, np.int64), srcs, offs, sws, nsrc, views, holes,
+                                  np.array(plan.r_y, np.float64))
+    return plan._arrays["packed"]
+
+
 def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFillOptions | None = None,
                disparity_out: np.ndarray | None = None) -> None:
     """Fill the target views of ``plan`` in ``L`` in place (see the module docstring).
@@ -733,34 +761,21 @@ def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFi
     if L.ndim != 6 or L.dtype != np.float32 or not L.flags.c_contiguous or L.shape[:5] != W.shape:
         raise ValueError("L must be C-contiguous float32 (F, Ny, Nx, Nv, Nu, C) and W (F, Ny, Nx, Nv, Nu)")
     Nv, Nu = L.shape[3:5]
-    Smax = max(s.shape[0] for s in plan.sources)
-    srcs = np.zeros((T, Smax, 2), np.int64)
-    offs = np.zeros((T, Smax, 2), np.float64)
-    sws = np.zeros((T, Smax), np.float32)
-    nsrc = np.zeros(T, np.int64)
-    for t in range(T):
-        n = plan.sources[t].shape[0]
-        srcs[t, :n] = plan.sources[t]
-        offs[t, :n] = plan.offsets[t]
-        sws[t, :n] = plan.weights[t]
-        nsrc[t] = n
-    disp = np.empty((T, Nv, Nu), np.float32)
+    targets, srcs, offs, sws, nsrc, views, holes, r_y = _packed(plan)
+    disp = np.empty((T if disparity_out is not None else 0, Nv, Nu), np.float32)    # (else per target)
     step = float(plan.disparities[1] - plan.disparities[0])
     k = int(opts.downsample)
     d_max = plan.disparities[-1]
     coarse = np.arange(-1, int(math.ceil(d_max / (k * step))) + 1) * (k * step)   # same step at 1/k resolution
     fine = np.array([-step, 0.0, step]) if opts.refine else np.zeros(1)
-    holes = np.array(plan.holes_only if plan.holes_only else [False] * T, np.bool_)
     Lsrc = L.copy() if holes.any() else L          # sources are re-filled too: read a snapshot
     grey = Lsrc.mean(axis=5) if L.shape[5] > 1 else Lsrc.reshape(L.shape[:5])     # (a view for grey frames)
     Mv, Mu = (Nv + k - 1) // k, (Nu + k - 1) // k
-    views = np.unique(np.concatenate([np.concatenate([np.full((len(sv), 1), f), sv], axis=1)
-                                      for (f, _, _), sv in zip(plan.targets, plan.sources)]), axis=0)
     grey_c = np.empty((*L.shape[:3], Mv, Mu), np.float32)    # only the source views are set
     _shrink_views(grey, views, k, grey_c)
     L_grey = L.reshape(L.shape[:5]) if L.shape[5] == 1 else grey                 # (unused for colour)
-    _fill_all(grey, grey_c, Lsrc, L, L_grey, np.ascontiguousarray(W, np.float32), np.array(plan.targets, np.int64), holes, srcs,
-              offs, sws, nsrc, np.array(plan.r_y, np.float64), coarse, k, fine, int(opts.window), disp)
+    _fill_all(grey, grey_c, Lsrc, L, L_grey, np.ascontiguousarray(W, np.float32), targets, holes, srcs,
+              offs, sws, nsrc, r_y, coarse, k, fine, int(opts.window), disp)
     if disparity_out is not None:
         for t, (f, j, i) in enumerate(plan.targets):
             disparity_out[f, j, i] = disp[t]
