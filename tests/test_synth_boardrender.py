@@ -1,5 +1,5 @@
 """The fast board-session renderer (polycam.synth.BoardRenderer): the same images as tracing
-the whole scene with polycam.synth.CameraArrayRenderer, including boards partly hidden
+the whole scene with polycam.synth.CameraArrayRenderer, including boards hidden
 behind scene objects and boards leaving the image."""
 
 from __future__ import annotations
@@ -13,16 +13,7 @@ from polycam.geometry import R_from_r, T_from_Rt
 from polycam.rig import load_rig
 from polycam.synth import BoardRenderer, CameraArrayRenderer, board_poses, room_scene, true_cameramodels
 
-from conftest import SHARED_DATA
-
-BOARD = """[board]
-type = "charuco"
-squares = [5, 7]
-square_length = 0.04
-marker_length = 0.03
-dictionary = "DICT_5X5_100"
-"""
-LENS = SHARED_DATA / "mrcal-models" / "cam0.opencv8.cameramodel"
+from test_calib import BOARD, LENS
 
 
 def _setup(tmp: Path, n_objects: int):

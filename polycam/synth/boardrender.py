@@ -28,7 +28,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .raycast import _EPS_T, _texture, trace_indexed
+from .raycast import _EPS_T, _direction_world, _origin_world, _texture, trace_indexed
 from .render import CameraArrayRenderer
 from .scenes import Scene
 
@@ -66,19 +66,12 @@ def _board_pixel(b, S, orig, dirs, oidx, R, tr, bg_rad, bg_tmin, n0, n1, n2, ro,
                  rad_out, state_out):
     """One pixel of :func:`_board_kernel`."""
     a = oidx[b]
-    o0 = R[0, 0] * orig[a, 0] + R[0, 1] * orig[a, 1] + R[0, 2] * orig[a, 2] + tr[0]
-    o1 = R[1, 0] * orig[a, 0] + R[1, 1] * orig[a, 1] + R[1, 2] * orig[a, 2] + tr[1]
-    o2 = R[2, 0] * orig[a, 0] + R[2, 1] * orig[a, 1] + R[2, 2] * orig[a, 2] + tr[2]
+    o0, o1, o2 = _origin_world(R, tr, orig, a)
     hits = 0
     misses = 0
     acc = 0.0
     for si in range(S):
-        e0 = dirs[b, si, 0]
-        e1 = dirs[b, si, 1]
-        e2 = dirs[b, si, 2]
-        d0 = R[0, 0] * e0 + R[0, 1] * e1 + R[0, 2] * e2
-        d1 = R[1, 0] * e0 + R[1, 1] * e1 + R[1, 2] * e2
-        d2 = R[2, 0] * e0 + R[2, 1] * e1 + R[2, 2] * e2
+        d0, d1, d2 = _direction_world(R, dirs, b, si)
         nn = d0 * d0 + d1 * d1 + d2 * d2
         if not (nn > 0.0 and nn < np.inf):
             misses += 1                     # unusable direction: contributes 0 with or without the board
