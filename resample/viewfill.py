@@ -354,19 +354,18 @@ def _refine_best(best, best_k, c_left, c_right, base, offs, out):
     Nv, Nu = out.shape
     K = offs.shape[0]
     step = offs[1] - offs[0] if K > 1 else 0.0
+    inf = np.float32(np.inf)
     for v in range(Nv):
-        for u in range(Nu):
-            k = best_k[v, u]
-            if k < 0:
-                out[v, u] = base[v, u]
-                continue
-            d = base[v, u] + offs[k]
-            cl, c0, cr = c_left[v, u], best[v, u], c_right[v, u]
-            if np.isfinite(cl) and np.isfinite(cr):
-                den = cl - 2.0 * c0 + cr
-                if den > 0.0:
-                    d += step * max(-0.5, min(0.5, 0.5 * (cl - cr) / den))
-            out[v, u] = d
+        bk, cl_r, c0_r, cr_r, b_r, o_r = best_k[v], c_left[v], best[v], c_right[v], base[v], out[v]
+        for u in range(Nu):            # without branches, so it vectorises
+            k = bk[u]
+            cl, c0, cr = cl_r[u], c0_r[u], cr_r[u]
+            den = cl - 2.0 * c0 + cr
+            ok = (k >= 0) & (cl < inf) & (cr < inf) & (den > 0.0)         # (< inf: finite; costs >= 0)
+            t = max(-0.5, min(0.5, 0.5 * (cl - cr) / den)) if ok else 0.0
+            d = b_r[u] + offs[max(k, 0)]
+            d = d + step * t if ok else d
+            o_r[u] = d if k >= 0 else b_r[u]
 
 
 @numba.njit(cache=True)
