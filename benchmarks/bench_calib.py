@@ -260,32 +260,44 @@ NAN_METRICS = dict(proj_rms_px=float("nan"), proj_worst_cam_px=float("nan"), pro
 
 def run_case(work: Path, name: str, rows: int, cols: int, w: int, h: int, frames: int, board_name: str,
              rng, motion: str = "wide", noise_mode: str = "total", noise_px: float = 0.2,
-             opencv: bool = True) -> list[dict]:
+             opencv: bool = True, synthetic: bool = False) -> list[dict]:
     from calib import board_distance, calibrate_board, detect_session, extrinsics_uncertainty
     from polycam.session import open_session
     from polycam.trajectory import read_tum
 
-    t = time.perf_counter()
-    session, board = session_for(work, name, rows, cols, w, h, frames, board_name, motion=motion)
-    t_render = time.perf_counter() - t
     pred_truth = predicted_sigma(work, name, rows, cols, w, h, frames, board_name, motion=motion, noise_px=noise_px)
-    s = open_session(session)
-    true = s.calibration()
-    t = time.perf_counter()
-    obs = detect_session(s, board)
-    t_detect = time.perf_counter() - t
-    poses = read_tum(session / "board_poses.tum").T_world_rig
-    det = detection_error(obs, true, board, poses)
-    # "total": top the detector's own error up to noise_px per coordinate; "add": noise_px on top of it
-    inject = math.sqrt(max(noise_px**2 - det**2, 0.0)) if noise_mode == "total" else noise_px
-    seen = obs.observations[..., 2] > 0
-    obs.observations[..., :2] += np.where(seen[..., None], rng.normal(size=obs.observations[..., :2].shape) * inject, 0)
+    if synthetic:
+        # the solver alone at this design: exact projections + noise_px, no rendering or detection
+        from calib import synthetic_observations
+        from polycam.board import load_board
+
+        board = load_board(work / f"board-{board_name}.toml")
+        rig, true, poses = design(work, name, rows, cols, w, h, frames, board, motion=motion)
+        obs = synthetic_observations(true, board, poses, noise_px=noise_px, rng=rng)
+        t_render = t_detect = det = 0.0
+        seen = obs.observations[..., 2] > 0
+    else:
+        t = time.perf_counter()
+        session, board = session_for(work, name, rows, cols, w, h, frames, board_name, motion=motion)
+        t_render = time.perf_counter() - t
+        s = open_session(session)
+        rig, true = s.rig, s.calibration()
+        t = time.perf_counter()
+        obs = detect_session(s, board)
+        t_detect = time.perf_counter() - t
+        poses = read_tum(session / "board_poses.tum").T_world_rig
+        det = detection_error(obs, true, board, poses)
+        # "total": top the detector's own error up to noise_px per coordinate; "add": noise_px on top of it
+        inject = math.sqrt(max(noise_px**2 - det**2, 0.0)) if noise_mode == "total" else noise_px
+        seen = obs.observations[..., 2] > 0
+        obs.observations[..., :2] += np.where(seen[..., None],
+                                              rng.normal(size=obs.observations[..., :2].shape) * inject, 0)
     corner = detection_error(obs, true, board, poses)
     t = time.perf_counter()
-    cal = calibrate_board(obs, s.rig, lensmodel="opencv8")
+    cal = calibrate_board(obs, rig, lensmodel="opencv8")
     t_mrcal = time.perf_counter() - t
     pred = extrinsics_uncertainty(cal.optimization_inputs, corner)[1:]      # relative to camera 0, 1 sigma (3-D)
-    case = f"{name} {w}x{h} {board_name} {frames}p {motion}"
+    case = f"{name} {w}x{h} {board_name} {frames}p {motion}" + (" exact+noise" if synthetic else "")
     n_seen = int(np.count_nonzero(seen))
     outliers = n_seen - int(np.count_nonzero(cal.optimization_inputs["observations_board"][..., 2] > 0))
     rows_out = [dict(case=case, solver="polycam/mrcal", rms_px=cal.rms_px, corner_px=corner, det_px=det,
@@ -326,6 +338,9 @@ def main() -> int:
                     help="board of BOARDS (default per rig: 8x11 for 3x3, 5x7 for 5x5)")
     ap.add_argument("--predict-only", action="store_true",
                     help="only mrcal's predicted worst-camera sigma of the design (no rendering)")
+    ap.add_argument("--synthetic", action="store_true",
+                    help="the solver alone: exact corner projections + 0.2 px noise instead of rendered "
+                         "detections (no rendering, no detection)")
     ap.add_argument("--motion", choices=sorted(MOTIONS), default="wide", help="board-pose design (see MOTIONS)")
     ap.add_argument("--noise-mode", choices=("total", "add"), default="total",
                     help="total: top the detector's own corner error up to 0.2 px per coordinate; "
@@ -353,13 +368,13 @@ def main() -> int:
             print(f"{name} {w}x{h} {b} {args.frames}p {args.motion}: predicted worst-camera sigma "
                   f"{rot:.4f} deg, {pos:.4f} mm ({dt:.1f} s)", flush=True)
         return 0
-    hdr = f"{'case':38s} {'solver':22s} {'RMS':>6s} {'corner':>6s} {'outl%':>5s} {'proj':>6s} {'worst':>6s} " \
+    hdr = f"{'case':50s} {'solver':22s} {'RMS':>6s} {'corner':>6s} {'outl%':>5s} {'proj':>6s} {'worst':>6s} " \
           f"{'inf':>6s} {'pos mm':>7s} {'rot deg':>8s} {'relpos':>7s} {'relrot':>7s} {'predpos':>7s} " \
           f"{'predrot':>7s} {'truthrot':>8s} {'render s':>8s} {'detect s':>8s} {'solve s':>7s}"
 
     def show(rs):
         for r in rs:
-            print(f"{r['case']:38s} {r['solver'][:22]:22s} {r['rms_px']:6.3f} {r['corner_px']:6.3f} "
+            print(f"{r['case']:50s} {r['solver'][:22]:22s} {r['rms_px']:6.3f} {r['corner_px']:6.3f} "
                   f"{100 * r['outlier_frac']:5.1f} {r['proj_rms_px']:6.3f} {r['proj_worst_cam_px']:6.3f} "
                   f"{r['proj_inf_px']:6.3f} {r['pos_mm']:7.3f} {r['rot_deg']:8.4f} {r['rel_pos_mm']:7.3f} "
                   f"{r['rel_rot_deg']:7.4f} {r['pred_pos_mm']:7.3f} {r['pred_rot_deg']:7.4f} "
@@ -372,7 +387,7 @@ def main() -> int:
     for name, r, c, w, h, b in cases:
         t = time.perf_counter()
         rs = run_case(work, name, r, c, w, h, args.frames, b, rng, motion=args.motion, noise_mode=args.noise_mode,
-                      opencv=not args.skip_opencv)
+                      opencv=not args.skip_opencv, synthetic=args.synthetic)
         show(rs)
         print(f"  {rs[0]['case']}: whole case {time.perf_counter() - t:.0f} s (load {os.getloadavg()[0]:.1f})",
               flush=True)
