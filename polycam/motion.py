@@ -689,25 +689,31 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
             t2 = buf[6]
             cm[:, :] = conf[fc, j, i]
             if need_min:
+                # row-wise minima over contiguous rows (vectorise; unsigned indices)
                 for jj in range(j - ry, j + ry + 1):
                     for ii in range(i - rx, i + rx + 1):
                         src = conf[fc, jj, ii]
                         for v in range(Nv):
-                            for u in range(Nu):
-                                if src[v, u] < cm[v, u]:
-                                    cm[v, u] = src[v, u]
+                            cr = cm[v]
+                            sr = src[v]
+                            for u in range(numba.uint64(Nu)):
+                                cr[u] = min(cr[u], sr[u])
                 for v in range(rv, Nv - rv):
-                    for u in range(Nu):
-                        m = cm[v - rv, u]
-                        for d in range(v - rv + 1, v + rv + 1):
-                            m = min(m, cm[d, u])
-                        t2[v, u] = m
+                    tr = t2[v]
+                    tr[:] = cm[v - rv]
+                    for d in range(v - rv + 1, v + rv + 1):
+                        sr = cm[d]
+                        for u in range(numba.uint64(Nu)):
+                            tr[u] = min(tr[u], sr[u])
+                n_in = numba.uint64(Nu - 2 * ru)
                 for v in range(rv, Nv - rv):
-                    for u in range(ru, Nu - ru):
-                        m = t2[v, u - ru]
-                        for d in range(u - ru + 1, u + ru + 1):
-                            m = min(m, t2[v, d])
-                        cm[v, u] = m
+                    tr = t2[v]
+                    cr = cm[v, ru:Nu - ru]
+                    cr[:] = tr[0:Nu - 2 * ru]
+                    for d in range(1, 2 * ru + 1):
+                        sr = tr[d:d + Nu - 2 * ru]
+                        for u in range(n_in):
+                            cr[u] = min(cr[u], sr[u])
             b = base[fc, j, i]
             b[:, :] = 0.0
             for v in range(rv, Nv - rv):
@@ -1295,44 +1301,74 @@ def _discontinuity_energy(L0, L1, W0, has_w, r, out):
     F, Ny, Nx, Nv, Nu = L0.shape
     two = np.float32(2.0)
     half = np.float32(0.5)
-    for idx in numba.prange(F * Ny * Nx):
-        fc = idx // (Ny * Nx)
-        rem = idx - fc * Ny * Nx
-        j = rem // Nx
-        i = rem - j * Nx
-        a0 = L0[fc, j, i]
-        a1 = L1[fc, j, i]
-        o = out[fc, j, i]
+    zero = np.float32(0.0)
+    n = F * Ny * Nx
+    chunks = max(1, min(n, 64))
+    # row-wise loops over contiguous u with unsigned indices (they vectorise)
+    un = numba.uint64(Nu)
+    for c in numba.prange(chunks):
         img = np.empty((Nv, Nu), np.float32)
-        e = np.zeros((Nv, Nu), np.float32)
-        for v in range(Nv):
-            for u in range(Nu):
-                sv = (a0[v, u] + a1[v, u]) * half
-                if has_w and not W0[fc, j, i, v, u] > 0:
-                    sv = np.float32(0.0)
-                img[v, u] = sv
-        for v in range(Nv):
-            for u in range(Nu):
-                acc = np.float32(0.0)
+        e = np.empty((Nv, Nu), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (Ny * Nx)
+            rem = idx - fc * Ny * Nx
+            j = rem // Nx
+            i = rem - j * Nx
+            a0 = L0[fc, j, i]
+            a1 = L1[fc, j, i]
+            wv = W0[fc, j, i]
+            o = out[fc, j, i]
+            for v in range(Nv):
+                ir = img[v]
+                r0 = a0[v]
+                r1 = a1[v]
+                rw = wv[v]
+                for u in range(un):
+                    sv = (r0[u] + r1[u]) * half
+                    ir[u] = zero if (has_w and not rw[u] > 0) else sv
+            for v in range(Nv):
+                er = e[v]
+                ir = img[v]
                 if Nv >= 3:
-                    acc += abs(img[max(v - 1, 0), u] - two * img[v, u] + img[min(v + 1, Nv - 1), u])
+                    im = img[max(v - 1, 0)]
+                    ip = img[min(v + 1, Nv - 1)]
+                    for u in range(un):
+                        er[u] = zero + abs(im[u] - two * ir[u] + ip[u])
+                else:
+                    er[:] = zero
                 if Nu >= 3:
-                    acc += abs(img[v, max(u - 1, 0)] - two * img[v, u] + img[v, min(u + 1, Nu - 1)])
-                e[v, u] = acc
-        for v in range(Nv):
-            lo = max(v - r, 0)
-            hi = min(v + r, Nv - 1)
-            for u in range(Nu):
-                m = e[lo, u]
-                for d in range(lo + 1, hi + 1):
-                    m = max(m, e[d, u])
-                img[v, u] = m
-        for v in range(Nv):
-            for u in range(Nu):
-                m = img[v, max(u - r, 0)]
-                for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
-                    m = max(m, img[v, d])
-                o[v, u] = m
+                    er[0] += abs(ir[0] - two * ir[0] + ir[1])
+                    for u in range(numba.uint64(1), numba.uint64(Nu - 1)):
+                        er[u] += abs(ir[u - 1] - two * ir[u] + ir[u + 1])
+                    er[Nu - 1] += abs(ir[Nu - 2] - two * ir[Nu - 1] + ir[Nu - 1])
+            for v in range(Nv):                          # max over ±r rows
+                ir = img[v]
+                ir[:] = e[max(v - r, 0)]
+                for d in range(max(v - r, 0) + 1, min(v + r, Nv - 1) + 1):
+                    er = e[d]
+                    for u in range(un):
+                        ir[u] = max(ir[u], er[u])
+            for v in range(Nv):                          # max over ±r samples along u
+                ir = img[v]
+                orow = o[v]
+                for u in range(min(r, Nu)):              # left border (clipped windows)
+                    m = ir[max(u - r, 0)]
+                    for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                        m = max(m, ir[d])
+                    orow[u] = m
+                if Nu > 2 * r:
+                    m_in = numba.uint64(Nu - 2 * r)
+                    oi = orow[r:Nu - r]
+                    oi[:] = ir[0:Nu - 2 * r]
+                    for d in range(1, 2 * r + 1):
+                        sr = ir[d:d + Nu - 2 * r]
+                        for u in range(m_in):
+                            oi[u] = max(oi[u], sr[u])
+                for u in range(max(Nu - r, r), Nu):      # right border
+                    m = ir[max(u - r, 0)]
+                    for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                        m = max(m, ir[d])
+                    orow[u] = m
 
 
 def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
