@@ -28,18 +28,30 @@ poses from its covariance at the measured corner noise
 solve time. A third case times a 4x4 rig with 40 board poses (detection + solve)
 against the 60 s target.
 
-Boards: an 8x11 ChArUco (70 corners) for 640x480, a 5x7 one with 40 mm squares
-(24 corners) for 320x240, where 8x11's squares are too small to detect cleanly.
-OpenCV gets the whole-board views only (partial views spoil its initialisation).
+Boards (:data:`BOARDS`): an 8x11 ChArUco (70 corners) for 640x480, a 5x7 one with 40 mm
+squares (24 corners) for 320x240, where 8x11's squares are too small to detect cleanly, and
+denser 20 cm wide ones (12x16: 165 corners, 16x22: 315) for 1280x960 cameras. OpenCV gets the
+whole-board views only (partial views spoil its initialisation).
 
-Run: ``python benchmarks/bench_calib.py [--frames 40] [--motion wide|basic] [--noise-mode total|add]
-[--skip-3x3] [--skip-5x5] [--skip-speed] [--work /tmp/polycam-bench-calib]``.
+The design is chosen with ``--predict-only``: mrcal's predicted worst-camera sigma of the
+relative poses from the exact corner projections (:func:`calib.predicted_extrinsics_sigma`,
+seconds instead of a render); every run prints it too ("truthrot"), next to the prediction
+from the solved problem ("predrot") and the measured error ("relrot"). Per case the table
+also gives the render, detection and solve times, and the fraction of detected corners mrcal
+rejected as outliers ("outl%"; mrcal's own log counts the unseen corners of partial views too).
+
+Run: ``python benchmarks/bench_calib.py [--frames 40] [--rigs 3x3,5x5] [--resolution WxH]
+[--board 8x11|5x7|12x16|16x22] [--predict-only] [--motion wide|basic] [--noise-mode total|add]
+[--skip-opencv] [--skip-3x3] [--skip-5x5] [--skip-speed] [--work /tmp/polycam-bench-calib]``.
+The orientation target (issue 4): ``--frames 120 --rigs 3x3 --resolution 1280x960 --board 16x22
+--skip-opencv --skip-speed`` (and ``--frames 100 --rigs 5x5`` likewise), see docs/calibration.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -57,7 +69,14 @@ BOARDS = {
     # 24 corners, 40 mm squares: for 320x240 cameras (8x11 squares are too small to detect well there)
     "5x7": '[board]\ntype = "charuco"\nsquares = [5, 7]\nsquare_length = 0.04\nmarker_length = 0.03\n'
            'dictionary = "DICT_5X5_100"\n',
+    # denser boards of the same 20 cm width (165 / 315 corners): for 1280x960 cameras
+    "12x16": '[board]\ntype = "charuco"\nsquares = [12, 16]\nsquare_length = 0.016667\nmarker_length = 0.0125\n'
+             'dictionary = "DICT_5X5_100"\n',
+    "16x22": '[board]\ntype = "charuco"\nsquares = [16, 22]\nsquare_length = 0.0125\nmarker_length = 0.0094\n'
+             'dictionary = "DICT_5X5_250"\n',
 }
+RIGS = {"3x3": (3, 3, (640, 480), "8x11"), "5x5": (5, 5, (320, 240), "5x7")}
+"""rig name → (rows, cols, default resolution, default board)."""
 
 
 def rig_file(work: Path, name: str, rows: int, cols: int, w: int, h: int, pitch: float) -> Path:
@@ -82,22 +101,51 @@ PERTURB = dict(perturb_position_m=0.001, perturb_rotation_deg=0.3, perturb_focal
 def session_for(work: Path, name: str, rows: int, cols: int, w: int, h: int, frames: int, board_name: str,
                 pitch: float = 0.04, motion: str = "wide"):
     from polycam.board import load_board
-    from polycam.rig import load_rig
-    from polycam.synth import board_poses, synth_board_session, true_cameramodels
+    from polycam.synth import synth_board_session
 
     bp = work / f"board-{board_name}.toml"
     bp.write_text(BOARDS[board_name])
     board = load_board(bp)
     out = work / f"{name}-{frames}-{board_name}" if motion == "basic" else work / f"{name}-{frames}-{board_name}-{motion}"
+    if (w, h) != RIGS.get(name[3:], (0, 0, (w, h)))[2]:
+        out = out.with_name(f"{out.name}-{w}x{h}")
     if not (out / "session.toml").is_file():
         t = time.perf_counter()
-        rig = load_rig(rig_file(work, name, rows, cols, w, h, pitch))
-        models = true_cameramodels(rig, seed=7, **PERTURB)
-        poses = board_poses(board, models, frames, seed=7, cam_ids=[c.id for c in rig.cameras], **MOTIONS[motion])
+        rig, models, poses = design(work, name, rows, cols, w, h, frames, board, pitch, motion)
         synth_board_session(rig, out, board=board, frames=frames, seed=7, supersample=2, noise=0.002,
                             models=models, poses=poses, overwrite=True)
         print(f"  rendered {out.name} in {time.perf_counter() - t:.0f} s", flush=True)
     return out, board
+
+
+def design(work: Path, name: str, rows: int, cols: int, w: int, h: int, frames: int, board, pitch: float = 0.04,
+           motion: str = "wide"):
+    """(rig, true models, board poses T_rig_board (frames, 4, 4)) of a benchmark case (seeded)."""
+    from polycam.rig import load_rig
+    from polycam.synth import board_poses, true_cameramodels
+
+    rig = load_rig(rig_file(work, f"{name}-{w}x{h}", rows, cols, w, h, pitch))
+    models = true_cameramodels(rig, seed=7, **PERTURB)
+    poses = board_poses(board, models, frames, seed=7, cam_ids=[c.id for c in rig.cameras], **MOTIONS[motion])
+    return rig, models, poses
+
+
+def predicted_sigma(work: Path, name: str, rows: int, cols: int, w: int, h: int, frames: int, board_name: str,
+                    motion: str = "wide", noise_px: float = 0.2) -> tuple[float, float, float]:
+    """mrcal's predicted worst-camera 1-sigma (rotation [deg], position [mm]) of the poses relative to
+    camera 0 for this design, from the exact corner projections (no rendering, no detection, no
+    outliers: :func:`calib.predicted_extrinsics_sigma`), and the seconds it took."""
+    from calib import predicted_extrinsics_sigma
+    from polycam.board import load_board
+
+    bp = work / f"board-{board_name}.toml"
+    bp.write_text(BOARDS[board_name])
+    board = load_board(bp)
+    t = time.perf_counter()
+    _, models, poses = design(work, name, rows, cols, w, h, frames, board, motion=motion)
+    lens = "LENSMODEL_OPENCV8"
+    s = predicted_extrinsics_sigma(models, board, poses, noise_px, lensmodel=lens)[1:]
+    return math.degrees(float(s[:, 0].max())), 1e3 * float(s[:, 1].max()), time.perf_counter() - t
 
 
 def inside(model, q: np.ndarray) -> np.ndarray:
@@ -211,53 +259,88 @@ NAN_METRICS = dict(proj_rms_px=float("nan"), proj_worst_cam_px=float("nan"), pro
 
 
 def run_case(work: Path, name: str, rows: int, cols: int, w: int, h: int, frames: int, board_name: str,
-             rng, motion: str = "wide", noise_mode: str = "total", noise_px: float = 0.2) -> list[dict]:
+             rng, motion: str = "wide", noise_mode: str = "total", noise_px: float = 0.2,
+             opencv: bool = True, synthetic: bool = False) -> list[dict]:
     from calib import board_distance, calibrate_board, detect_session, extrinsics_uncertainty
     from polycam.session import open_session
     from polycam.trajectory import read_tum
 
-    session, board = session_for(work, name, rows, cols, w, h, frames, board_name, motion=motion)
-    s = open_session(session)
-    true = s.calibration()
-    t = time.perf_counter()
-    obs = detect_session(s, board)
-    t_detect = time.perf_counter() - t
-    poses = read_tum(session / "board_poses.tum").T_world_rig
-    det = detection_error(obs, true, board, poses)
-    # "total": top the detector's own error up to noise_px per coordinate; "add": noise_px on top of it
-    inject = math.sqrt(max(noise_px**2 - det**2, 0.0)) if noise_mode == "total" else noise_px
-    seen = obs.observations[..., 2] > 0
-    obs.observations[..., :2] += np.where(seen[..., None], rng.normal(size=obs.observations[..., :2].shape) * inject, 0)
+    pred_truth = predicted_sigma(work, name, rows, cols, w, h, frames, board_name, motion=motion, noise_px=noise_px)
+    if synthetic:
+        # the solver alone at this design: exact projections + noise_px, no rendering or detection
+        from calib import synthetic_observations
+        from polycam.board import load_board
+
+        board = load_board(work / f"board-{board_name}.toml")
+        rig, true, poses = design(work, name, rows, cols, w, h, frames, board, motion=motion)
+        obs = synthetic_observations(true, board, poses, noise_px=noise_px, rng=rng)
+        t_render = t_detect = det = 0.0
+        seen = obs.observations[..., 2] > 0
+    else:
+        t = time.perf_counter()
+        session, board = session_for(work, name, rows, cols, w, h, frames, board_name, motion=motion)
+        t_render = time.perf_counter() - t
+        s = open_session(session)
+        rig, true = s.rig, s.calibration()
+        t = time.perf_counter()
+        obs = detect_session(s, board)
+        t_detect = time.perf_counter() - t
+        poses = read_tum(session / "board_poses.tum").T_world_rig
+        det = detection_error(obs, true, board, poses)
+        # "total": top the detector's own error up to noise_px per coordinate; "add": noise_px on top of it
+        inject = math.sqrt(max(noise_px**2 - det**2, 0.0)) if noise_mode == "total" else noise_px
+        seen = obs.observations[..., 2] > 0
+        obs.observations[..., :2] += np.where(seen[..., None],
+                                              rng.normal(size=obs.observations[..., :2].shape) * inject, 0)
     corner = detection_error(obs, true, board, poses)
     t = time.perf_counter()
-    cal = calibrate_board(obs, s.rig, lensmodel="opencv8")
+    cal = calibrate_board(obs, rig, lensmodel="opencv8")
     t_mrcal = time.perf_counter() - t
     pred = extrinsics_uncertainty(cal.optimization_inputs, corner)[1:]      # relative to camera 0, 1 sigma (3-D)
-    case = f"{name} {w}x{h} {board_name} {frames}p {motion}"
+    case = f"{name} {w}x{h} {board_name} {frames}p {motion}" + (" exact+noise" if synthetic else "")
+    n_seen = int(np.count_nonzero(seen))
+    outliers = n_seen - int(np.count_nonzero(cal.optimization_inputs["observations_board"][..., 2] > 0))
     rows_out = [dict(case=case, solver="polycam/mrcal", rms_px=cal.rms_px, corner_px=corner, det_px=det,
-                     seconds=t_mrcal, detect_s=t_detect, pred_pos_mm=1e3 * float(pred[:, 1].max()),
-                     pred_rot_deg=math.degrees(float(pred[:, 0].max())),
+                     seconds=t_mrcal, detect_s=t_detect, render_s=t_render, pred_pos_mm=1e3 * float(pred[:, 1].max()),
+                     pred_rot_deg=math.degrees(float(pred[:, 0].max())), truth_rot_deg=pred_truth[0],
+                     truth_pos_mm=pred_truth[1], outlier_frac=outliers / max(n_seen, 1),
                      **metrics(cal.models, true, board_distance(cal.optimization_inputs)))]
+    if not opencv:
+        return rows_out
     try:
         ocv, rms, t_ocv = opencv_multiview(obs, board.object_points())
         rows_out.append(dict(case=case, solver="OpenCV multiview (full views)", rms_px=rms / math.sqrt(2),
-                             corner_px=corner, det_px=det, seconds=t_ocv, detect_s=t_detect, pred_pos_mm=float("nan"),
-                             pred_rot_deg=float("nan"),
+                             corner_px=corner, det_px=det, seconds=t_ocv, detect_s=t_detect, render_s=t_render,
+                             pred_pos_mm=float("nan"), pred_rot_deg=float("nan"), truth_rot_deg=float("nan"),
+                             truth_pos_mm=float("nan"), outlier_frac=float("nan"),
                              **metrics(ocv, true, board_distance(cal.optimization_inputs), region_from=cal.models)))
     except Exception as e:  # the baseline failing is a result too
         rows_out.append(dict(case=case, solver=f"OpenCV calibrateMultiview FAILED: {e}"[:80], rms_px=float("nan"),
                              corner_px=corner, det_px=det, seconds=float("nan"), detect_s=t_detect,
-                             pred_pos_mm=float("nan"), pred_rot_deg=float("nan"), **NAN_METRICS))
+                             render_s=t_render, pred_pos_mm=float("nan"), pred_rot_deg=float("nan"),
+                             truth_rot_deg=float("nan"), truth_pos_mm=float("nan"), outlier_frac=float("nan"),
+                             **NAN_METRICS))
     return rows_out
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--frames", type=int, default=40, help="board poses per session")
     ap.add_argument("--work", default="/tmp/polycam-bench-calib", help="cache of rendered sessions")
+    ap.add_argument("--rigs", default="3x3,5x5", help="comma-separated rigs of RIGS (3x3, 5x5)")
     ap.add_argument("--skip-5x5", action="store_true")
     ap.add_argument("--skip-3x3", action="store_true")
     ap.add_argument("--skip-speed", action="store_true", help="skip the 4x4 timing case")
+    ap.add_argument("--skip-opencv", action="store_true", help="skip the OpenCV multiview baseline")
+    ap.add_argument("--resolution", default=None,
+                    help="WxH of every camera (default per rig: 640x480 for 3x3, 320x240 for 5x5)")
+    ap.add_argument("--board", choices=sorted(BOARDS), default=None,
+                    help="board of BOARDS (default per rig: 8x11 for 3x3, 5x7 for 5x5)")
+    ap.add_argument("--predict-only", action="store_true",
+                    help="only mrcal's predicted worst-camera sigma of the design (no rendering)")
+    ap.add_argument("--synthetic", action="store_true",
+                    help="the solver alone: exact corner projections + 0.2 px noise instead of rendered "
+                         "detections (no rendering, no detection)")
     ap.add_argument("--motion", choices=sorted(MOTIONS), default="wide", help="board-pose design (see MOTIONS)")
     ap.add_argument("--noise-mode", choices=("total", "add"), default="total",
                     help="total: top the detector's own corner error up to 0.2 px per coordinate; "
@@ -266,31 +349,52 @@ def main() -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(4)
+    cases = []
+    for rig in (r.strip() for r in args.rigs.split(",") if r.strip()):
+        if rig not in RIGS:
+            ap.error(f"unknown rig {rig!r} (choose from {', '.join(RIGS)})")
+        if (rig == "3x3" and args.skip_3x3) or (rig == "5x5" and args.skip_5x5):
+            continue
+        r, c, (w, h), b = RIGS[rig]
+        if args.resolution:
+            w, h = (int(v) for v in args.resolution.lower().split("x"))
+        cases.append((f"rig{rig}", r, c, w, h, args.board or b))
     print(f"lens: {'real OPENCV8 ' + LENS.name if LENS.is_file() else 'pinhole (shared data absent)'}; "
-          f"corner noise 0.2 px ({args.noise_mode}); board motion {args.motion}", flush=True)
-    hdr = f"{'case':34s} {'solver':22s} {'RMS':>6s} {'corner':>6s} {'proj':>6s} {'worst':>6s} {'inf':>6s} " \
-          f"{'pos mm':>7s} {'rot deg':>8s} {'relpos':>7s} {'relrot':>7s} {'predpos':>7s} {'predrot':>7s} " \
-          f"{'solve s':>7s}"
+          f"corner noise 0.2 px ({args.noise_mode}); board motion {args.motion}; load {os.getloadavg()[0]:.1f}",
+          flush=True)
+    if args.predict_only:
+        for name, r, c, w, h, b in cases:
+            rot, pos, dt = predicted_sigma(work, name, r, c, w, h, args.frames, b, motion=args.motion)
+            print(f"{name} {w}x{h} {b} {args.frames}p {args.motion}: predicted worst-camera sigma "
+                  f"{rot:.4f} deg, {pos:.4f} mm ({dt:.1f} s)", flush=True)
+        return 0
+    hdr = f"{'case':50s} {'solver':22s} {'RMS':>6s} {'corner':>6s} {'outl%':>5s} {'proj':>6s} {'worst':>6s} " \
+          f"{'inf':>6s} {'pos mm':>7s} {'rot deg':>8s} {'relpos':>7s} {'relrot':>7s} {'predpos':>7s} " \
+          f"{'predrot':>7s} {'truthrot':>8s} {'render s':>8s} {'detect s':>8s} {'solve s':>7s}"
 
     def show(rs):
         for r in rs:
-            print(f"{r['case']:34s} {r['solver'][:22]:22s} {r['rms_px']:6.3f} {r['corner_px']:6.3f} "
-                  f"{r['proj_rms_px']:6.3f} {r['proj_worst_cam_px']:6.3f} {r['proj_inf_px']:6.3f} {r['pos_mm']:7.3f} "
-                  f"{r['rot_deg']:8.4f} {r['rel_pos_mm']:7.3f} {r['rel_rot_deg']:7.4f} {r['pred_pos_mm']:7.3f} "
-                  f"{r['pred_rot_deg']:7.4f} {r['seconds']:7.1f}", flush=True)
+            print(f"{r['case']:50s} {r['solver'][:22]:22s} {r['rms_px']:6.3f} {r['corner_px']:6.3f} "
+                  f"{100 * r['outlier_frac']:5.1f} {r['proj_rms_px']:6.3f} {r['proj_worst_cam_px']:6.3f} "
+                  f"{r['proj_inf_px']:6.3f} {r['pos_mm']:7.3f} {r['rot_deg']:8.4f} {r['rel_pos_mm']:7.3f} "
+                  f"{r['rel_rot_deg']:7.4f} {r['pred_pos_mm']:7.3f} {r['pred_rot_deg']:7.4f} "
+                  f"{r['truth_rot_deg']:8.4f} {r['render_s']:8.0f} {r['detect_s']:8.1f} {r['seconds']:7.1f}",
+                  flush=True)
 
     print(hdr)
     print("-" * len(hdr), flush=True)
     rows = []
-    cases = [] if args.skip_3x3 else [("rig3x3", 3, 3, 640, 480, "8x11")]
-    cases += [] if args.skip_5x5 else [("rig5x5", 5, 5, 320, 240, "5x7")]
     for name, r, c, w, h, b in cases:
-        rs = run_case(work, name, r, c, w, h, args.frames, b, rng, motion=args.motion, noise_mode=args.noise_mode)
+        t = time.perf_counter()
+        rs = run_case(work, name, r, c, w, h, args.frames, b, rng, motion=args.motion, noise_mode=args.noise_mode,
+                      opencv=not args.skip_opencv, synthetic=args.synthetic)
         show(rs)
+        print(f"  {rs[0]['case']}: whole case {time.perf_counter() - t:.0f} s (load {os.getloadavg()[0]:.1f})",
+              flush=True)
         rows += rs
-    for k in range(0, len(rows), 2):
+    for k in range(0, len(rows) - 1, 2):
         a, b = rows[k], rows[k + 1]
-        if math.isfinite(b["seconds"]):
+        if a["case"] == b["case"] and math.isfinite(b["seconds"]):
             print(f"{a['case']}: mrcal / OpenCV time ratio {a['seconds'] / b['seconds']:.2f}; projection error "
                   f"ratio {a['proj_rms_px'] / b['proj_rms_px']:.2f}")
     print("targets: proj <= 0.05 px, pos <= 0.2 mm, rot <= 0.01 deg, RMS near 0.2 px")

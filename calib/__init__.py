@@ -17,7 +17,7 @@ from .export import opencv_intrinsics, read_opencv_yaml, write_colmap_rig, write
 from .io import load_models, prepare_output_dir, write_cameramodel, write_corners_vnl, write_models
 from .pipeline import EXPORT_FORMATS, METHODS, CalibrationRun, calibrate_session, export_calibration
 from .rays import pixel_rays, read_ray_table, rig_rays, write_ray_table
-from .synthetic import coverage_poses, project_board, synthetic_observations
+from .synthetic import coverage_poses, predicted_extrinsics_sigma, project_board, synthetic_observations, truth_problem
 
 __all__ = [
     # detection
@@ -39,7 +39,7 @@ __all__ = [
     # rays
     "pixel_rays", "rig_rays", "write_ray_table", "read_ray_table",
     # synthetic ground truth
-    "synthetic_observations", "project_board", "coverage_poses",
+    "synthetic_observations", "project_board", "coverage_poses", "truth_problem", "predicted_extrinsics_sigma",
     # the whole stage
     "METHODS", "EXPORT_FORMATS", "CalibrationRun", "calibrate_session", "export_calibration",
 ]

@@ -279,20 +279,27 @@ def extrinsics_uncertainty(inputs: dict, noise_px: float) -> np.ndarray:
     with J the Jacobian at the optimum (regularisation included in JᵀJ, as
     ``mrcal.projection_uncertainty`` does). inputs: the solve's ``optimization_inputs``.
     """
+    from scipy.sparse.linalg import splu
+
     mrcal = _mrcal()
     _, _, J, _ = mrcal.optimizer_callback(**inputs, no_factorization=True)
     J = J.tocsr()
     n_obs = mrcal.num_measurements_boards(**inputs)
     Jo = J[:n_obs]
-    JtJ = (J.T @ J).toarray()
-    inv = np.linalg.inv(JtJ)
     n_ext = inputs["rt_cam_ref"].shape[0]
     i0 = mrcal.state_index_extrinsics(0, **inputs)
     if i0 is None or i0 < 0 or n_ext == 0:
         return np.zeros((n_ext + 1, 2))
     sl = slice(i0, i0 + 6 * n_ext)
-    A = inv[sl] @ (Jo.T @ Jo).toarray() @ inv[:, sl]        # packed covariance of the extrinsics
-    scale = np.ones(J.shape[1])
+    # X = (JᵀJ)⁻¹ E (E: the extrinsics' columns of the identity), by a sparse factorisation:
+    # only 6 (C-1) columns of the inverse are needed, so large problems (thousands of board
+    # poses) stay cheap
+    n = J.shape[1]
+    E = np.zeros((n, 6 * n_ext))
+    E[np.arange(sl.start, sl.stop), np.arange(6 * n_ext)] = 1.0
+    X = splu((J.T @ J).tocsc()).solve(E)
+    A = X.T @ (Jo.T @ (Jo @ X))                               # packed covariance of the extrinsics
+    scale = np.ones(n)
     mrcal.unpack_state(scale, **inputs)
     sc = scale[sl]
     cov = float(noise_px) ** 2 * A * sc[:, None] * sc[None, :]

@@ -689,25 +689,31 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
             t2 = buf[6]
             cm[:, :] = conf[fc, j, i]
             if need_min:
+                # row-wise minima over contiguous rows (vectorise; unsigned indices)
                 for jj in range(j - ry, j + ry + 1):
                     for ii in range(i - rx, i + rx + 1):
                         src = conf[fc, jj, ii]
                         for v in range(Nv):
-                            for u in range(Nu):
-                                if src[v, u] < cm[v, u]:
-                                    cm[v, u] = src[v, u]
+                            cr = cm[v]
+                            sr = src[v]
+                            for u in range(numba.uint64(Nu)):
+                                cr[u] = min(cr[u], sr[u])
                 for v in range(rv, Nv - rv):
-                    for u in range(Nu):
-                        m = cm[v - rv, u]
-                        for d in range(v - rv + 1, v + rv + 1):
-                            m = min(m, cm[d, u])
-                        t2[v, u] = m
+                    tr = t2[v]
+                    tr[:] = cm[v - rv]
+                    for d in range(v - rv + 1, v + rv + 1):
+                        sr = cm[d]
+                        for u in range(numba.uint64(Nu)):
+                            tr[u] = min(tr[u], sr[u])
+                n_in = numba.uint64(Nu - 2 * ru)
                 for v in range(rv, Nv - rv):
-                    for u in range(ru, Nu - ru):
-                        m = t2[v, u - ru]
-                        for d in range(u - ru + 1, u + ru + 1):
-                            m = min(m, t2[v, d])
-                        cm[v, u] = m
+                    tr = t2[v]
+                    cr = cm[v, ru:Nu - ru]
+                    cr[:] = tr[0:Nu - 2 * ru]
+                    for d in range(1, 2 * ru + 1):
+                        sr = tr[d:d + Nu - 2 * ru]
+                        for u in range(n_in):
+                            cr[u] = min(cr[u], sr[u])
             b = base[fc, j, i]
             b[:, :] = 0.0
             for v in range(rv, Nv - rv):
@@ -722,7 +728,7 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
                              rv, Nv - rv, ru, Nu - ru, h, var, final, a, s, poly, S)
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, stride, out_a, out_w):
     """|Eq. 5 residual| and base weight of the rays of every ``stride``-th (v) row of the
     box's view images (rows numbered in C order over (face, y, x, v) inside box; whole
@@ -746,23 +752,28 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
         x = xs[i]
         y = ys[j]
         v = vs[jv]
-        p = P[fc]
-        for m in range(out_a.shape[1]):
-            iu = u0 + m
-            wb = base[fc, j, i, jv, iu]
-            out_a[k, m] = 0.0
-            out_w[k, m] = 0.0
-            if not wb > 0.0:
-                continue
+        p0, p1, p2, p3, p4, p5 = P[fc, 0], P[fc, 1], P[fc, 2], P[fc, 3], P[fc, 4], P[fc, 5]
+        rx = Lx[fc, j, i, jv]
+        ry = Ly[fc, j, i, jv]
+        ru = Lu[fc, j, i, jv]
+        rv = Lv[fc, j, i, jv]
+        rt = Lt[fc, j, i, jv]
+        rw = base[fc, j, i, jv]
+        oa = out_a[k]
+        ow = out_w[k]
+        for m in range(numba.uint64(out_a.shape[1])):          # branch-free: vectorises
+            iu = numba.uint64(u0) + m
+            wb = rw[iu]
+            pos = wb > 0.0
             u = us[iu]
-            g0 = np.float64(Lx[fc, j, i, jv, iu])
-            g1 = np.float64(Ly[fc, j, i, jv, iu])
-            g2 = np.float64(Lu[fc, j, i, jv, iu])
-            g3 = np.float64(Lv[fc, j, i, jv, iu])
+            g0 = np.float64(rx[iu])
+            g1 = np.float64(ry[iu])
+            g2 = np.float64(ru[iu])
+            g3 = np.float64(rv[iu])
             c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
-            r = Lt[fc, j, i, jv, iu] + g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5]
-            out_a[k, m] = abs(r)
-            out_w[k, m] = wb
+            r = rt[iu] + g0 * p0 + g1 * p1 + c2 * p2 + c3 * p3 + c4 * p4 + c5 * p5
+            oa[m] = abs(r) if pos else 0.0
+            ow[m] = wb if pos else 0.0
 
 
 @numba.njit(cache=True)
@@ -914,6 +925,72 @@ def _reduce(acc: np.ndarray, B: list) -> tuple:
     return N, rhs, float(tot[:, 27].sum()), float(tot[:, 28].sum()), tiles
 
 
+@numba.njit(cache=True, inline="always")
+def _lagrange_stencil(fi, n, taps, den, w, idx, jv, ju):
+    """Lagrange weights and clamped indices (``taps`` points, padded to 6 with zero weights)
+    at the fractional sample position fi of an n-sample axis into w[jv, ju], idx[jv, ju];
+    den[q] = Π_{m≠q} (q − m) for the number of points used."""
+    T = max(1, min(taps, n - n % 2))
+    if n == 1:
+        for q in range(6):
+            w[jv, ju, q] = 1.0 if q == 0 else 0.0
+            idx[jv, ju, q] = 0
+        return
+    b = min(max(math.floor(fi), 0.0), n - 2.0)
+    a = min(max(fi - b, 0.0), 1.0)
+    o = T // 2 - 1
+    ib = int(b)
+    pre = 1.0                                      # prefix x suffix products of (a − node)
+    for q in range(T):
+        w[jv, ju, q] = pre
+        pre *= a - (q - o)
+        idx[jv, ju, q] = min(max(ib - o + q, 0), n - 1)
+    suf = 1.0
+    for q in range(T - 1, -1, -1):
+        w[jv, ju, q] *= suf / den[q]
+        suf *= a - (q - o)
+    for q in range(T, 6):
+        w[jv, ju, q] = 0.0
+        idx[jv, ju, q] = idx[jv, ju, 0]
+
+
+@numba.njit(cache=True)
+def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy):
+    """:func:`_uv_stencils` into given arrays (us (Nu,), vs (Nv,) the sample values)."""
+    Nv = vs.shape[0]
+    Nu = us.shape[0]
+    eps = 1e-6
+    hv = (vs[Nv - 1] - vs[0]) / (Nv - 1) if Nv > 1 else 1.0
+    hu = (us[Nu - 1] - us[0]) / (Nu - 1) if Nu > 1 else 1.0
+    dens = np.ones((2, 6))
+    for k, n in enumerate((Nv, Nu)):
+        T = max(1, min(taps, n - n % 2))
+        for q in range(T):
+            for m in range(T):
+                if m != q:
+                    dens[k, q] *= q - m
+    for jv in range(Nv):
+        v = vs[jv]
+        for ju in range(Nu):
+            u = us[ju]
+            d0 = R[0, 0] * u + R[0, 1] * v + R[0, 2] * f
+            d1 = R[1, 0] * u + R[1, 1] * v + R[1, 2] * f
+            d2 = R[2, 0] * u + R[2, 1] * v + R[2, 2] * f
+            good = d2 > 1e-9 * f
+            dz = d2 if good else 1.0
+            fv = (f * d1 / dz - vs[0]) / hv
+            fu = (f * d0 / dz - us[0]) / hu
+            if Nv > 1:
+                good = good and fv > -eps and fv < Nv - 1 + eps
+            if Nu > 1:
+                good = good and fu > -eps and fu < Nu - 1 + eps
+            _lagrange_stencil(fv, Nv, taps, dens[0], wv, iv, jv, ju)
+            _lagrange_stencil(fu, Nu, taps, dens[1], wu, iu, jv, ju)
+            ok[jv, ju] = good
+            sx[jv, ju] = d0 / dz if good else 0.0
+            sy[jv, ju] = d1 / dz if good else 0.0
+
+
 def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
     """Where each target direction (v, u) samples the source: the moved direction
     ``R (u, v, f)`` re-projected on the face's image plane depends on (u, v) only.
@@ -922,42 +999,16 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
     (``(Nv, Nu, 6)`` float64 / int64 each; fewer taps are padded with zero weights),
     ``ok_uv`` (Nv, Nu) bool and the moved direction's slopes d_x / d_z, d_y / d_z (Nv, Nu).
     """
-    f = float(face.f)
-    v, u = np.meshgrid(grid.v.values, grid.u.values, indexing="ij")
-    d = np.stack([u, v, np.full_like(u, f)], axis=-1) @ R.T
-    ok = d[..., 2] > 1e-9 * f
-    dz = np.where(ok, d[..., 2], 1.0)
-    out = []
-    eps = 1e-6
-    for axis, comp in ((grid.v, 1), (grid.u, 0)):
-        n = axis.count
-        if n == 1:
-            out += [np.ones(v.shape + (1,)), np.zeros(v.shape + (1,), np.int64)]
-            continue
-        fi = (f * d[..., comp] / dz - axis.min) / axis.step
-        ok &= (fi > -eps) & (fi < n - 1 + eps)
-        T = max(1, min(taps, n - n % 2))
-        base = np.clip(np.floor(fi), 0, n - 2).astype(np.int64)
-        a_ = np.clip(fi - base, 0.0, 1.0)
-        o = T // 2 - 1
-        w = np.empty(v.shape + (T,))
-        for q in range(T):
-            wq = np.ones_like(a_)
-            for m in range(T):
-                if m != q:
-                    wq *= (a_ - (m - o)) / ((q - o) - (m - o))
-            w[..., q] = wq
-        idx = np.clip(base[..., None] - o + np.arange(T), 0, n - 1)
-        out += [w, idx]
-    wv, iv, wu, iu = out
-    # pad to 6 taps (zero weights on a valid index: the same sums) for the unrolled kernel
-    wv, wu = (np.concatenate([w, np.zeros(w.shape[:2] + (6 - w.shape[2],))], axis=2) for w in (wv, wu))
-    iv, iu = (np.concatenate([i, np.repeat(i[..., :1], 6 - i.shape[2], axis=2)], axis=2) for i in (iv, iu))
-    # moved direction per (v, u), as slopes d_x / d_z and d_y / d_z (the same for every view)
-    sx = np.where(ok, d[..., 0] / dz, 0.0)
-    sy = np.where(ok, d[..., 1] / dz, 0.0)
-    return (np.ascontiguousarray(wv), np.ascontiguousarray(iv), np.ascontiguousarray(wu),
-            np.ascontiguousarray(iu), ok, np.ascontiguousarray(sx), np.ascontiguousarray(sy))
+    us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
+    vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
+    shape = (vs.size, us.size)
+    wv, wu = np.empty(shape + (6,)), np.empty(shape + (6,))
+    iv, iu = np.empty(shape + (6,), np.int64), np.empty(shape + (6,), np.int64)
+    ok = np.empty(shape, bool)
+    sx, sy = np.empty(shape), np.empty(shape)
+    _uv_stencil_kernel(us, vs, np.ascontiguousarray(R, dtype=np.float64), float(face.f), int(taps),
+                       wv, iv, wu, iu, ok, sx, sy)
+    return wv, iv, wu, iu, ok, sx, sy
 
 
 @numba.njit(parallel=True, cache=True, fastmath=True)
@@ -985,7 +1036,7 @@ def _warp_uv_kernel(srcT, wv, iv, wu, iu, out):
                         o[m] += w * s[m]
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok):
     """Bilinear interpolation across viewpoints of the (u, v)-warped images U
     (Nv, Nu, K, Ny, Nx) of face ``face`` at each moved ray's focal-plane point in grid
@@ -996,12 +1047,20 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
     while each view's row is written."""
     Nv, Nu, K, Ny, Nx = U.shape
     eps = 1e-6
-    bx_max = max(Nx - 2, 0)
-    by_max = max(Ny - 2, 0)
-    dx1 = 1 if Nx > 1 else 0
-    dy1 = 1 if Ny > 1 else 0
+    bx_max = numba.uint64(max(Nx - 2, 0))
+    by_max = numba.uint64(max(Ny - 2, 0))
+    dx1 = numba.uint64(1 if Nx > 1 else 0)
+    dy1 = numba.uint64(Nx if Ny > 1 else 0)
+    hi_x = Nx - 1 + eps
+    hi_y = Ny - 1 + eps
+    cx = np.float64(Nx - 1)
+    cy = np.float64(Ny - 1)
+    nxy = numba.uint64(Ny * Nx)
+    nk = numba.uint64(K)
+    unx = numba.uint64(Nx)
+    Uf = U.reshape((Nv, Nu * K * Ny * Nx))
     for jv in numba.prange(Nv):
-        Uv = U[jv]
+        Uv = Uf[jv]
         sxr = slope_x[jv]
         syr = slope_y[jv]
         okr = ok_uv[jv]
@@ -1014,22 +1073,22 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
                 okrow = ok[face, jy, ix, jv]
                 for k in range(K):
                     orow = out[k, face, jy, ix, jv]
-                    for iu in range(Nu):
+                    # branch-free with unsigned indices, so that the loop vectorises (gathers)
+                    for iu in range(numba.uint64(Nu)):
                         fx = a_x + b_x * sxr[iu]
                         fy = a_y + b_y * syr[iu]
-                        if not (okr[iu] and fx > -eps and fx < Nx - 1 + eps and fy > -eps
-                                and fy < Ny - 1 + eps):
-                            okrow[iu] = 0.0
-                            orow[iu] = 0.0
-                            continue
-                        okrow[iu] = 1.0
-                        bx = min(max(int(fx), 0), bx_max)
-                        by = min(max(int(fy), 0), by_max)
-                        wx = min(max(fx - bx, 0.0), 1.0)
-                        wy = min(max(fy - by, 0.0), 1.0)
-                        c = Uv[iu, k]
-                        orow[iu] = ((1.0 - wy) * ((1.0 - wx) * c[by, bx] + wx * c[by, bx + dx1])
-                                    + wy * ((1.0 - wx) * c[by + dy1, bx] + wx * c[by + dy1, bx + dx1]))
+                        good = okr[iu] & (fx > -eps) & (fx < hi_x) & (fy > -eps) & (fy < hi_y)
+                        fx = min(max(fx, 0.0), cx)
+                        fy = min(max(fy, 0.0), cy)
+                        bx = min(numba.uint64(fx), bx_max)
+                        by = min(numba.uint64(fy), by_max)
+                        wx = min(fx - bx, 1.0)
+                        wy = min(fy - by, 1.0)
+                        o = (iu * nk + numba.uint64(k)) * nxy + by * unx + bx
+                        val = ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
+                               + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1]))
+                        orow[iu] = val if good else 0.0
+                        okrow[iu] = 1.0 if good else 0.0
 
 
 def _views_inner(arrays: np.ndarray) -> np.ndarray:
@@ -1242,44 +1301,74 @@ def _discontinuity_energy(L0, L1, W0, has_w, r, out):
     F, Ny, Nx, Nv, Nu = L0.shape
     two = np.float32(2.0)
     half = np.float32(0.5)
-    for idx in numba.prange(F * Ny * Nx):
-        fc = idx // (Ny * Nx)
-        rem = idx - fc * Ny * Nx
-        j = rem // Nx
-        i = rem - j * Nx
-        a0 = L0[fc, j, i]
-        a1 = L1[fc, j, i]
-        o = out[fc, j, i]
+    zero = np.float32(0.0)
+    n = F * Ny * Nx
+    chunks = max(1, min(n, 64))
+    # row-wise loops over contiguous u with unsigned indices (they vectorise)
+    un = numba.uint64(Nu)
+    for c in numba.prange(chunks):
         img = np.empty((Nv, Nu), np.float32)
-        e = np.zeros((Nv, Nu), np.float32)
-        for v in range(Nv):
-            for u in range(Nu):
-                sv = (a0[v, u] + a1[v, u]) * half
-                if has_w and not W0[fc, j, i, v, u] > 0:
-                    sv = np.float32(0.0)
-                img[v, u] = sv
-        for v in range(Nv):
-            for u in range(Nu):
-                acc = np.float32(0.0)
+        e = np.empty((Nv, Nu), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (Ny * Nx)
+            rem = idx - fc * Ny * Nx
+            j = rem // Nx
+            i = rem - j * Nx
+            a0 = L0[fc, j, i]
+            a1 = L1[fc, j, i]
+            wv = W0[fc, j, i]
+            o = out[fc, j, i]
+            for v in range(Nv):
+                ir = img[v]
+                r0 = a0[v]
+                r1 = a1[v]
+                rw = wv[v]
+                for u in range(un):
+                    sv = (r0[u] + r1[u]) * half
+                    ir[u] = zero if (has_w and not rw[u] > 0) else sv
+            for v in range(Nv):
+                er = e[v]
+                ir = img[v]
                 if Nv >= 3:
-                    acc += abs(img[max(v - 1, 0), u] - two * img[v, u] + img[min(v + 1, Nv - 1), u])
+                    im = img[max(v - 1, 0)]
+                    ip = img[min(v + 1, Nv - 1)]
+                    for u in range(un):
+                        er[u] = zero + abs(im[u] - two * ir[u] + ip[u])
+                else:
+                    er[:] = zero
                 if Nu >= 3:
-                    acc += abs(img[v, max(u - 1, 0)] - two * img[v, u] + img[v, min(u + 1, Nu - 1)])
-                e[v, u] = acc
-        for v in range(Nv):
-            lo = max(v - r, 0)
-            hi = min(v + r, Nv - 1)
-            for u in range(Nu):
-                m = e[lo, u]
-                for d in range(lo + 1, hi + 1):
-                    m = max(m, e[d, u])
-                img[v, u] = m
-        for v in range(Nv):
-            for u in range(Nu):
-                m = img[v, max(u - r, 0)]
-                for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
-                    m = max(m, img[v, d])
-                o[v, u] = m
+                    er[0] += abs(ir[0] - two * ir[0] + ir[1])
+                    for u in range(numba.uint64(1), numba.uint64(Nu - 1)):
+                        er[u] += abs(ir[u - 1] - two * ir[u] + ir[u + 1])
+                    er[Nu - 1] += abs(ir[Nu - 2] - two * ir[Nu - 1] + ir[Nu - 1])
+            for v in range(Nv):                          # max over ±r rows
+                ir = img[v]
+                ir[:] = e[max(v - r, 0)]
+                for d in range(max(v - r, 0) + 1, min(v + r, Nv - 1) + 1):
+                    er = e[d]
+                    for u in range(un):
+                        ir[u] = max(ir[u], er[u])
+            for v in range(Nv):                          # max over ±r samples along u
+                ir = img[v]
+                orow = o[v]
+                for u in range(min(r, Nu)):              # left border (clipped windows)
+                    m = ir[max(u - r, 0)]
+                    for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                        m = max(m, ir[d])
+                    orow[u] = m
+                if Nu > 2 * r:
+                    m_in = numba.uint64(Nu - 2 * r)
+                    oi = orow[r:Nu - r]
+                    oi[:] = ir[0:Nu - 2 * r]
+                    for d in range(1, 2 * r + 1):
+                        sr = ir[d:d + Nu - 2 * r]
+                        for u in range(m_in):
+                            oi[u] = max(oi[u], sr[u])
+                for u in range(max(Nu - r, r), Nu):      # right border
+                    m = ir[max(u - r, 0)]
+                    for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                        m = max(m, ir[d])
+                    orow[u] = m
 
 
 def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,

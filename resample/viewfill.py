@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -115,6 +115,8 @@ class ViewFillPlan:
     """Per face: v-steps per y-step for one u-step per x-step (``(step_y / step_x)(step_u / step_v)``)."""
     holes_only: tuple[bool, ...] = ()
     """Per target: a measured view of which only the holes (``W <= 0.5``) are re-filled."""
+    _arrays: dict = field(default_factory=dict, repr=False, compare=False)
+    """The plan packed into arrays for the kernels (:func:`_packed`; built on first use)."""
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -352,19 +354,18 @@ def _refine_best(best, best_k, c_left, c_right, base, offs, out):
     Nv, Nu = out.shape
     K = offs.shape[0]
     step = offs[1] - offs[0] if K > 1 else 0.0
+    inf = np.float32(np.inf)
     for v in range(Nv):
-        for u in range(Nu):
-            k = best_k[v, u]
-            if k < 0:
-                out[v, u] = base[v, u]
-                continue
-            d = base[v, u] + offs[k]
-            cl, c0, cr = c_left[v, u], best[v, u], c_right[v, u]
-            if np.isfinite(cl) and np.isfinite(cr):
-                den = cl - 2.0 * c0 + cr
-                if den > 0.0:
-                    d += step * max(-0.5, min(0.5, 0.5 * (cl - cr) / den))
-            out[v, u] = d
+        bk, cl_r, c0_r, cr_r, b_r, o_r = best_k[v], c_left[v], best[v], c_right[v], base[v], out[v]
+        for u in range(Nu):            # without branches, so it vectorises
+            k = bk[u]
+            cl, c0, cr = cl_r[u], c0_r[u], cr_r[u]
+            den = cl - 2.0 * c0 + cr
+            ok = (k >= 0) & (cl < inf) & (cr < inf) & (den > 0.0)         # (< inf: finite; costs >= 0)
+            t = max(-0.5, min(0.5, 0.5 * (cl - cr) / den)) if ok else 0.0
+            d = b_r[u] + offs[max(k, 0)]
+            d = d + step * t if ok else d
+            o_r[u] = d if k >= 0 else b_r[u]
 
 
 @numba.njit(cache=True)
@@ -588,81 +589,74 @@ def _blend(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
                     out[v, u, c] = acc[u, c] / tw[u]
 
 
-@numba.njit(cache=True, fastmath=True, inline="always")
-def _blend_sample(X, A, v, u, dd, kx, ky, w, Nv, Nu):
-    """One source's (weight a, a times its bilinear sample) for :func:`_blend_grey` at the
-    target sample (v, u) with disparity dd; (0, 0) when the shifted sample leaves the view."""
-    xx = u - dd * kx
-    yy = v - dd * ky
-    if not (xx >= 0.0 and xx <= Nu - 1 and yy >= 0.0 and yy <= Nv - 1):
-        return np.float32(0.0), np.float32(0.0)
-    y0 = min(int(yy), Nv - 2)
-    fy = np.float32(yy - y0)
-    x0 = min(int(xx), Nu - 2)
-    fx = np.float32(xx - x0)
-    uy0, ux0 = numba.uint64(y0), numba.uint64(x0)
-    uy1, ux1 = uy0 + numba.uint64(1), ux0 + numba.uint64(1)
-    a = w * max(A[uy0 + numba.uint64(fy > 0.5), ux0 + numba.uint64(fx > 0.5)], np.float32(1e-3))
-    p0 = X[uy0, ux0] + fx * (X[uy0, ux1] - X[uy0, ux0])
-    p1 = X[uy1, ux0] + fx * (X[uy1, ux1] - X[uy1, ux0])
-    return a, a * (p0 + fy * (p1 - p0))
-
-
 @numba.njit(cache=True, fastmath=True)
-def _blend_grey(Xf, Af, src, S, dy, dx, sw, r_y, d, out, tw, acc):
-    """:func:`_blend` for grey views (Xf: (Ny, Nx, Nv, Nu); out: (Nv, Nu); tw, acc: (Nu,)
-    scratch), the same arithmetic: a source beside the target (dy = 0) is read along its
-    row and one above or below (dx = 0) along its column (the bilinear weight across is 0),
-    and the nearest sample's confidence is picked without branches."""
+def _blend_grey(Xf, Af, src, S, dy, dx, sw, r_y, d, out, scratch):
+    """:func:`_blend` for grey views (Xf: (Ny, Nx, Nv, Nu); out: (Nv, Nu)), the same
+    arithmetic in two passes per row and source: the sample positions, their bilinear
+    corners and weights (vectorised), then the gathers, skipping the second row (column)
+    of the bilinear sample where its weight is 0 (a source beside the target is read
+    along one row, one above or below along one column). scratch: from :func:`_blend_scratch`."""
     Nv, Nu = d.shape
-    one = numba.uint64(1)
+    n = numba.uint64(Nu)
+    NuU = numba.uint64(Nu)
+    Nu2, Nv2 = numba.uint64(Nu - 2), numba.uint64(Nv - 2)
+    tw, acc, fxa, fya = scratch[0], scratch[1], scratch[2], scratch[3]
+    i0 = scratch[4].view(np.uint32)
+    ia = scratch[5].view(np.uint32)
+    ok = scratch[6].view(np.uint32)
     for v in range(Nv):
         dv = d[v]
-        tw[:] = 0.0
-        acc[:] = 0.0
+        for u in range(n):
+            tw[u] = 0.0
+            acc[u] = 0.0
         for s in range(S):
-            X = Xf[src[s, 0], src[s, 1]]
-            A = Af[src[s, 0], src[s, 1]]
+            X = Xf[src[s, 0], src[s, 1]].ravel()
+            A = Af[src[s, 0], src[s, 1]].ravel()
             ky = r_y * dy[s]
             kx = dx[s]
             w = sw[s]
-            if ky == 0.0 and v < Nv - 1:
-                Xr = X[v]
-                Ar = A[v]
-                for u in range(Nu):
-                    xx = u - dv[u] * kx
-                    if not (xx >= 0.0 and xx <= Nu - 1):
-                        continue
-                    x0 = min(int(xx), Nu - 2)
-                    fx = np.float32(xx - x0)
-                    ux0 = numba.uint64(x0)
-                    a = w * max(Ar[ux0 + numba.uint64(fx > 0.5)], np.float32(1e-3))
-                    tw[u] += a
-                    acc[u] += a * (Xr[ux0] + fx * (Xr[ux0 + one] - Xr[ux0]))
-            elif kx == 0.0:
-                for u in range(Nu - 1):
-                    yy = v - dv[u] * ky
-                    if not (yy >= 0.0 and yy <= Nv - 1):
-                        continue
-                    y0 = min(int(yy), Nv - 2)
-                    fy = np.float32(yy - y0)
-                    uy0 = numba.uint64(y0)
-                    uu = numba.uint64(u)
-                    a = w * max(A[uy0 + numba.uint64(fy > 0.5), uu], np.float32(1e-3))
-                    tw[u] += a
-                    acc[u] += a * (X[uy0, uu] + fy * (X[uy0 + one, uu] - X[uy0, uu]))
-                a, ap = _blend_sample(X, A, v, Nu - 1, dv[Nu - 1], kx, ky, w, Nv, Nu)
-                tw[Nu - 1] += a
-                acc[Nu - 1] += ap
-            else:
-                for u in range(Nu):
-                    a, ap = _blend_sample(X, A, v, u, dv[u], kx, ky, w, Nv, Nu)
-                    tw[u] += a
-                    acc[u] += ap
+            for u in range(n):          # positions, corners, weights
+                dd = dv[u]
+                xx = u - dd * kx
+                yy = v - dd * ky
+                ok[u] = (xx >= 0.0) & (xx <= Nu - 1) & (yy >= 0.0) & (yy <= Nv - 1)
+                xc = min(max(xx, 0.0), Nu - 1.0)
+                yc = min(max(yy, 0.0), Nv - 1.0)
+                x0 = min(numba.uint64(xc), Nu2)
+                y0 = min(numba.uint64(yc), Nv2)
+                fx = np.float32(xc - x0)
+                fy = np.float32(yc - y0)
+                fxa[u] = fx
+                fya[u] = fy
+                i0[u] = y0 * NuU + x0
+                ia[u] = (y0 + numba.uint64(fy > 0.5)) * NuU + x0 + numba.uint64(fx > 0.5)   # nearest
+            for u in range(n):          # gathers
+                if not ok[u]:
+                    continue
+                j = numba.uint64(i0[u])
+                fx = fxa[u]
+                fy = fya[u]
+                a = w * max(A[numba.uint64(ia[u])], np.float32(1e-3))
+                p = X[j]
+                if fx != 0.0:
+                    p += fx * (X[j + 1] - p)
+                if fy != 0.0:
+                    q = X[j + NuU]
+                    if fx != 0.0:
+                        q += fx * (X[j + NuU + 1] - q)
+                    p += fy * (q - p)
+                tw[u] += a
+                acc[u] += a * p
         orow = out[v]
-        for u in range(Nu):
+        for u in range(n):
             if tw[u] > 0.0:
                 orow[u] = acc[u] / tw[u]
+
+
+@numba.njit(cache=True)
+def _blend_scratch(Nu):
+    """Row scratch of :func:`_blend_grey`: (7, Nu) float32."""
+    return np.empty((7, Nu), np.float32)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -670,7 +664,8 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
               disp_out):
     """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place from the source views of
     Lsrc (L itself when no target is a source), their grey values grey (F, Ny, Nx, Nv, Nu) and
-    k_down x k_down averages of those grey_c (F, Ny, Nx, Mv, Mu); disp_out (T, Nv, Nu). A target
+    k_down x k_down averages of those grey_c (F, Ny, Nx, Mv, Mu); disp_out (T, Nv, Nu) receives
+    the disparities (or (0, Nv, Nu): not kept). A target
     with holes[t] keeps its samples with W > 0.5. With C = 1, L_grey is L's (F, Ny, Nx, Nv, Nu)
     view, grey Lsrc's, and the blend runs on those."""
     F, Ny, Nx, Nv, Nu, C = L.shape
@@ -685,7 +680,7 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
         dx = offs[t, :, 1].copy()
         sw = sws[t]
         ry = r_y[f]
-        d = disp_out[t]
+        d = disp_out[t] if disp_out.shape[0] > 0 else np.empty((Nv, Nu), np.float32)
         # coarse: the whole disparity range at 1/k_down resolution
         dc = np.empty((Mv, Mu), np.float32)
         _sweep_const(grey_c[f], src, S, dy, dx, sw, coarse, 1.0 / k_down, ry, window, dc)
@@ -696,19 +691,19 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
                 G[s] = grey[f, src[s, 0], src[s, 1]]
             base = d.copy()
             _sweep(G, S, dy, dx, sw, base, fine, 1.0, ry, window, d)
-        tw = np.empty(Nu, np.float32)
         if C == 1:              # grey: L_grey is L without its channel axis, grey the sources
-            acc1 = np.empty(Nu, np.float32)
+            scratch = _blend_scratch(Nu)
             if holes[t]:
                 tmp1 = grey[f, j, i].copy()
-                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, tmp1, tw, acc1)
+                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, tmp1, scratch)
                 for v in range(Nv):
                     for u in range(Nu):
                         if W[f, j, i, v, u] <= 0.5:
                             L_grey[f, j, i, v, u] = tmp1[v, u]
             else:
-                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, L_grey[f, j, i], tw, acc1)
+                _blend_grey(grey[f], W[f], src, S, dy, dx, sw, ry, d, L_grey[f, j, i], scratch)
             continue
+        tw = np.empty(Nu, np.float32)
         acc = np.empty((Nu, C), np.float32)
         if holes[t]:
             tmp = Lsrc[f, j, i].copy()
@@ -722,6 +717,31 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
 
 
 # ----------------------------------------------------------------------------- driver
+
+
+def _packed(plan: ViewFillPlan) -> tuple:
+    """The plan as arrays (built once per plan): targets (T, 3) int64, sources (T, Smax, 2)
+    int64, offsets (T, Smax, 2) float64, weights (T, Smax) float32, source counts (T,) int64,
+    the source views (V, 3) int64 (f, iy, ix), holes_only (T,) bool, r_y (F,) float64."""
+    if "packed" not in plan._arrays:
+        T = len(plan)
+        Smax = max(s.shape[0] for s in plan.sources)
+        srcs = np.zeros((T, Smax, 2), np.int64)
+        offs = np.zeros((T, Smax, 2), np.float64)
+        sws = np.zeros((T, Smax), np.float32)
+        nsrc = np.zeros(T, np.int64)
+        for t in range(T):
+            n = plan.sources[t].shape[0]
+            srcs[t, :n] = plan.sources[t]
+            offs[t, :n] = plan.offsets[t]
+            sws[t, :n] = plan.weights[t]
+            nsrc[t] = n
+        views = np.unique(np.concatenate([np.concatenate([np.full((len(sv), 1), f), sv], axis=1)
+                                          for (f, _, _), sv in zip(plan.targets, plan.sources)]), axis=0)
+        holes = np.array(plan.holes_only if plan.holes_only else [False] * T, np.bool_)
+        plan._arrays["packed"] = (np.array(plan.targets, np.int64), srcs, offs, sws, nsrc, views, holes,
+                                  np.array(plan.r_y, np.float64))
+    return plan._arrays["packed"]
 
 
 def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFillOptions | None = None,
@@ -740,34 +760,21 @@ def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFi
     if L.ndim != 6 or L.dtype != np.float32 or not L.flags.c_contiguous or L.shape[:5] != W.shape:
         raise ValueError("L must be C-contiguous float32 (F, Ny, Nx, Nv, Nu, C) and W (F, Ny, Nx, Nv, Nu)")
     Nv, Nu = L.shape[3:5]
-    Smax = max(s.shape[0] for s in plan.sources)
-    srcs = np.zeros((T, Smax, 2), np.int64)
-    offs = np.zeros((T, Smax, 2), np.float64)
-    sws = np.zeros((T, Smax), np.float32)
-    nsrc = np.zeros(T, np.int64)
-    for t in range(T):
-        n = plan.sources[t].shape[0]
-        srcs[t, :n] = plan.sources[t]
-        offs[t, :n] = plan.offsets[t]
-        sws[t, :n] = plan.weights[t]
-        nsrc[t] = n
-    disp = np.empty((T, Nv, Nu), np.float32)
+    targets, srcs, offs, sws, nsrc, views, holes, r_y = _packed(plan)
+    disp = np.empty((T if disparity_out is not None else 0, Nv, Nu), np.float32)    # (else per target)
     step = float(plan.disparities[1] - plan.disparities[0])
     k = int(opts.downsample)
     d_max = plan.disparities[-1]
     coarse = np.arange(-1, int(math.ceil(d_max / (k * step))) + 1) * (k * step)   # same step at 1/k resolution
     fine = np.array([-step, 0.0, step]) if opts.refine else np.zeros(1)
-    holes = np.array(plan.holes_only if plan.holes_only else [False] * T, np.bool_)
     Lsrc = L.copy() if holes.any() else L          # sources are re-filled too: read a snapshot
     grey = Lsrc.mean(axis=5) if L.shape[5] > 1 else Lsrc.reshape(L.shape[:5])     # (a view for grey frames)
     Mv, Mu = (Nv + k - 1) // k, (Nu + k - 1) // k
-    views = np.unique(np.concatenate([np.concatenate([np.full((len(sv), 1), f), sv], axis=1)
-                                      for (f, _, _), sv in zip(plan.targets, plan.sources)]), axis=0)
     grey_c = np.empty((*L.shape[:3], Mv, Mu), np.float32)    # only the source views are set
     _shrink_views(grey, views, k, grey_c)
     L_grey = L.reshape(L.shape[:5]) if L.shape[5] == 1 else grey                 # (unused for colour)
-    _fill_all(grey, grey_c, Lsrc, L, L_grey, np.ascontiguousarray(W, np.float32), np.array(plan.targets, np.int64), holes, srcs,
-              offs, sws, nsrc, np.array(plan.r_y, np.float64), coarse, k, fine, int(opts.window), disp)
+    _fill_all(grey, grey_c, Lsrc, L, L_grey, np.ascontiguousarray(W, np.float32), targets, holes, srcs,
+              offs, sws, nsrc, r_y, coarse, k, fine, int(opts.window), disp)
     if disparity_out is not None:
         for t, (f, j, i) in enumerate(plan.targets):
             disparity_out[f, j, i] = disp[t]

@@ -401,10 +401,10 @@ def test_view_fill_options_and_colour(tmp_path):
 
 
 def test_grey_blend_matches_the_general_blend():
-    """The grey blend's shortcuts (sources beside, above or below the target read along one
-    row or column) give the general blend's result, with sources reaching off their views and
+    """The grey blend's shortcuts (two passes; sources beside, above or below the target read
+    along one row or column) give the general blend's result, with sources reaching off their views and
     confidences of 0 included."""
-    from resample.viewfill import _blend, _blend_grey
+    from resample.viewfill import _blend, _blend_grey, _blend_scratch
 
     rng = np.random.default_rng(5)
     Nv, Nu = 23, 31
@@ -423,8 +423,7 @@ def test_grey_blend_matches_the_general_blend():
         _blend(X[..., None], A, src, S, off[:, 0].copy(), off[:, 1].copy(), sw, 1.3, d, out,
                np.empty(Nu, np.float32), np.empty((Nu, 1), np.float32))
         out_g = np.full((Nv, Nu), -1.0, np.float32)
-        _blend_grey(X, A, src, S, off[:, 0].copy(), off[:, 1].copy(), sw, 1.3, d, out_g,
-                    np.empty(Nu, np.float32), np.empty(Nu, np.float32))
+        _blend_grey(X, A, src, S, off[:, 0].copy(), off[:, 1].copy(), sw, 1.3, d, out_g, _blend_scratch(Nu))
         np.testing.assert_allclose(out_g, out[..., 0], atol=RESAMPLE_CONSTANT_ATOL)
         unreached += int(np.sum(out_g == -1.0))
     assert unreached > 0                    # some samples reach no source and keep their value

@@ -81,4 +81,6 @@ CALIB_SPLINED_BUNDLE_DEG = 0.01       # [deg] noise-free splined solve: spread o
 CALIB_SPLINED_RIG_DEG = 1.0           # [deg] the same bundles' common rotation (rig frame from the bundles' orientations; was 3.1 deg from the raw extrinsics)
 MOTION_NORMAL_SUMS_RTOL = 1e-9  # fused-kernel normal matrix AᵀWA vs the numpy coefficient matrix (float64 sums, order only)
 MOTION_SOLVE_RTOL = 1e-6        # solve_ray_motion (Jacobi-scaled eigen pseudo-inverse) vs np.linalg.solve of the same normal equations
+CALIB_TRUTH_RESIDUAL_PX = 1e-6        # [px] residuals of calib.truth_problem (the exact projections at the true parameters)
+CALIB_PREDICT_REL = 0.1               # predicted pose sigma at the truth vs at a noisy solve of the same poses (0.2 px)
 VIEW_DISPARITY_REL = 0.1         # view_disparity of a textured plane vs Δx f / (Z Δu) (measured 0.1-8 %)

@@ -6,6 +6,7 @@ view-independent, so plenoptic brightness constancy holds exactly. See
 docs/conventions.md for frames and units.
 """
 
+from .boardrender import BoardRenderer
 from .motion import frame_timestamps, make_trajectory, smooth_trajectory, static_trajectory
 from .raycast import TraceResult, trace_indexed, trace_outer, trace_rays
 from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, lightfield_face_rays,
@@ -25,7 +26,7 @@ __all__ = [
     "frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory",
     # rendering
     "default_lightfield_grid", "lightfield_face_rays", "LightFieldRenderer", "render_lightfield",
-    "CameraArrayRenderer", "quantize",
+    "CameraArrayRenderer", "BoardRenderer", "quantize",
     # products on disk
     "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "write_lightfield_sequence", "synth_lightfield",
     "synth_session", "synth_board_session",

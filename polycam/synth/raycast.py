@@ -171,6 +171,27 @@ def _dda_init(o, d, lo, h, n, tn):
     return c, 0, _INF, _INF
 
 
+@njit(inline="always", fastmath=False, cache=True)
+def _origin_world(R, tr, orig, a):
+    """World-frame origin ``R @ orig[a] + tr`` of a rig-frame ray origin (three floats)."""
+    o0 = R[0, 0] * orig[a, 0] + R[0, 1] * orig[a, 1] + R[0, 2] * orig[a, 2] + tr[0]
+    o1 = R[1, 0] * orig[a, 0] + R[1, 1] * orig[a, 1] + R[1, 2] * orig[a, 2] + tr[1]
+    o2 = R[2, 0] * orig[a, 0] + R[2, 1] * orig[a, 1] + R[2, 2] * orig[a, 2] + tr[2]
+    return o0, o1, o2
+
+
+@njit(inline="always", fastmath=False, cache=True)
+def _direction_world(R, dirs, b, si):
+    """World-frame direction ``R @ dirs[b, si]`` (float64, not normalised; three floats)."""
+    e0 = dirs[b, si, 0]
+    e1 = dirs[b, si, 1]
+    e2 = dirs[b, si, 2]
+    d0 = R[0, 0] * e0 + R[0, 1] * e1 + R[0, 2] * e2
+    d1 = R[1, 0] * e0 + R[1, 1] * e1 + R[1, 2] * e2
+    d2 = R[2, 0] * e0 + R[2, 1] * e1 + R[2, 2] * e2
+    return d0, d1, d2
+
+
 @njit(fastmath=False, cache=True)
 def _trace_range(k0, k1, orig, dirs, oidx, outer, R, tr,
                  sph_c, sph_r, sph_tex, g_lo, g_cell, g_dims, g_start, g_items,
@@ -188,19 +209,12 @@ def _trace_range(k0, k1, orig, dirs, oidx, outer, R, tr,
     a = k0 // B if outer else oidx[k0]      # origin and direction indices of ray k0
     b = k0 - a * B if outer else k0
     for ray in range(k0, k1):
-        o0 = R[0, 0] * orig[a, 0] + R[0, 1] * orig[a, 1] + R[0, 2] * orig[a, 2] + tr[0]
-        o1 = R[1, 0] * orig[a, 0] + R[1, 1] * orig[a, 1] + R[1, 2] * orig[a, 2] + tr[1]
-        o2 = R[2, 0] * orig[a, 0] + R[2, 1] * orig[a, 1] + R[2, 2] * orig[a, 2] + tr[2]
+        o0, o1, o2 = _origin_world(R, tr, orig, a)
         acc = 0.0
         t0 = np.nan
         pid0 = np.int64(-2)
         for si in range(S):
-            e0 = dirs[b, si, 0]
-            e1 = dirs[b, si, 1]
-            e2 = dirs[b, si, 2]
-            d0 = R[0, 0] * e0 + R[0, 1] * e1 + R[0, 2] * e2
-            d1 = R[1, 0] * e0 + R[1, 1] * e1 + R[1, 2] * e2
-            d2 = R[2, 0] * e0 + R[2, 1] * e1 + R[2, 2] * e2
+            d0, d1, d2 = _direction_world(R, dirs, b, si)
             nn = d0 * d0 + d1 * d1 + d2 * d2
             if nn > 0.0 and nn < _INF:           # NaN / unprojectable directions contribute 0
                 nn = math.sqrt(nn)

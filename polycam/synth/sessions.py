@@ -38,6 +38,7 @@ from ..geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T
 from ..lightfield import LightFieldGrid
 from ..rig import Rig
 from ..trajectory import Trajectory, tum_text
+from .boardrender import BoardRenderer
 from .motion import make_trajectory, static_trajectory
 from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, quantize
 from .scenes import Scene, make_scene, room_scene
@@ -318,7 +319,9 @@ def synth_board_session(rig: Rig, out: str | os.PathLike, *, board, frames: int 
 
     board: a :class:`polycam.board.Board`. Its image (:meth:`~polycam.board.Board.render`,
         white margin of half a square, at least 2x the finest camera sampling) is a
-        two-sided textured rectangle, placed at ``T_rig_board`` per frame.
+        two-sided textured rectangle, placed at ``T_rig_board`` per frame (rendered by
+        :class:`~polycam.synth.boardrender.BoardRenderer`: the static background is traced
+        once, the board per frame; same images as tracing the whole scene).
     scene: the background (default an object-free :func:`room_scene` with the rig's
         ``[mock] distance`` to the far wall, so nothing occludes the board).
     poses: (frames, 4, 4) ``T_rig_board`` (default :func:`board_poses`).
@@ -358,16 +361,15 @@ def synth_board_session(rig: Rig, out: str | os.PathLike, *, board, frames: int 
     scene, rect = scene.with_image_rect(image, poses[0], (-m_m, bw + m_m, -m_m, bh + m_m),
                                         np.asarray(H_image_board)[:2])
 
-    renderer = CameraArrayRenderer(rig, models, scene, supersample)
+    renderer = BoardRenderer(rig, models, scene, rect, traj.T_world_rig[0], supersample)
     log.info("synth board session %s: %d frames of %d cameras, board texture %d px per square", out, frames,
              len(rig.cameras), pps)
     with SessionWriter(out, rig, overwrite=overwrite, threads=threads) as w:
         for cam in rig.cameras:
             w.write_calibration(cam.id, models[cam.id])
         for i in range(frames):
-            sc = scene.with_rect_pose(rect, poses[i])
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
-            rad = renderer.render(traj.T_world_rig[i], sc)
+            rad = renderer.render(poses[i])             # the rig is static at the world origin
             images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng) for cam in rig.cameras}
             w.add_frame(int(traj.timestamps_ns[i]), images)
             if progress is not None:
