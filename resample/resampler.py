@@ -30,7 +30,7 @@ from polycam.lightfield import LightFieldGrid
 
 from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
 from .pushpull import SCHEDULES, PushPull, weighted_views
-from .viewfill import ViewFillOptions, ViewFillPlan, fill_views, plan_view_fill
+from .viewfill import ViewFillOptions, ViewFillPlan, camera_views, fill_views, plan_view_fill
 
 VIEW_FILLS = ("depth", "pushpull")
 """How views no camera measured are filled: along the disparity found by a plane sweep
@@ -189,7 +189,11 @@ class Resampler:
             if len(self._plans) > self.options.geometry_cache + 1:
                 self._plans.clear()
             if self.cameras_on_focal_plane():
-                plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill)
+                from polycam.cameras import T_rig_cam_of
+
+                T = np.stack([T_rig_cam_of(self.models[c]) for c in geo.layout.ids])
+                plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill,
+                                      camera_views=camera_views(self.grid, T[:, :3, 3], T[:, :3, 2]))
             else:
                 log.warning("resample: the cameras are not on the focal plane z_pi (a grid view is then a "
                             "patchwork of several cameras): the views between them are filled by the "

@@ -55,7 +55,7 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
+__all__ = ["camera_views", "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
 
 log = logging.getLogger(__name__)
 
@@ -122,13 +122,36 @@ class ViewFillPlan:
         return len(self.targets)
 
 
+def camera_views(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx) bool: the grid view nearest each camera centre, on the face its optical
+    axis points into. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and optical
+    axes in the rig frame."""
+    F, Ny, Nx = grid.shape[:3]
+    out = np.zeros((F, Ny, Nx), bool)
+    normals = np.stack([np.asarray(fc.R_rig_face, float)[:, 2] for fc in grid.faces])
+    for c, a in zip(np.asarray(centres_rig, float), np.asarray(axes_rig, float)):
+        k = int(np.argmax(normals @ a))
+        p = np.asarray(grid.faces[k].R_rig_face, float).T @ c
+        ix = int(round((p[0] - grid.x.min) / grid.x.step)) if grid.x.count > 1 else 0
+        iy = int(round((p[1] - grid.y.min) / grid.y.step)) if grid.y.count > 1 else 0
+        if 0 <= ix < Nx and 0 <= iy < Ny:
+            out[k, iy, ix] = True
+    return out
+
+
 def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
-                   options: ViewFillOptions | None = None) -> ViewFillPlan:
+                   options: ViewFillOptions | None = None, camera_views: np.ndarray | None = None) -> ViewFillPlan:
     """The fill plan for ``grid`` given the clamped splat weights ``w_clamped``
-    (F, Ny, Nx, Nv, Nu) in [0, 1] (1 = measured)."""
+    (F, Ny, Nx, Nv, Nu) in [0, 1] (1 = measured). ``camera_views``: optional (F, Ny, Nx)
+    bool, the views nearest a camera centre (:func:`camera_views`); the others count as
+    unmeasured whatever splat weight they got (with cameras off the views, the splat
+    kernel's tail gives the neighbouring views full weight from one camera's pixels: a
+    copy of that camera's view at the wrong viewpoint)."""
     opts = options or ViewFillOptions()
     F, Ny, Nx, Nv, Nu = grid.shape
     cov = np.mean(np.asarray(w_clamped) >= 1.0, axis=(3, 4))             # (F, Ny, Nx)
+    if camera_views is not None:
+        cov = np.where(np.asarray(camera_views, bool), cov, 0.0)
     sx = grid.x.step if grid.x.count > 1 else 0.0
     sy = grid.y.step if grid.y.count > 1 else 0.0
     targets, sources, offsets, weights, holes_only = [], [], [], [], []

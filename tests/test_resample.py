@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from polycam.cameras import T_rig_cam_of
 from polycam.errors import InputError
 from polycam.lightfield import FACE_NAMES, Axis, LightFieldGrid
 from polycam.rig import load_rig
@@ -331,6 +332,31 @@ def test_view_fill_plan_on_an_auto_grid(tmp_path):
     off = LightFieldGrid.cube(["+z"], f=fc.f, z_pi=0.05, x=grid.x, y=grid.y, u=grid.u, v=grid.v)
     rs_off = Resampler(models, off)
     assert not rs_off.cameras_on_focal_plane() and len(rs_off.fill_plan()) == 0
+
+
+def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
+    """Camera centres 1.5 mm (0.15 view steps) off the nominal positions: the splat kernel's
+    tail gives the views beside a camera full weight from its pixels, but only the view
+    nearest each camera counts as measured; all the others are filled from depth."""
+    from resample import ViewFillOptions
+    from resample.viewfill import camera_views
+
+    rig = _grid_rig(tmp_path)
+    models = true_cameramodels(rig, seed=4, perturb_position_m=0.0015, perturb_rotation_deg=2.0,
+                               perturb_focal_frac=0.01)
+    grid = auto_grid(models)
+    assert (grid.y.count, grid.x.count) == (5, 5)
+    T = np.stack([T_rig_cam_of(m) for m in models.values()])
+    views = camera_views(grid, T[:, :3, 3], T[:, :3, 2])
+    expected = np.zeros((1, 5, 5), bool)
+    expected[0, ::2, ::2] = True
+    np.testing.assert_array_equal(views, expected)
+    rs = Resampler(models, grid)
+    w = rs._clamped(rs.geometry)
+    leaked = np.mean(w >= 1.0, axis=(3, 4))[~expected]
+    assert leaked.max() > ViewFillOptions().target_coverage     # without camera_views some would be kept
+    plan = rs.fill_plan()
+    assert sorted(plan.targets) == [(0, j, i) for j in range(5) for i in range(5) if j % 2 or i % 2]
 
 
 def test_view_fill_recovers_the_views_of_a_plane():
