@@ -71,7 +71,7 @@ class ViewFillOptions:
     min_depth: float = 0.5
     """[m] nearest depth in front of the focal plane the sweep considers; sets the largest
     disparity ``f step_x / (step_u min_depth)``."""
-    disparity_step: float = 0.25
+    disparity_step: float = 0.375
     """Candidate spacing [u-steps of motion per x-step of viewpoint] before the sub-step refinement."""
     window: int = 3
     """Half-width [samples] of the (u, v) box over which the matching cost is averaged."""
