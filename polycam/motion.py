@@ -1093,9 +1093,28 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
                         okrow[iu] = 1.0 if good else 0.0
 
 
+@numba.njit(parallel=True, cache=True)
+def _views_inner_kernel(a, out):
+    """out[f, v, u, m] = a[f, m, v, u] (m = the flattened (K, Ny, Nx)); per (f, v) the output
+    block (Nu, M) stays in cache while rows of a are read contiguously."""
+    F, M, Nv, Nu = a.shape
+    for fv in numba.prange(F * Nv):
+        f = fv // Nv
+        v = fv - f * Nv
+        o = out[f, v]
+        for m in range(M):
+            row = a[f, m, v]
+            for u in range(Nu):
+                o[u, m] = row[u]
+
+
 def _views_inner(arrays: np.ndarray) -> np.ndarray:
     """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout."""
-    return np.ascontiguousarray(np.asarray(arrays, dtype=np.float32).transpose(0, 4, 5, 1, 2, 3))
+    a = np.ascontiguousarray(arrays, dtype=np.float32)
+    F, K, Ny, Nx, Nv, Nu = a.shape
+    out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
+    _views_inner_kernel(a.reshape(F, K * Ny * Nx, Nv, Nu), out.reshape(F, Nv, Nu, K * Ny * Nx))
+    return out
 
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
@@ -1181,10 +1200,41 @@ def _face_B(face) -> np.ndarray:
     return B
 
 
+@numba.njit(parallel=True, cache=True)
+def _downsample_uv_kernel(a, taps, out):
+    """out[n, i, j] = Σ_s taps[s] Σ_t taps[t] a[n, clamp(2i + s − 2), clamp(2j + t − 2)] for
+    a (N, Nv, Nu) view stack: the binomial smoothing of both axes, evaluated only at the
+    kept samples (clamped borders, float32 sums in the order of :func:`correlate_axis`)."""
+    N, Nv, Nu = a.shape
+    Nv2 = out.shape[1]
+    Nu2 = out.shape[2]
+    for n in numba.prange(N):
+        row = np.empty(Nu, np.float32)
+        src = a[n]
+        for i in range(Nv2):
+            row[:] = 0.0
+            for s in range(5):
+                r = src[min(max(2 * i + s - 2, 0), Nv - 1)]
+                w = taps[s]
+                for u in range(Nu):
+                    row[u] += w * r[u]
+            o = out[n, i]
+            for j in range(Nu2):
+                acc = np.float32(0.0)
+                for t in range(5):
+                    acc += taps[t] * row[min(max(2 * j + t - 2, 0), Nu - 1)]
+                o[j] = acc
+
+
 def _downsample(a: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
     """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu) array."""
     taps = np.array([1, 4, 6, 4, 1], np.float32) / 16
     out = np.ascontiguousarray(a, dtype=np.float32)
+    if tuple(axes) == (out.ndim - 2, out.ndim - 1):            # (v, u) together: one pass
+        Nv, Nu = out.shape[-2:]
+        res = np.empty(out.shape[:-2] + ((Nv - 1) // 2 + 1, (Nu - 1) // 2 + 1), np.float32)
+        _downsample_uv_kernel(out.reshape(-1, Nv, Nu), taps, res.reshape((-1,) + res.shape[-2:]))
+        return res
     for ax in axes:
         out = correlate_axis(out, taps, ax)
         sl = [slice(None)] * out.ndim
