@@ -83,18 +83,18 @@ Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 directions are aliased and the translation's signal is weak (the paper sees
 the same growth); against 18–49% / 17–33% for one-shot central-difference
 least squares. With 8-bit frames and 3 grey levels of noise at 8 m: 0.7% / 0.3%.
-Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays,
-2 cores shared with other work, load 10-15): derivatives + one solve 37-39 ms CPU time
-(~19 ms per core, best wall 38 ms; 9-10x the numpy/scipy version, was 51 ms); the full
-default estimate (8 solves over 3 levels) 358 ms CPU time with one thread (was 814 ms),
-670-815 ms CPU with two threads on the busy machine (OpenMP threads spin-wait at each
-parallel region; ``OMP_WAIT_POLICY=PASSIVE`` halves that and the wall time there),
-6-9x the same algorithm in numpy; peak memory ~12 frames (was ~29). Per iteration: one warp (views-innermost, so each of the
-6 x 6 (u, v) taps is one vectorised multiply-add over all view images), one fused
-kernel (derivatives, base weights, normal sums per view image in cache, valid views
-only) and ``irls_steps`` passes that compute residual, IRLS weight and sums together;
-the covariance's scores and Σ w r² follow from per-tile sums (the residual is linear
-in the increment) and the noise energy from per-row weight moments.
+Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
+figures and history in docs/motion.md): the full default estimate (8 solves over 3 levels)
+takes ~240 ms CPU time with one thread (370 ms before the session-3 kernel work).
+Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
+vectorised multiply-add over all view images, then a branch-free blend across views),
+one fused kernel (derivatives, base weights, normal sums per view image in cache, valid
+views only) and ``irls_steps`` passes that compute residual, IRLS weight and sums
+together; the covariance's scores and Σ w r² follow from per-tile sums (the residual is
+linear in the increment) and the noise energy from per-row weight moments. The ray loops
+are branch-free with unsigned indices and re-associated sums (``_FASTMATH``) so that LLVM
+vectorises them; work arrays are kept per thread for the next call on the same grid
+(:func:`free_work_buffers`).
 
 Limits: the covariance describes noise, not the systematic errors of aliased
 or occluded data (it can be several times too small on
