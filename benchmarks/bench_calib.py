@@ -323,6 +323,49 @@ def run_case(work: Path, name: str, rows: int, cols: int, w: int, h: int, frames
     return rows_out
 
 
+def render_speed(work: Path, repeat: int = 3) -> None:
+    """Board-session frames: :class:`polycam.synth.BoardRenderer` (background traced once, the board
+    per frame) vs tracing the whole scene (:class:`polycam.synth.CameraArrayRenderer`, the baseline)
+    on the 3x3 rig, same poses, best of ``repeat`` after a warm-up, 2 threads and 1 thread."""
+    import numba
+
+    from polycam.board import load_board
+    from polycam.synth import BoardRenderer, CameraArrayRenderer, room_scene
+
+    print(f"\nboard-session render speed (3x3 rig, supersample 2, load {os.getloadavg()[0]:.1f}); per frame of 9 images")
+    print(f"{'resolution':10s} {'board':6s} {'threads':>7s} {'full trace s':>12s} {'BoardRenderer s':>15s} "
+          f"{'ratio':>6s} {'traced px %':>11s}")
+    for (w, h), bname in (((640, 480), "8x11"), ((1280, 960), "16x22")):
+        bp = work / f"board-{bname}.toml"
+        bp.write_text(BOARDS[bname])
+        board = load_board(bp)
+        rig, models, poses = design(work, "rig3x3", 3, 3, w, h, 4, board)
+        image, H_image_board = board.render(120, 0.5)
+        m = (image.shape[1] - board.cols * 120) / 2.0 / (120 / board.square_length)
+        bw, bh = board.size_m
+        scene, rect = room_scene(4.0, seed=7, n_spheres=0, n_boxes=0).with_image_rect(
+            image, poses[0], (-m, bw + m, -m, bh + m), np.asarray(H_image_board)[:2])
+        full = CameraArrayRenderer(rig, models, scene, 2)
+        fast = BoardRenderer(rig, models, scene, rect, np.eye(4), 2)
+        for threads in (min(2, numba.config.NUMBA_NUM_THREADS), 1):
+            numba.set_num_threads(threads)
+            tf, tb, mixed = [], [], []
+            full.render(np.eye(4), scene.with_rect_pose(rect, poses[0]))      # warm-up (compile)
+            fast.render(poses[0])
+            for _ in range(repeat):
+                for T in poses:
+                    t = time.perf_counter()
+                    full.render(np.eye(4), scene.with_rect_pose(rect, T))
+                    tf.append(time.perf_counter() - t)
+                    t = time.perf_counter()
+                    fast.render(T)
+                    tb.append(time.perf_counter() - t)
+                    mixed.append(fast.mixed_fraction)
+            a, b = float(np.min(tf)), float(np.min(tb))
+            print(f"{w}x{h:<5d} {bname:6s} {threads:7d} {a:12.3f} {b:15.3f} {a / b:6.1f} "
+                  f"{100 * float(np.mean(mixed)):11.2f}", flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=40, help="board poses per session")
@@ -345,9 +388,14 @@ def main() -> int:
     ap.add_argument("--noise-mode", choices=("total", "add"), default="total",
                     help="total: top the detector's own corner error up to 0.2 px per coordinate; "
                          "add: 0.2 px on top of it (session 1's figures)")
+    ap.add_argument("--render-speed", action="store_true",
+                    help="only time board-session frames: BoardRenderer vs tracing the whole scene")
     args = ap.parse_args()
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
+    if args.render_speed:
+        render_speed(work)
+        return 0
     rng = np.random.default_rng(4)
     cases = []
     for rig in (r.strip() for r in args.rigs.split(",") if r.strip()):

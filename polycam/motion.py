@@ -83,18 +83,18 @@ Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 directions are aliased and the translation's signal is weak (the paper sees
 the same growth); against 18–49% / 17–33% for one-shot central-difference
 least squares. With 8-bit frames and 3 grey levels of noise at 8 m: 0.7% / 0.3%.
-Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays,
-2 cores shared with other work, load 10-15): derivatives + one solve 37-39 ms CPU time
-(~19 ms per core, best wall 38 ms; 9-10x the numpy/scipy version, was 51 ms); the full
-default estimate (8 solves over 3 levels) 358 ms CPU time with one thread (was 814 ms),
-670-815 ms CPU with two threads on the busy machine (OpenMP threads spin-wait at each
-parallel region; ``OMP_WAIT_POLICY=PASSIVE`` halves that and the wall time there),
-6-9x the same algorithm in numpy; peak memory ~12 frames (was ~29). Per iteration: one warp (views-innermost, so each of the
-6 x 6 (u, v) taps is one vectorised multiply-add over all view images), one fused
-kernel (derivatives, base weights, normal sums per view image in cache, valid views
-only) and ``irls_steps`` passes that compute residual, IRLS weight and sums together;
-the covariance's scores and Σ w r² follow from per-tile sums (the residual is linear
-in the increment) and the noise energy from per-row weight moments.
+Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
+figures and history in docs/motion.md): the full default estimate (8 solves over 3 levels)
+takes ~240 ms CPU time with one thread (370 ms before the session-3 kernel work).
+Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
+vectorised multiply-add over all view images, then a branch-free blend across views),
+one fused kernel (derivatives, base weights, normal sums per view image in cache, valid
+views only) and ``irls_steps`` passes that compute residual, IRLS weight and sums
+together; the covariance's scores and Σ w r² follow from per-tile sums (the residual is
+linear in the increment) and the noise energy from per-row weight moments. The ray loops
+are branch-free with unsigned indices and re-associated sums (``_FASTMATH``) so that LLVM
+vectorises them; work arrays are kept per thread for the next call on the same grid
+(:func:`free_work_buffers`).
 
 Limits: the covariance describes noise, not the systematic errors of aliased
 or occluded data (it can be several times too small on
@@ -111,6 +111,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -129,6 +130,7 @@ __all__ = [
     "PairResult",
     "estimate_motion",
     "estimate_trajectory",
+    "free_work_buffers",
     "discontinuity_weight",
     "ScaledEigen",
     "scaled_eigen",
@@ -1091,9 +1093,28 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
                         okrow[iu] = 1.0 if good else 0.0
 
 
+@numba.njit(parallel=True, cache=True)
+def _views_inner_kernel(a, out):
+    """out[f, v, u, m] = a[f, m, v, u] (m = the flattened (K, Ny, Nx)); per (f, v) the output
+    block (Nu, M) stays in cache while rows of a are read contiguously."""
+    F, M, Nv, Nu = a.shape
+    for fv in numba.prange(F * Nv):
+        f = fv // Nv
+        v = fv - f * Nv
+        o = out[f, v]
+        for m in range(M):
+            row = a[f, m, v]
+            for u in range(Nu):
+                o[u, m] = row[u]
+
+
 def _views_inner(arrays: np.ndarray) -> np.ndarray:
     """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout."""
-    return np.ascontiguousarray(np.asarray(arrays, dtype=np.float32).transpose(0, 4, 5, 1, 2, 3))
+    a = np.ascontiguousarray(arrays, dtype=np.float32)
+    F, K, Ny, Nx, Nv, Nu = a.shape
+    out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
+    _views_inner_kernel(a.reshape(F, K * Ny * Nx, Nv, Nu), out.reshape(F, Nv, Nu, K * Ny * Nx))
+    return out
 
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
@@ -1179,10 +1200,41 @@ def _face_B(face) -> np.ndarray:
     return B
 
 
+@numba.njit(parallel=True, cache=True)
+def _downsample_uv_kernel(a, taps, out):
+    """out[n, i, j] = Σ_s taps[s] Σ_t taps[t] a[n, clamp(2i + s − 2), clamp(2j + t − 2)] for
+    a (N, Nv, Nu) view stack: the binomial smoothing of both axes, evaluated only at the
+    kept samples (clamped borders, float32 sums in the order of :func:`correlate_axis`)."""
+    N, Nv, Nu = a.shape
+    Nv2 = out.shape[1]
+    Nu2 = out.shape[2]
+    for n in numba.prange(N):
+        row = np.empty(Nu, np.float32)
+        src = a[n]
+        for i in range(Nv2):
+            row[:] = 0.0
+            for s in range(5):
+                r = src[min(max(2 * i + s - 2, 0), Nv - 1)]
+                w = taps[s]
+                for u in range(Nu):
+                    row[u] += w * r[u]
+            o = out[n, i]
+            for j in range(Nu2):
+                acc = np.float32(0.0)
+                for t in range(5):
+                    acc += taps[t] * row[min(max(2 * j + t - 2, 0), Nu - 1)]
+                o[j] = acc
+
+
 def _downsample(a: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
     """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu) array."""
     taps = np.array([1, 4, 6, 4, 1], np.float32) / 16
     out = np.ascontiguousarray(a, dtype=np.float32)
+    if tuple(axes) == (out.ndim - 2, out.ndim - 1):            # (v, u) together: one pass
+        Nv, Nu = out.shape[-2:]
+        res = np.empty(out.shape[:-2] + ((Nv - 1) // 2 + 1, (Nu - 1) // 2 + 1), np.float32)
+        _downsample_uv_kernel(out.reshape(-1, Nv, Nu), taps, res.reshape((-1,) + res.shape[-2:]))
+        return res
     for ax in axes:
         out = correlate_axis(out, taps, ax)
         sl = [slice(None)] * out.ndim
@@ -1422,10 +1474,32 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
     return np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6)
 
 
+_WORK = threading.local()
+"""Per-thread work arrays of the last estimate, by (level, name): see :func:`free_work_buffers`."""
+
+
+def _work_array(level: int, name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
+    """An uninitialised work array that the next estimate on a grid of the same dims
+    reuses (fresh memory costs page faults: ~5% of an estimate)."""
+    cache = _WORK.__dict__.setdefault("arrays", {})
+    key = (level, name)
+    a = cache.get(key)
+    if a is None or a.shape != tuple(shape) or a.dtype != np.dtype(dtype):
+        cache[key] = None                       # release the old one before allocating
+        a = cache[key] = np.empty(shape, dtype)
+    return a
+
+
+def free_work_buffers() -> None:
+    """Release the work arrays that :func:`estimate_motion` keeps on the calling thread for
+    its next call (about ten frames' worth for the finest level plus the coarser ones)."""
+    _WORK.__dict__.pop("arrays", None)
+
+
 class _Solver:
     """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
-    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0):
         self.lev = lev
         self.g = g = lev.grid
         self.opts = opts
@@ -1452,15 +1526,15 @@ class _Solver:
         if lev.W0 is not None and not opts.symmetric:
             self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
         K = self.src1.shape[3]
-        self.out1 = np.empty((K,) + self.shape, np.float32)
-        self.conf = np.empty(self.shape, np.float32)
-        self.U = np.empty((Nv, Nu, K, Ny, Nx), np.float32)
-        self.der = [np.empty(self.shape, np.float32) for _ in range(5)]
-        self.base = np.empty(self.shape, np.float32)
+        self.out1 = _work_array(level, "out1", (K,) + self.shape)
+        self.conf = _work_array(level, "conf", self.shape)
+        self.U = _work_array(level, "U", (Nv, Nu, K, Ny, Nx))
+        self.der = [_work_array(level, n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+        self.base = _work_array(level, "base", self.shape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
-        self.acc = np.empty((nviews,) + nt + (_NACC,))
-        self.st = np.empty((nviews, _NSTAT))
+        self.acc = _work_array(level, "acc", (nviews,) + nt + (_NACC,), np.float64)
+        self.st = _work_array(level, "st", (nviews, _NSTAT), np.float64)
         self.n_base = 0
 
     # --------------------------------------------------------------- passes
@@ -1699,7 +1773,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     diag = None
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
-        solver = _Solver(levels[li], opts, filters)
+        solver = _Solver(levels[li], opts, filters, level=li)
         finest = li == 0
         for it in range(opts.iterations):
             sol = solver.solve(M)

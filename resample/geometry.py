@@ -418,12 +418,17 @@ class SplatGeometry:
     @cached_property
     def nonempty_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """The rows with entries, (R,) int64 ascending, and their entries' pointers (R + 1,)
-        int64 (row ``rows[r]`` holds entries ``ptr[r]..ptr[r + 1]``): most cells get no sample
-        (the views between cameras), and skipping them keeps the per-frame product from reading
-        the full row-pointer array."""
+        int64 (row ``rows[r]`` holds entries ``ptr[r]..ptr[r + 1]``). Most cells
+        get no sample (the views between cameras), and skipping them keeps the per-frame
+        product from reading the full row-pointer array. Not pickled (rebuilt on first use)."""
         rows = np.flatnonzero(np.diff(self.indptr))
         ptr = np.append(self.indptr[rows], self.indptr[-1])
         return rows, ptr
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop("nonempty_rows", None)
+        return state
 
     def to_scipy(self):
         """The splat as a ``scipy.sparse.csr_array`` (cells × input pixels)."""

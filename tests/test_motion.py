@@ -14,7 +14,7 @@ import pytest
 from polycam.errors import InputError
 from polycam.geometry import T_from_rt, T_inverse, rt_from_T
 from polycam.lightfield import Axis, LightFieldGrid
-from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory,
+from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory, free_work_buffers,
                             ray_motion_coefficients, solve_ray_motion, warp_lightfield)
 from polycam.derivatives import plenoptic_derivatives
 from polycam.trajectory import Trajectory
@@ -133,6 +133,21 @@ def test_combined_motion_is_recovered(scene, faces):
     assert np.all(rel_errors(res.T_prev_next, rt) < tol)
     assert res.inlier_fraction > 0.5
     assert np.isfinite(res.condition) and res.num_rays > 1000
+
+
+def test_work_buffers_reused_across_grids(scene):
+    """The per-thread work arrays kept between calls never leak one estimate into the next."""
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    frames = {}
+    for key, grid in (("a", make_grid(("+z",), directions=24)), ("b", make_grid(ALL, directions=16))):
+        frames[key] = (scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt)), grid)
+    free_work_buffers()
+    first = estimate_motion(*frames["a"]).T_prev_next
+    estimate_motion(*frames["b"])
+    again = estimate_motion(*frames["a"]).T_prev_next
+    free_work_buffers()
+    fresh = estimate_motion(*frames["a"]).T_prev_next
+    assert np.array_equal(first, again) and np.array_equal(first, fresh)
 
 
 def test_occluding_spheres_six_faces():

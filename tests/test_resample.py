@@ -295,6 +295,26 @@ def test_geometry_rows_are_normalised(tmp_path):
     assert np.array_equal(reached.reshape(geo.w0.shape), geo.w0 > 0)
 
 
+def test_splat_is_the_sparse_product_and_zero_elsewhere(tmp_path, rng):
+    """The splat (which visits only the rows with entries) is the CSR product, also into a
+    used buffer and after pickling (the list of those rows is not pickled)."""
+    import pickle
+
+    from resample import splat
+
+    _, models = _models(tmp_path)
+    geo = build_geometry(models, auto_grid(models))
+    x = rng.uniform(size=geo.layout.num_pixels).astype(np.float32)
+    ref = (geo.to_scipy() @ x).reshape(geo.w0.shape)
+    out = np.full(geo.w0.size, 7.0, np.float32)
+    np.testing.assert_allclose(splat(geo, x, out=out), ref, atol=RESAMPLE_CONSTANT_ATOL)
+    geo2 = pickle.loads(pickle.dumps(geo))
+    assert "nonempty_rows" not in geo2.__dict__
+    np.testing.assert_array_equal(splat(geo2, x), splat(geo, x))
+    x3 = np.repeat(x[:, None], 3, axis=1)
+    np.testing.assert_array_equal(splat(geo, x3)[..., 2], splat(geo, x))
+
+
 # ----------------------------------------------------------------------------- depth-aware view fill
 
 
