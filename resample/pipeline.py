@@ -273,7 +273,7 @@ def _dask_client(stack, scheduler: str, workers: int | None):
     if scheduler == "local":
         nw = workers or os.cpu_count() or 1
         cluster = stack.enter_context(LocalCluster(n_workers=nw, threads_per_worker=1, processes=True,
-                                                   dashboard_address=None, silence_logs=logging.ERROR))
+                                                   dashboard_address=":0", silence_logs=logging.ERROR))
         client = stack.enter_context(Client(cluster))
         log.info("dask: a local cluster of %d worker process(es)", nw)
         return client, f"local:{nw}", max(1, (os.cpu_count() or 1) // nw)

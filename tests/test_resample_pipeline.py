@@ -138,7 +138,7 @@ def test_an_existing_dask_scheduler(session, tmp_path):
     from distributed import LocalCluster
 
     path, _ = session
-    with LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=":0") as cluster:
         summ = resample_session(path, tmp_path / "lf.zarr", scheduler=cluster.scheduler_address)
     assert summ.scheduler == cluster.scheduler_address
     ref = resample_session(path, tmp_path / "ref.zarr", scheduler="sync")
