@@ -1108,11 +1108,13 @@ def _views_inner_kernel(a, out):
                 o[u, m] = row[u]
 
 
-def _views_inner(arrays: np.ndarray) -> np.ndarray:
-    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout."""
+def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout
+    (into ``out`` when given)."""
     a = np.ascontiguousarray(arrays, dtype=np.float32)
     F, K, Ny, Nx, Nv, Nu = a.shape
-    out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
+    if out is None:
+        out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
     _views_inner_kernel(a.reshape(F, K * Ny * Nx, Nv, Nu), out.reshape(F, Nv, Nu, K * Ny * Nx))
     return out
 
@@ -1460,13 +1462,16 @@ def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
 # ============================================================================ the solver
 
 
-def _warp_source(L: np.ndarray, W: np.ndarray | None) -> np.ndarray:
+def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> np.ndarray:
     """Channels warped together, (F, Nv, Nu, K, Ny, Nx) (:func:`_views_inner`): L, and with
     a confidence W also W and the "no data" indicator (W <= 0), which must not be
-    interpolated into usable samples (any stencil tap on it makes the sample unusable)."""
+    interpolated into usable samples (any stencil tap on it makes the sample unusable).
+    ``name``: into that per-thread work array (:func:`_work_array`)."""
+    F, Ny, Nx, Nv, Nu = L.shape
+    out = None if name is None else _work_array(name, (F, Nv, Nu, 1 if W is None else 3, Ny, Nx))
     if W is None:
-        return _views_inner(L[:, None])
-    return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1))
+        return _views_inner(L[:, None], out)
+    return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1), out)
 
 
 def _warped_confidence(out: np.ndarray) -> np.ndarray:
@@ -1475,31 +1480,33 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
 
 
 _WORK = threading.local()
-"""Per-thread work arrays of the last estimate, by (level, name): see :func:`free_work_buffers`."""
+"""Per-thread flat work arrays of the last estimate, by name: see :func:`free_work_buffers`."""
 
 
-def _work_array(level: int, name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
-    """An uninitialised work array that the next estimate on a grid of the same dims
-    reuses (fresh memory costs page faults: ~5% of an estimate)."""
+def _work_array(name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
+    """An uninitialised work array of the given dims, a view of a flat per-thread buffer that
+    the next use of ``name`` reuses (fresh memory costs page faults: ~5% of an estimate).
+    Pyramid levels run one after the other, so all levels share one buffer per name: the
+    peak memory is that of the finest level, as without the cache."""
     cache = _WORK.__dict__.setdefault("arrays", {})
-    key = (level, name)
-    a = cache.get(key)
-    if a is None or a.shape != tuple(shape) or a.dtype != np.dtype(dtype):
-        cache[key] = None                       # release the old one before allocating
-        a = cache[key] = np.empty(shape, dtype)
-    return a
+    n = math.prod(shape)
+    a = cache.get(name)
+    if a is None or a.size < n or a.dtype != np.dtype(dtype):
+        cache[name] = None                      # release the old one before allocating
+        a = cache[name] = np.empty(n, dtype)
+    return a[:n].reshape(shape)
 
 
 def free_work_buffers() -> None:
     """Release the work arrays that :func:`estimate_motion` keeps on the calling thread for
-    its next call (about ten frames' worth for the finest level plus the coarser ones)."""
+    its next call (about ten frames' worth: those of the finest pyramid level)."""
     _WORK.__dict__.pop("arrays", None)
 
 
 class _Solver:
     """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
-    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0):
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
         self.lev = lev
         self.g = g = lev.grid
         self.opts = opts
@@ -1520,21 +1527,21 @@ class _Solver:
         self.scale: float | None = None
         self.smooth = _level_discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
         self.var: np.ndarray | None = None
-        self.src1 = _warp_source(lev.L1, lev.W1)
+        self.src1 = _warp_source(lev.L1, lev.W1, "src1")
         self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
         self.conf0 = None
         if lev.W0 is not None and not opts.symmetric:
             self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
         K = self.src1.shape[3]
-        self.out1 = _work_array(level, "out1", (K,) + self.shape)
-        self.conf = _work_array(level, "conf", self.shape)
-        self.U = _work_array(level, "U", (Nv, Nu, K, Ny, Nx))
-        self.der = [_work_array(level, n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
-        self.base = _work_array(level, "base", self.shape)
+        self.out1 = _work_array("out1", (K,) + self.shape)
+        self.conf = _work_array("conf", self.shape)
+        self.U = _work_array("U", (Nv, Nu, K, Ny, Nx))
+        self.der = [_work_array(n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+        self.base = _work_array("base", self.shape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
-        self.acc = _work_array(level, "acc", (nviews,) + nt + (_NACC,), np.float64)
-        self.st = _work_array(level, "st", (nviews, _NSTAT), np.float64)
+        self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
+        self.st = _work_array("st", (nviews, _NSTAT), np.float64)
         self.n_base = 0
 
     # --------------------------------------------------------------- passes
@@ -1773,7 +1780,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     diag = None
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
-        solver = _Solver(levels[li], opts, filters, level=li)
+        solver = _Solver(levels[li], opts, filters)
         finest = li == 0
         for it in range(opts.iterations):
             sol = solver.solve(M)
