@@ -118,7 +118,8 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, correlate_axis, filter_taps, parallel_chunks, uv_view, xy_view
+from .derivatives import (FILTERS, Derivatives, correlate_axis, filter_taps, min_filter_axis, parallel_chunks,
+                          uv_view, xy_view)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid
@@ -138,6 +139,12 @@ __all__ = [
     "solve_ray_motion",
     "warp_lightfield",
     "warp_lightfield_reference",
+    "solver_filter_pairs",
+    "min_over_support",
+    "robust_scale",
+    "robust_weight",
+    "robust_slope",
+    "ray_to_rig_jacobian",
 ]
 
 log = logging.getLogger(__name__)
@@ -1459,6 +1466,79 @@ def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
     return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts)
 
 
+# ============================================================================ solver rules (public)
+
+
+def solver_filter_pairs(grid: LightFieldGrid, opts: MotionOptions) -> dict:
+    """Axis name (x y u v) → the FilterPair the solver uses on this grid (None: the axis is
+    too short to differentiate)."""
+    names = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
+    counts = {"x": grid.x.count, "y": grid.y.count, "u": grid.u.count, "v": grid.v.count}
+    out = {}
+    for k in "xyuv":
+        fp = FILTERS[names.get(k, "fs5")]
+        out[k] = fp if counts[k] >= 2 * fp.radius + 1 else None
+    return out
+
+
+def min_over_support(c: np.ndarray, pairs: dict) -> np.ndarray:
+    """Minimum of a (F, Ny, Nx, Nv, Nu) confidence over each ray's filter support
+    (``pairs`` from :func:`solver_filter_pairs`): the solver's confidence rule."""
+    out = c
+    for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
+        fp = pairs[name]
+        if fp is not None and fp.radius > 0 and out.shape[ax] > 1:
+            out = min_filter_axis(out, fp.radius, ax)
+    return out
+
+
+def robust_scale(res: np.ndarray, w: np.ndarray) -> float:
+    """The solver's robust residual scale: 1.4826 x the w-weighted median of |res| over
+    w > 0 (from at least 50 000 regularly spaced samples)."""
+    m = w.reshape(-1) > 0
+    a = np.abs(res.reshape(-1)[m]).astype(np.float64)
+    ww = w.reshape(-1)[m].astype(np.float64)
+    if a.size == 0:
+        return 0.0
+    step = max(1, a.size // 50_000)
+    a, ww = a[::step], ww[::step]
+    order = np.argsort(a)
+    cw = np.cumsum(ww[order])
+    i = int(np.searchsorted(cw, 0.5 * cw[-1]))
+    return 1.4826 * float(a[order[min(i, a.size - 1)]])
+
+
+def robust_weight(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
+    """The solver's IRLS weight w(r) of residuals ``res`` (any dims) at robust ``scale``
+    (Tukey or Huber with ``opts.robust_c``; ones without robust weighting)."""
+    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * opts.robust_c)
+    if opts.robust == "huber":
+        return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
+
+
+def robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
+    """ψ'(res) of the IRLS loss (ψ(r) = w(r) r; 1 where the loss is quadratic): how much a
+    small change of a ray's residual moves the robust (M-)estimate that IRLS converges to."""
+    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * opts.robust_c)
+    if opts.robust == "huber":
+        return (z <= 1.0).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
+
+
+def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
+    """(6, 6) d(t, r of the rig motion M) / d(ray-motion increment δ) at the estimate M:
+    M = exp(−δ) M (one-sided warping), or M = H exp(−δ) H with ``H`` (symmetric warping)."""
+    J = np.zeros((6, 6))
+    J[:3, :3] = M[:3, :3]
+    J[3:, 3:] = np.eye(3)
+    return -J @ adjoint(T_inverse(M if H is None else H))
+
+
 # ============================================================================ the solver
 
 
@@ -1860,10 +1940,7 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
     inl = sol["inliers"] / base_n if (sol["inliers"] is not None and base_n) else (1.0 if base_n else 0.0)
     # map the increment covariance to the rig's (t, r): M = H exp(−δ) H = M · exp(Ad(H⁻¹)(−δ))
     # (one-sided warping: H = M_e, M = exp(−δ) M_e = M · exp(Ad(M⁻¹)(−δ)))
-    J = np.zeros((6, 6))
-    J[:3, :3] = M[:3, :3]
-    J[3:, 3:] = np.eye(3)
-    J = -J @ adjoint(T_inverse(H) if opts.symmetric else T_inverse(M))
+    J = ray_to_rig_jacobian(M, H if opts.symmetric else None)
     cov = J @ C_sand @ J.T
     cov_iid = J @ C_iid @ J.T
     unobs_vecs = sol["unobs"]
