@@ -104,13 +104,14 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .derivatives import FILTERS, min_filter_axis, plenoptic_derivatives, smooth_all
+from .derivatives import plenoptic_derivatives, smooth_all
 from .errors import InputError
 from .gridrules import choose_grid
-from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
+from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R
 from .lightfield import FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for
-from .motion import (PARAM_NAMES, MotionOptions, discontinuity_weight, estimate_motion, ray_motion_coefficients,
-                     scaled_eigen, warp_lightfield)
+from .motion import (PARAM_NAMES, MotionOptions, discontinuity_weight, estimate_motion, min_over_support,
+                     ray_motion_coefficients, ray_to_rig_jacobian, robust_scale, robust_slope, robust_weight,
+                     scaled_eigen, solver_filter_pairs, warp_lightfield)
 from .rig import CameraSpec, MockSpec, Rig
 
 __all__ = [
@@ -617,68 +618,6 @@ def pair_motions(n: int, step_t: float, step_r_deg: float, seed: int = 0) -> np.
 # ============================================================================ the prediction
 
 
-def _filter_pairs(grid: LightFieldGrid, opts: MotionOptions) -> dict:
-    """Axis → FilterPair the solver uses on this grid (None: axis too short to differentiate)."""
-    names = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
-    counts = {"x": grid.x.count, "y": grid.y.count, "u": grid.u.count, "v": grid.v.count}
-    out = {}
-    for k in "xyuv":
-        fp = FILTERS[names.get(k, "fs5")]
-        out[k] = fp if counts[k] >= 2 * fp.radius + 1 else None
-    return out
-
-
-def _min_support(c: np.ndarray, pairs: dict) -> np.ndarray:
-    out = c
-    for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
-        fp = pairs[name]
-        if fp is not None and fp.radius > 0 and out.shape[ax] > 1:
-            out = min_filter_axis(out, fp.radius, ax)
-    return out
-
-
-def _weighted_mad(res: np.ndarray, w: np.ndarray) -> float:
-    m = w.reshape(-1) > 0
-    a = np.abs(res.reshape(-1)[m]).astype(np.float64)
-    ww = w.reshape(-1)[m].astype(np.float64)
-    if a.size == 0:
-        return 0.0
-    step = max(1, a.size // 50_000)
-    a, ww = a[::step], ww[::step]
-    order = np.argsort(a)
-    cw = np.cumsum(ww[order])
-    i = int(np.searchsorted(cw, 0.5 * cw[-1]))
-    return 1.4826 * float(a[order[min(i, a.size - 1)]])
-
-
-def _robust_weight(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
-    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
-        return np.ones_like(res)
-    z = np.abs(res) / np.float32(scale * opts.robust_c)
-    if opts.robust == "huber":
-        return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
-    return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
-
-
-def _robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
-    """ψ'(res) of the IRLS loss (ψ(r) = w(r) r; 1 where the loss is quadratic): how much a
-    small change of a ray's residual moves the robust (M-)estimate that IRLS converges to."""
-    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
-        return np.ones_like(res)
-    z = np.abs(res) / np.float32(scale * opts.robust_c)
-    if opts.robust == "huber":
-        return (z <= 1.0).astype(np.float32)
-    return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
-
-
-def _ray_to_rig_jacobian(M: np.ndarray) -> np.ndarray:
-    """(6, 6) d(t, r of the rig motion M) / d(ray-motion increment), as the solver maps it."""
-    J = np.zeros((6, 6))
-    J[:3, :3] = M[:3, :3]
-    J[3:, 3:] = np.eye(3)
-    return -J @ adjoint(T_inverse(M))
-
-
 def _observable(N: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Jacobi-scaled eigen-analysis of a normal matrix N (6, 6), the solver's own
     (:func:`polycam.motion.scaled_eigen`).
@@ -855,7 +794,7 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     rng = rng if rng is not None else np.random.default_rng(0)
     g = sampling.grid
     F, Ny, Nx, Nv, Nu = g.shape
-    pairs = _filter_pairs(g, opts)
+    pairs = solver_filter_pairs(g, opts)
     W = sampling.W
     L0 = sampling.assemble(src0)
     L1 = sampling.assemble(src1)
@@ -872,7 +811,7 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
         w1, ok = warp_lightfield(np.stack([L1, L1n, W, (W <= 0).astype(np.float32)]), g, T_ray,
                                  uv_taps=opts.uv_taps)
         conf = ok.astype(np.float32) * W * np.clip(w1[2], 0, 1) * (np.abs(w1[3]) < 1e-6)
-    conf = _min_support(np.ascontiguousarray(conf, np.float32), {k: v for k, v in pairs.items()})
+    conf = min_over_support(np.ascontiguousarray(conf, np.float32), {k: v for k, v in pairs.items()})
     fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
     filt = {k: fnames.get(k, "fs5") for k in "xyuv"}
     der = plenoptic_derivatives(L0, w1[0], g, filters=filt)
@@ -881,11 +820,11 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     if opts.smooth_c > 0:
         base = base * discontinuity_weight(np.ascontiguousarray(S, np.float32), opts)
     Lt_noisy = smooth_all(np.ascontiguousarray(w1[1] - L0n, np.float32), pairs)
-    scale = max(_weighted_mad(Lt_noisy, base), _SCALE_FLOOR)
-    w = base * _robust_weight(Lt_noisy, scale, opts)
+    scale = max(robust_scale(Lt_noisy, base), _SCALE_FLOOR)
+    w = base * robust_weight(Lt_noisy, scale, opts)
 
     A_faces = [ray_motion_coefficients(der, g, k) for k in range(F)]
-    Jm = _ray_to_rig_jacobian(M)
+    Jm = ray_to_rig_jacobian(M)
     N = _normal(A_faces, w)
     pinv, bad, good = _observable(N, opts.rcond)
 
@@ -895,14 +834,14 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     delta = -(pinv @ rhs)
     bias = Jm @ delta
     res0 = np.stack([der.Lt[k] + (A_faces[k] @ delta).astype(np.float32) for k in range(F)])
-    noise_scale = _weighted_mad(Lt_noisy - der.Lt, base)
-    misfit = _weighted_mad(res0, base) / max(noise_scale, 1e-12) if noise_scale > 0 else math.inf
+    noise_scale = robust_scale(Lt_noisy - der.Lt, base)
+    misfit = robust_scale(res0, base) / max(noise_scale, 1e-12) if noise_scale > 0 else math.inf
 
     # the solver's robust weights and scale belong to its residual at convergence: the model
     # error left at the (linearised) fixed point plus the noise
     r_fix = res0 + (Lt_noisy - der.Lt)
-    scale = max(_weighted_mad(r_fix, base), _SCALE_FLOOR)
-    w = base * _robust_weight(r_fix, scale, opts)
+    scale = max(robust_scale(r_fix, base), _SCALE_FLOOR)
+    w = base * robust_weight(r_fix, scale, opts)
     num = int(np.count_nonzero(w > 0))
     N = _normal(A_faces, w)
     pinv, bad, good = _observable(N, opts.rcond)
@@ -911,7 +850,7 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
         # IRLS converges to the M-estimate Σ base a ψ(r) = 0; noise n moves it through
         # ψ'(r) at the model-error residual r = res0, not through the weight w(r): rays whose
         # model error is a sizeable part of the robust scale respond less (or oppositely)
-        w_m = base * _robust_slope(res0, scale, opts)
+        w_m = base * robust_slope(res0, scale, opts)
         d = 1.0 / np.sqrt(np.diag(N))
         ev = np.linalg.eigvalsh(_normal(A_faces, w_m) * np.outer(d, d))
         if ev.min() > 0.05 * ev.max() * opts.rcond ** 0.5:

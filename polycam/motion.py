@@ -118,7 +118,8 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, correlate_axis, filter_taps, parallel_chunks, uv_view, xy_view
+from .derivatives import (FILTERS, Derivatives, correlate_axis, filter_taps, min_filter_axis, parallel_chunks,
+                          uv_view, xy_view)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid
@@ -138,6 +139,12 @@ __all__ = [
     "solve_ray_motion",
     "warp_lightfield",
     "warp_lightfield_reference",
+    "solver_filter_pairs",
+    "min_over_support",
+    "robust_scale",
+    "robust_weight",
+    "robust_slope",
+    "ray_to_rig_jacobian",
 ]
 
 log = logging.getLogger(__name__)
@@ -1108,11 +1115,13 @@ def _views_inner_kernel(a, out):
                 o[u, m] = row[u]
 
 
-def _views_inner(arrays: np.ndarray) -> np.ndarray:
-    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout."""
+def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout
+    (into ``out`` when given)."""
     a = np.ascontiguousarray(arrays, dtype=np.float32)
     F, K, Ny, Nx, Nv, Nu = a.shape
-    out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
+    if out is None:
+        out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
     _views_inner_kernel(a.reshape(F, K * Ny * Nx, Nv, Nu), out.reshape(F, Nv, Nu, K * Ny * Nx))
     return out
 
@@ -1457,16 +1466,92 @@ def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
     return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts)
 
 
+# ============================================================================ solver rules (public)
+
+
+def solver_filter_pairs(grid: LightFieldGrid, opts: MotionOptions) -> dict:
+    """Axis name (x y u v) → the FilterPair the solver uses on this grid (None: the axis is
+    too short to differentiate)."""
+    names = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
+    counts = {"x": grid.x.count, "y": grid.y.count, "u": grid.u.count, "v": grid.v.count}
+    out = {}
+    for k in "xyuv":
+        fp = FILTERS[names.get(k, "fs5")]
+        out[k] = fp if counts[k] >= 2 * fp.radius + 1 else None
+    return out
+
+
+def min_over_support(c: np.ndarray, pairs: dict) -> np.ndarray:
+    """Minimum of a (F, Ny, Nx, Nv, Nu) confidence over each ray's filter support
+    (``pairs`` from :func:`solver_filter_pairs`): the solver's confidence rule."""
+    out = c
+    for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
+        fp = pairs[name]
+        if fp is not None and fp.radius > 0 and out.shape[ax] > 1:
+            out = min_filter_axis(out, fp.radius, ax)
+    return out
+
+
+def robust_scale(res: np.ndarray, w: np.ndarray) -> float:
+    """The solver's robust residual scale: 1.4826 x the w-weighted median of |res| over
+    w > 0 (from at least 50 000 regularly spaced samples)."""
+    m = w.reshape(-1) > 0
+    a = np.abs(res.reshape(-1)[m]).astype(np.float64)
+    ww = w.reshape(-1)[m].astype(np.float64)
+    if a.size == 0:
+        return 0.0
+    step = max(1, a.size // 50_000)
+    a, ww = a[::step], ww[::step]
+    order = np.argsort(a)
+    cw = np.cumsum(ww[order])
+    i = int(np.searchsorted(cw, 0.5 * cw[-1]))
+    return 1.4826 * float(a[order[min(i, a.size - 1)]])
+
+
+def robust_weight(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
+    """The solver's IRLS weight w(r) of residuals ``res`` (any dims) at robust ``scale``
+    (Tukey or Huber with ``opts.robust_c``; ones without robust weighting)."""
+    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * opts.robust_c)
+    if opts.robust == "huber":
+        return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
+
+
+def robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
+    """ψ'(res) of the IRLS loss (ψ(r) = w(r) r; 1 where the loss is quadratic): how much a
+    small change of a ray's residual moves the robust (M-)estimate that IRLS converges to."""
+    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * opts.robust_c)
+    if opts.robust == "huber":
+        return (z <= 1.0).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
+
+
+def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
+    """(6, 6) d(t, r of the rig motion M) / d(ray-motion increment δ) at the estimate M:
+    M = exp(−δ) M (one-sided warping), or M = H exp(−δ) H with ``H`` (symmetric warping)."""
+    J = np.zeros((6, 6))
+    J[:3, :3] = M[:3, :3]
+    J[3:, 3:] = np.eye(3)
+    return -J @ adjoint(T_inverse(M if H is None else H))
+
+
 # ============================================================================ the solver
 
 
-def _warp_source(L: np.ndarray, W: np.ndarray | None) -> np.ndarray:
+def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> np.ndarray:
     """Channels warped together, (F, Nv, Nu, K, Ny, Nx) (:func:`_views_inner`): L, and with
     a confidence W also W and the "no data" indicator (W <= 0), which must not be
-    interpolated into usable samples (any stencil tap on it makes the sample unusable)."""
+    interpolated into usable samples (any stencil tap on it makes the sample unusable).
+    ``name``: into that per-thread work array (:func:`_work_array`)."""
+    F, Ny, Nx, Nv, Nu = L.shape
+    out = None if name is None else _work_array(name, (F, Nv, Nu, 1 if W is None else 3, Ny, Nx))
     if W is None:
-        return _views_inner(L[:, None])
-    return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1))
+        return _views_inner(L[:, None], out)
+    return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1), out)
 
 
 def _warped_confidence(out: np.ndarray) -> np.ndarray:
@@ -1475,31 +1560,33 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
 
 
 _WORK = threading.local()
-"""Per-thread work arrays of the last estimate, by (level, name): see :func:`free_work_buffers`."""
+"""Per-thread flat work arrays of the last estimate, by name: see :func:`free_work_buffers`."""
 
 
-def _work_array(level: int, name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
-    """An uninitialised work array that the next estimate on a grid of the same dims
-    reuses (fresh memory costs page faults: ~5% of an estimate)."""
+def _work_array(name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
+    """An uninitialised work array of the given dims, a view of a flat per-thread buffer that
+    the next use of ``name`` reuses (fresh memory costs page faults: ~5% of an estimate).
+    Pyramid levels run one after the other, so all levels share one buffer per name: the
+    peak memory is that of the finest level, as without the cache."""
     cache = _WORK.__dict__.setdefault("arrays", {})
-    key = (level, name)
-    a = cache.get(key)
-    if a is None or a.shape != tuple(shape) or a.dtype != np.dtype(dtype):
-        cache[key] = None                       # release the old one before allocating
-        a = cache[key] = np.empty(shape, dtype)
-    return a
+    n = math.prod(shape)
+    a = cache.get(name)
+    if a is None or a.size < n or a.dtype != np.dtype(dtype):
+        cache[name] = None                      # release the old one before allocating
+        a = cache[name] = np.empty(n, dtype)
+    return a[:n].reshape(shape)
 
 
 def free_work_buffers() -> None:
     """Release the work arrays that :func:`estimate_motion` keeps on the calling thread for
-    its next call (about ten frames' worth for the finest level plus the coarser ones)."""
+    its next call (about ten frames' worth: those of the finest pyramid level)."""
     _WORK.__dict__.pop("arrays", None)
 
 
 class _Solver:
     """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
-    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0):
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
         self.lev = lev
         self.g = g = lev.grid
         self.opts = opts
@@ -1520,21 +1607,21 @@ class _Solver:
         self.scale: float | None = None
         self.smooth = _level_discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
         self.var: np.ndarray | None = None
-        self.src1 = _warp_source(lev.L1, lev.W1)
+        self.src1 = _warp_source(lev.L1, lev.W1, "src1")
         self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
         self.conf0 = None
         if lev.W0 is not None and not opts.symmetric:
             self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
         K = self.src1.shape[3]
-        self.out1 = _work_array(level, "out1", (K,) + self.shape)
-        self.conf = _work_array(level, "conf", self.shape)
-        self.U = _work_array(level, "U", (Nv, Nu, K, Ny, Nx))
-        self.der = [_work_array(level, n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
-        self.base = _work_array(level, "base", self.shape)
+        self.out1 = _work_array("out1", (K,) + self.shape)
+        self.conf = _work_array("conf", self.shape)
+        self.U = _work_array("U", (Nv, Nu, K, Ny, Nx))
+        self.der = [_work_array(n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+        self.base = _work_array("base", self.shape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
-        self.acc = _work_array(level, "acc", (nviews,) + nt + (_NACC,), np.float64)
-        self.st = _work_array(level, "st", (nviews, _NSTAT), np.float64)
+        self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
+        self.st = _work_array("st", (nviews, _NSTAT), np.float64)
         self.n_base = 0
 
     # --------------------------------------------------------------- passes
@@ -1773,7 +1860,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     diag = None
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
-        solver = _Solver(levels[li], opts, filters, level=li)
+        solver = _Solver(levels[li], opts, filters)
         finest = li == 0
         for it in range(opts.iterations):
             sol = solver.solve(M)
@@ -1853,10 +1940,7 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
     inl = sol["inliers"] / base_n if (sol["inliers"] is not None and base_n) else (1.0 if base_n else 0.0)
     # map the increment covariance to the rig's (t, r): M = H exp(−δ) H = M · exp(Ad(H⁻¹)(−δ))
     # (one-sided warping: H = M_e, M = exp(−δ) M_e = M · exp(Ad(M⁻¹)(−δ)))
-    J = np.zeros((6, 6))
-    J[:3, :3] = M[:3, :3]
-    J[3:, 3:] = np.eye(3)
-    J = -J @ adjoint(T_inverse(H) if opts.symmetric else T_inverse(M))
+    J = ray_to_rig_jacobian(M, H if opts.symmetric else None)
     cov = J @ C_sand @ J.T
     cov_iid = J @ C_iid @ J.T
     unobs_vecs = sol["unobs"]

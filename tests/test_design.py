@@ -161,10 +161,10 @@ def test_noise_propagation_matches_monte_carlo_of_the_linear_estimator(renderer)
     src0, src1 = renderer.render(s, np.eye(4)), renderer.render(s, M)
     g = s.grid
     opts = MotionOptions()
-    pairs = dz._filter_pairs(g, opts)
+    pairs = dz.solver_filter_pairs(g, opts)
     L1w, ok = warp_lightfield(s.assemble(src1)[None], g, T_inverse(M))
     der = plenoptic_derivatives(s.assemble(src0), L1w[0], g, filters=opts.filters)
-    w = (dz._min_support(ok.astype(np.float32), pairs) * der.valid[None]).astype(np.float32)
+    w = (dz.min_over_support(ok.astype(np.float32), pairs) * der.valid[None]).astype(np.float32)
     A = [ray_motion_coefficients(der, g, 0)]
     sigma = np.linspace(0.01, 0.02, len(s.sources))              # per camera, to test the weighting
     N, meat = dz._sandwich(A, w, s, sigma, pairs)
