@@ -81,3 +81,6 @@ CALIB_SPLINED_BUNDLE_DEG = 0.01       # [deg] noise-free splined solve: spread o
 CALIB_SPLINED_RIG_DEG = 1.0           # [deg] the same bundles' common rotation (rig frame from the bundles' orientations; was 3.1 deg from the raw extrinsics)
 MOTION_NORMAL_SUMS_RTOL = 1e-9  # fused-kernel normal matrix AᵀWA vs the numpy coefficient matrix (float64 sums, order only)
 MOTION_SOLVE_RTOL = 1e-6        # solve_ray_motion (Jacobi-scaled eigen pseudo-inverse) vs np.linalg.solve of the same normal equations
+MOTION_WHITEN_GLS_RTOL = 1e-7   # whitened (banded Cholesky per axis) normal sums vs dense Aᵀ W^½ Σ⁻¹ W^½ A (measured 2e-9)
+MOTION_NOISE_WEIGHT_KEEP = 0.97  # share of pure-noise rays the noise-aware discontinuity weight keeps above 0.5 (99% quantile subtracted)
+MOTION_WHITEN_VS_PLAIN = 2.0    # |error| of the whitened (GLS) estimate / the plain one, 7x7-view six-face test under noise (one draw)
