@@ -322,6 +322,8 @@ VARIANTS = {
     "eiv, smooth_noise, whiten=on (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="on"),
     "eiv, smooth_noise, whiten=on, floor 0.1": MotionOptions(eiv=True, smooth_noise=True, whiten="on",
                                                              whiten_floor=0.1),
+    "depth_regressors": MotionOptions(depth_regressors=True),
+    "depth_regressors, eiv, smooth_noise": MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True),
     "whiten=on, floor 0 (exact GLS)": MotionOptions(whiten="on", whiten_floor=0.0),
     "smooth_c=0": MotionOptions(smooth_c=0.0),
     "robust=none": MotionOptions(robust="none", irls_steps=0),

@@ -22,7 +22,7 @@ from polycam.trajectory import Trajectory
 from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
-                        MOTION_WHITEN_GLS_RTOL, MOTION_WHITEN_VS_PLAIN)
+                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_WHITEN_GLS_RTOL, MOTION_WHITEN_VS_PLAIN)
 
 ROOM_RADIUS = 6.0
 
@@ -439,8 +439,9 @@ def test_two_stage_warp_matches_reference(rng, faces, views, directions, taps):
 
 @pytest.mark.parametrize("options", [MotionOptions(symmetric=True), MotionOptions(pyramid_xy=True, levels=2),
                                      MotionOptions(uv_taps=4, robust="huber", robust_c=1.345),
-                                     MotionOptions(filters="fs5", smooth_c=0.0, eiv=True)],
-                         ids=["symmetric", "pyramid-xy", "cubic-huber", "fs5-eiv"])
+                                     MotionOptions(filters="fs5", smooth_c=0.0, eiv=True),
+                                     MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True)],
+                         ids=["symmetric", "pyramid-xy", "cubic-huber", "fs5-eiv", "depth-regressors"])
 def test_solver_options(scene, options):
     grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
     rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
@@ -546,3 +547,30 @@ def test_whitening_auto_and_on(scene):
     assert on.iterations > off.iterations
     err = [np.linalg.norm(rt_from_T(r.T_prev_next) - rt) for r in (on, off)]
     assert err[0] < MOTION_WHITEN_VS_PLAIN * err[1], err
+
+
+def test_depth_regressors_reduce_positional_noise(scene):
+    """Eq. 6 regressors ρ̂ L_u, ρ̂ L_v (ρ̂ pooled over a window) are closer to the noise-free
+    L_x, L_y than the measured noisy ones (the scene is Lambertian: one depth per ray)."""
+    from polycam.motion import _depth_regularise
+
+    grid = make_grid(("+z",), views=7, directions=32, spacing=0.01)
+    M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
+    names = MotionOptions().filters
+    clean = plenoptic_derivatives(L0, L1, grid, filters=names)
+    rng = np.random.default_rng(3)
+    sigma = 0.02
+    noisy = plenoptic_derivatives((L0 + rng.normal(0, sigma, L0.shape)).astype(np.float32),
+                                  (L1 + rng.normal(0, sigma, L1.shape)).astype(np.float32), grid, filters=names)
+    noise = plenoptic_derivatives(rng.normal(0, sigma, L0.shape).astype(np.float32),
+                                  rng.normal(0, sigma, L0.shape).astype(np.float32), grid, filters=names)
+    valid = np.broadcast_to(noisy.valid, L0.shape)
+    # the expected noise variances of the regressors (of the frames' mean: σ²/2 per sample)
+    var = np.array([0.5 * np.mean(getattr(noise, a)[valid].astype(np.float64) ** 2) for a in ("Lx", "Ly", "Lu", "Lv")])
+    der = [np.array(a) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
+    var_after = _depth_regularise(der, np.ascontiguousarray(valid), var)
+    err_before = np.sqrt(np.mean((noisy.Lx - clean.Lx)[valid] ** 2))
+    err_after = np.sqrt(np.mean((der[0] - clean.Lx)[valid] ** 2))
+    assert err_after < MOTION_DEPTH_REGRESSOR_GAIN * err_before, (err_after, err_before)
+    assert var_after[0] < var[0] and var_after[1] < var[1]
