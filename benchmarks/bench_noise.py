@@ -10,9 +10,10 @@ on all six faces and on the ``+z`` face alone. Both frames get independent white
 Gaussian noise of σ = 0, 0.5, 1, 2, 4, 8, 16, 32 grey levels (of 255) per light-field
 sample (float, not quantised); several seeded draws per level, always the same motion.
 The high levels are where the noise-free error (model bias, the σ = 0 row) is small
-next to the bound; ``--high-noise`` adds the same table for the noise options together
-(``eiv=True, smooth_noise=True, whiten="auto"``: errors-in-variables steps, noise-aware
-discontinuity weight, whitened re-solves), measured in the same run.
+next to the bound; ``--high-noise`` adds the same table for the noise options measured
+best together (``depth_regressors=True, eiv=True, smooth_noise=True``: Eq. 6 positional
+regressors, errors-in-variables steps, noise-aware discontinuity weight), measured in
+the same run.
 
 Table per level: RMS over the draws of the vector error |t̂ − t| and |ω̂ − ω| (nothing
 removed; the noise-free error, i.e. the bias, is the σ = 0 row), the bound (sqrt of
@@ -309,21 +310,21 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     return rows
 
 
-HIGH_NOISE = MotionOptions(eiv=True, smooth_noise=True, whiten="auto")
-"""The noise options together: errors-in-variables steps, noise-aware discontinuity weight,
-whitened (GLS) re-solves when the noise dominates the whitened misfit."""
+HIGH_NOISE = MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True)
+"""The noise options measured best together: depth-regularised positional regressors (Eq. 6),
+errors-in-variables steps, noise-aware discontinuity weight (whitening: see docs/motion.md)."""
 
 VARIANTS = {
     "default": MotionOptions(),
     "smooth_noise": MotionOptions(smooth_noise=True),
     "eiv": MotionOptions(eiv=True),
     "eiv, smooth_noise": MotionOptions(eiv=True, smooth_noise=True),
-    "eiv, smooth_noise, whiten=auto (floor 0.3)": HIGH_NOISE,
+    "eiv, smooth_noise, whiten=auto (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="auto"),
     "eiv, smooth_noise, whiten=on (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="on"),
     "eiv, smooth_noise, whiten=on, floor 0.1": MotionOptions(eiv=True, smooth_noise=True, whiten="on",
                                                              whiten_floor=0.1),
     "depth_regressors": MotionOptions(depth_regressors=True),
-    "depth_regressors, eiv, smooth_noise": MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True),
+    "depth_regressors, eiv, smooth_noise": HIGH_NOISE,
     "whiten=on, floor 0 (exact GLS)": MotionOptions(whiten="on", whiten_floor=0.0),
     "smooth_c=0": MotionOptions(smooth_c=0.0),
     "robust=none": MotionOptions(robust="none", irls_steps=0),
@@ -435,7 +436,7 @@ def main() -> None:
     ap.add_argument("--probe", action="store_true", help="also the one-linear-solve regressor probe")
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
-                    help="also the table for eiv=True, smooth_noise=True, whiten='auto'")
+                    help="also the table for depth_regressors=True, eiv=True, smooth_noise=True")
     args = ap.parse_args()
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
@@ -447,7 +448,7 @@ def main() -> None:
             noise_table(f"{label}, D = {args.distance:g} m, default options", grid, L0, L1, M, sigmas, draws,
                         MotionOptions(), not args.no_predict)
             if args.high_noise:
-                noise_table(f"{label}, D = {args.distance:g} m, eiv, smooth_noise, whiten=auto", grid, L0, L1, M,
+                noise_table(f"{label}, D = {args.distance:g} m, depth_regressors, eiv, smooth_noise", grid, L0, L1, M,
                             sigmas, draws, HIGH_NOISE, not args.no_predict)
         if args.probe:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, (0.0, 1.0, 8.0), draws)
