@@ -1,23 +1,32 @@
 """Plenoptic motion under image noise against the Cramér–Rao bound of the linear model (issue #3, target 2).
 
-Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--variants] [--probe]``
+Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--sigmas ...] [--before]
+[--variants] [--probe]``
 
 Set-up (paper Sect. 5, as benchmarks/bench_motion.py): unit spheres filling the
 horizon at D = 8 m, f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions per face
 (3 x 3 rays averaged per sample), one motion |t| = 1.5 cm, |ω| = 0.2 deg (seeded),
 on all six faces and on the ``+z`` face alone. Both frames get independent white
-Gaussian noise of σ = 0, 0.5, 1, 2, 4, 8 grey levels (of 255) per light-field sample
-(float, not quantised); several seeded draws per level, always the same motion.
+Gaussian noise of σ = 0, 0.5, 1, 2, 4, 8, 16, 32 grey levels (of 255) per light-field
+sample (float, not quantised); several seeded draws per level, always the same motion.
+The high levels are where the noise-free error (model bias, the σ = 0 row) is small
+next to the bound; ``--high-noise`` adds the same table for the noise options measured
+best together (``depth_regressors=True, eiv=True, smooth_noise=True``: Eq. 6 positional
+regressors, errors-in-variables steps, noise-aware discontinuity weight), measured in
+the same run.
 
 Table per level: RMS over the draws of the vector error |t̂ − t| and |ω̂ − ω| (nothing
 removed; the noise-free error, i.e. the bias, is the σ = 0 row), the bound (sqrt of
 the trace of the CRB blocks below: the RMS vector error an efficient unbiased
 estimator reaches), and the ratio measured / bound (goal ≤ 1.5). Two further columns
 give the noise-only ratio (RMS of the deviation from the draws' mean / bound) and the
-σ predicted for the solver's own weighted estimator by :func:`polycam.design.predict_pair`.
+σ predicted for the solver's own weighted estimator by :func:`polycam.design.predict_pair`
+(which knows the discontinuity and Tukey weights but not the errors-in-variables step,
+the noise-aware weight or the whitening); ``GLS`` counts the estimates in which
+``whiten="auto"`` took the whitened (generalised least squares) re-solves.
 ``--variants`` repeats the measurement for several :class:`MotionOptions`; ``--probe``
 makes one unweighted linear solve at the true motion with the solver's regressors and
-with depth-regularised positional regressors (Eq. 6; a proposed solver change).
+with depth-regularised positional regressors (Eq. 6; a possible solver change).
 
 The bound (derivation)
 ----------------------
@@ -54,7 +63,8 @@ loses rays that leave the grid) and model error (the first-order model is not ex
 for a 1.5-view motion: the solver iterates; the bound is for the linearised model).
 Because Σ⁻¹ undoes the prefilters, the bound is that of a *whitened* (generalised)
 least-squares fit: an estimator that weights the data by the inverse noise
-covariance. Also shown: ``OLS`` = the exact covariance of plain unweighted least
+covariance (``MotionOptions(whiten="on", whiten_floor=0)`` is that estimator; the
+default floor regularises it, see docs/motion.md). Also shown: ``OLS`` = the exact covariance of plain unweighted least
 squares on the same rays, N⁻¹ (Aᵀ Σ A) N⁻¹ with N = AᵀA (what the solver's
 normal equations give without robust weights, warps or bias).
 """
@@ -62,6 +72,7 @@ normal equations give without robust weights, warps or bias).
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 import time
@@ -83,7 +94,7 @@ from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_s
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_motion import params, random_motion  # noqa: E402  (the same motions and (t, ω) order)
 
-SIGMAS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0)
+SIGMAS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 """Noise levels [grey levels of 255]."""
 AXES = ("y", "x", "v", "u")
 """Order of the per-face array axes (F, Ny, Nx, Nv, Nu) after the face."""
@@ -197,15 +208,39 @@ def identity_sampling(grid) -> RigSampling:
 # ---------------------------------------------------------------------------- measurement
 
 
-def errors(L0, L1, grid, M, sigma: float, draws: int, opts: MotionOptions, seed: int) -> np.ndarray:
-    """(draws, 6) estimated − true (t, r) for noise σ [0, 1 units]."""
+class _WhitenCount(logging.Handler):
+    """Counts the solver's ``whiten="auto"`` decisions (its debug log) per estimate."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.on = 0
+
+    def emit(self, record):
+        if record.msg.startswith("whiten:") and record.args and record.args[-1] == "on":
+            self.on += 1
+
+
+def errors(L0, L1, grid, M, sigma: float, draws: int, opts: MotionOptions, seed: int,
+           counter: _WhitenCount | None = None) -> np.ndarray:
+    """(draws, 6) estimated − true (t, r) for noise σ [0, 1 units]; ``counter`` counts the
+    estimates that took the whitened (GLS) re-solves."""
     rng = np.random.default_rng([seed, int(round(sigma * 1e6))])
     out = []
-    for _ in range(draws if sigma > 0 else 1):
-        a = (L0 + rng.normal(0.0, sigma, L0.shape)).astype(np.float32) if sigma > 0 else L0
-        b = (L1 + rng.normal(0.0, sigma, L1.shape)).astype(np.float32) if sigma > 0 else L1
-        res = estimate_motion(a, b, grid, options=opts)
-        out.append(params(res.T_prev_next) - params(M))
+    lg = logging.getLogger("polycam.motion")
+    if counter is not None:
+        lg.addHandler(counter)
+        old_level = lg.level
+        lg.setLevel(logging.DEBUG)
+    try:
+        for _ in range(draws if sigma > 0 else 1):
+            a = (L0 + rng.normal(0.0, sigma, L0.shape)).astype(np.float32) if sigma > 0 else L0
+            b = (L1 + rng.normal(0.0, sigma, L1.shape)).astype(np.float32) if sigma > 0 else L1
+            res = estimate_motion(a, b, grid, options=opts)
+            out.append(params(res.T_prev_next) - params(M))
+    finally:
+        if counter is not None:
+            lg.removeHandler(counter)
+            lg.setLevel(old_level)
     return np.array(out)
 
 
@@ -231,14 +266,16 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
           f"|w| = {np.degrees(np.linalg.norm(rt_from_T(M)[:3])):.2f} deg, {draws} draws per level\n")
     print("| σ [grey] | RMS err t [mm] | CRB t [mm] | ratio t | noise-only t | RMS err ω [µrad] | "
           "CRB ω [µrad] | ratio ω | noise-only ω | OLS/CRB t, ω | solver σ t, ω (design) / CRB | "
-          "time/est [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "GLS | time/est [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for s in sigmas:
         sig = s / 255.0
         t0 = time.perf_counter()
-        e = errors(L0, L1, grid, M, sig, draws, opts, seed=17)
+        counter = _WhitenCount()
+        e = errors(L0, L1, grid, M, sig, draws, opts, seed=17, counter=counter)
         dt = (time.perf_counter() - t0) / len(e)
+        gls = f"{counter.on}/{len(e)}"
         crb = crb1 * sig * sig
         ols = ols1 * sig * sig
         b_t = math.sqrt(np.trace(crb[:3, :3]))
@@ -258,12 +295,12 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
                    ols_t=math.sqrt(np.trace(ols[:3, :3])), ols_w=math.sqrt(np.trace(ols[3:, 3:])))
         rows.append(row)
         if s == 0:
-            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | {dt:.1f} |",
-                  flush=True)
+            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | {gls} | "
+                  f"{dt:.1f} |", flush=True)
             continue
         print(f"| {s:g} | {1e3 * m_t:.4f} | {1e3 * b_t:.4f} | {m_t / b_t:.2f} | {n_t / b_t:.2f} | "
               f"{1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {n_w / b_w:.2f} | "
-              f"{row['ols_t'] / b_t:.2f}, {row['ols_w'] / b_w:.2f} | {pred or '–'} | {dt:.1f} |", flush=True)
+              f"{row['ols_t'] / b_t:.2f}, {row['ols_w'] / b_w:.2f} | {pred or '–'} | {gls} | {dt:.1f} |", flush=True)
     snr = regressor_snr(L0, L1, grid, filters)
     print("\nregressor signal / noise RMS at σ = 1 grey level (divide by σ for other levels): "
           + ", ".join(f"{k} {v:.0f}" for k, v in snr.items()))
@@ -273,18 +310,25 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     return rows
 
 
+HIGH_NOISE = MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True)
+"""The noise options measured best together: depth-regularised positional regressors (Eq. 6),
+errors-in-variables steps, noise-aware discontinuity weight (whitening: see docs/motion.md)."""
+
 VARIANTS = {
     "default": MotionOptions(),
+    "smooth_noise": MotionOptions(smooth_noise=True),
+    "eiv": MotionOptions(eiv=True),
+    "eiv, smooth_noise": MotionOptions(eiv=True, smooth_noise=True),
+    "eiv, smooth_noise, whiten=auto (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="auto"),
+    "eiv, smooth_noise, whiten=on (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="on"),
+    "eiv, smooth_noise, whiten=on, floor 0.1": MotionOptions(eiv=True, smooth_noise=True, whiten="on",
+                                                             whiten_floor=0.1),
+    "depth_regressors": MotionOptions(depth_regressors=True),
+    "depth_regressors, eiv, smooth_noise": HIGH_NOISE,
+    "whiten=on, floor 0 (exact GLS)": MotionOptions(whiten="on", whiten_floor=0.0),
     "smooth_c=0": MotionOptions(smooth_c=0.0),
     "robust=none": MotionOptions(robust="none", irls_steps=0),
-    "smooth_c=0, robust=none": MotionOptions(smooth_c=0.0, robust="none", irls_steps=0),
-    "eiv": MotionOptions(eiv=True),
-    "smooth_c=0, robust=none, eiv": MotionOptions(smooth_c=0.0, robust="none", irls_steps=0, eiv=True),
-    "smooth_c=0, robust=none, eiv, iterations=12": MotionOptions(smooth_c=0.0, robust="none", irls_steps=0,
-                                                                   eiv=True, iterations=12),
-    "smooth_c=0, eiv": MotionOptions(smooth_c=0.0, eiv=True),
-    "symmetric, smooth_c=0, robust=none, eiv": MotionOptions(symmetric=True, smooth_c=0.0, robust="none",
-                                                             irls_steps=0, eiv=True),
+    "smooth_c=0, robust=none": MotionOptions(smooth_c=0.0, robust="none", irls_steps=0, whiten="off"),
     "filters=fs3": MotionOptions(filters="fs3"),
     "filters=fs3, smooth_c=0, robust=none": MotionOptions(filters="fs3", smooth_c=0.0, robust="none", irls_steps=0),
 }
@@ -390,16 +434,22 @@ def main() -> None:
     ap.add_argument("--variant-sigmas", type=float, nargs="+", default=[0.0, 1.0, 8.0])
     ap.add_argument("--variants-only", action="store_true", help="skip the main table")
     ap.add_argument("--probe", action="store_true", help="also the one-linear-solve regressor probe")
+    ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
+    ap.add_argument("--high-noise", action="store_true",
+                    help="also the table for depth_regressors=True, eiv=True, smooth_noise=True")
     args = ap.parse_args()
     draws = args.draws or (3 if args.quick else 6)
-    sigmas = (0.0, 1.0, 4.0) if args.quick else SIGMAS
+    sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
     ss = 2 if args.quick else 3
     for faces in args.faces:
         grid, L0, L1, M = setup(faces, args.distance, ss, 64)
         label = "six faces" if faces == "all" else f"one face {faces}"
         if not args.variants_only:
-            noise_table(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, sigmas, draws, MotionOptions(),
-                        not args.no_predict)
+            noise_table(f"{label}, D = {args.distance:g} m, default options", grid, L0, L1, M, sigmas, draws,
+                        MotionOptions(), not args.no_predict)
+            if args.high_noise:
+                noise_table(f"{label}, D = {args.distance:g} m, depth_regressors, eiv, smooth_noise", grid, L0, L1, M,
+                            sigmas, draws, HIGH_NOISE, not args.no_predict)
         if args.probe:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, (0.0, 1.0, 8.0), draws)
         if args.variants or args.variants_only:

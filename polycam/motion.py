@@ -109,6 +109,7 @@ a light-field store (anything with ``grid``, ``timestamps_ns``, ``frame(i)``,
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -118,8 +119,8 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .derivatives import (FILTERS, Derivatives, correlate_axis, filter_taps, min_filter_axis, parallel_chunks,
-                          uv_view, xy_view)
+from .derivatives import (FILTERS, Derivatives, FilterPair, correlate_axis, filter_taps, min_filter_axis,
+                          parallel_chunks, uv_view, xy_view)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid
@@ -187,8 +188,39 @@ class MotionOptions:
     smooth_radius: int = 2
     """Half-width in (u, v) samples of the neighbourhood searched for discontinuities."""
     eiv: bool = False
-    """Take each step with ``AᵀWA − E`` (E = expected sensor-noise energy in the derivatives):
-    less bias under heavy noise where t and ω couple, but measured more scatter; off."""
+    """Take each step with ``AᵀWA − E`` (E = expected sensor-noise energy in the derivatives,
+    errors in variables): with noisy derivatives AᵀWA alone under-steps, so the iteration
+    stops short of the answer (benchmarks/bench_noise.py: ~3x less translation error at 16
+    grey levels, unchanged noise-free). Off: the covariance then under-predicts the scatter
+    of repeated estimates by up to ~2x where t and ω couple (docs/motion.md)."""
+    smooth_noise: bool = False
+    """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
+    reaches (its 99th percentile for the noise variance estimated from the frames), so that
+    noise is not read as discontinuities (:func:`discontinuity_weight`). Helps with ``eiv``
+    at 16-32 grey levels; off because at 1-3 grey levels it lets more model error in
+    (bench_motion.py's 8-bit rows: translation error 3.8% → 4.4% at 3 grey levels)."""
+    depth_regressors: bool = False
+    """Replace the positional derivatives by ``ρ̂ L_u, ρ̂ L_v`` (paper Eq. 6, Lambertian:
+    ``L_x = ρ L_u``), ρ̂ = Σ (L_x L_u + L_y L_v) / Σ (L_u² + L_v²) pooled over a window (fs5
+    twice in (u, v), fs3 once across the views), except where one ρ does not explain the
+    window (its residual energy above 3x the expected noise of L_x, L_y: occlusions, and
+    noise-free data, where that noise is ~0): less noise in the regressors of the
+    translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
+    levels, 29.5 → 4.6 at 16)."""
+    whiten: str = "off"
+    """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
+    inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
+    the plain solve has converged, then re-solves; ``auto`` does so only when the whitened
+    residual is within ``whiten_ratio`` of the expected sensor noise (noise dominates the
+    misfit; whitening amplifies the high frequencies where aliasing lives); ``off`` never."""
+    whiten_floor: float = 0.3
+    """Ridge added to each axis' K_a K_aᵀ before whitening (its largest eigenvalue is about 1):
+    caps the amplification of the frequencies the prefilter removes (0: exact GLS, whose
+    whitened misfit on the noise-free sphere scene is ~10⁵ times the noise: aliasing and the
+    weights' edges; 0.3 measured best of 0.03, 0.1, 0.3 at 16-32 grey levels)."""
+    whiten_ratio: float = 2.0
+    """``whiten="auto"``: largest whitened residual variance, in units of the expected
+    whitened noise variance 2 σ², at which the whitened re-solve is taken."""
     symmetric: bool = False
     """Warp both frames half-way (else frame 2 by the whole estimate; measured equally
     accurate with cubic interpolation, and half the warping cost)."""
@@ -210,6 +242,8 @@ class MotionOptions:
             raise ValueError(f"robust must be tukey, huber or none, got {self.robust!r}")
         if self.uv_taps not in (2, 4, 6):
             raise ValueError(f"uv_taps must be 2, 4 or 6, got {self.uv_taps}")
+        if self.whiten not in ("auto", "on", "off"):
+            raise ValueError(f"whiten must be auto, on or off, got {self.whiten!r}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
 
@@ -1432,23 +1466,43 @@ def _discontinuity_energy(L0, L1, W0, has_w, r, out):
                     orow[u] = m
 
 
+_NOISE_ENERGY_Q = 0.99
+"""Quantile of the discontinuity energy of pure noise subtracted by the noise-aware weight."""
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_energy_quantile(radius: int) -> float:
+    """The ``_NOISE_ENERGY_Q`` quantile of the discontinuity energy e (:func:`_discontinuity_energy`,
+    window ±radius) of white noise of unit variance: e of noise of variance s² is s times this.
+    Computed once per radius from a seeded 128 x 128 noise image."""
+    n = np.random.default_rng(1234).standard_normal((1, 1, 1, 128, 128)).astype(np.float32)
+    e = np.empty_like(n)
+    _discontinuity_energy(n, n, n, False, radius, e)
+    return float(np.quantile(e, _NOISE_ENERGY_Q))
+
+
 def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
-                          samples: int = 200_000) -> np.ndarray:
+                          samples: int = 200_000, noise_var: float = 0.0) -> np.ndarray:
     """:func:`discontinuity_weight` of S = (L0 + L1) / 2 (zero where W0 <= 0); the median
-    from about ``samples`` values in whole rows."""
+    from about ``samples`` values in whole rows. ``noise_var``: sensor-noise variance of S
+    per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e)."""
     e = np.empty_like(L0)
     _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e)
     rows = e.reshape(-1, e.shape[-1])
     m = float(np.median(rows[:: max(1, e.size // samples)]))
     if not m > 0:
         return np.ones_like(e)
+    if opts.smooth_noise and noise_var > 0:
+        # noise-aware: only energy above what noise alone reaches counts as a discontinuity
+        e -= np.float32(_noise_energy_quantile(max(int(opts.smooth_radius), 0)) * math.sqrt(noise_var))
+        np.maximum(e, np.float32(0.0), out=e)
     e *= np.float32(1.0 / (opts.smooth_c * m))
     np.multiply(e, e, out=e)
     e += np.float32(1.0)
     return np.reciprocal(e, out=e)
 
 
-def discontinuity_weight(S: np.ndarray, opts: MotionOptions) -> np.ndarray:
+def discontinuity_weight(S: np.ndarray, opts: MotionOptions, noise_var: float = 0.0) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) weights in (0, 1] of a light field S of the same dims: small near
     intensity discontinuities.
 
@@ -1456,14 +1510,250 @@ def discontinuity_weight(S: np.ndarray, opts: MotionOptions) -> np.ndarray:
     w = 1 / (1 + (e / (smooth_c · median e))²). The solver applies it to the mean of a
     frame pair; it depends on the data only (not on the motion), so it is the same in
     every iteration of a level. Public so the design study predicts with the same weights.
+    With ``opts.smooth_noise`` and ``noise_var`` > 0 (the sensor-noise variance of S per
+    sample), e is first reduced by the level pure noise of that variance stays below with
+    99% probability (clipped at 0), so noise alone leaves the weights at 1.
     """
     S = np.ascontiguousarray(S, dtype=np.float32)
-    return _discontinuity_weight(S, S, None, opts)
+    return _discontinuity_weight(S, S, None, opts, noise_var=noise_var)
 
 
 def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
-    """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data)."""
-    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts)
+    """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data); the
+    mean of two frames has half the per-frame noise variance (:func:`_noise_variance`)."""
+    var_S = 0.5 * _noise_variance(lev) if opts.smooth_noise else 0.0
+    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts, noise_var=var_S)
+
+
+# ============================================================================ Eq. 6 regressors
+
+
+_DEPTH_KEEP = 3.0
+"""Depth-regularised regressors: keep the measured L_x, L_y where the window's residual energy
+exceeds this many times their expected noise variance (one depth does not explain it)."""
+
+
+def _depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
+    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims) and one depth
+    explains the window; returns (4,) the noise variances ``var`` of (L_x, L_y, L_u, L_v)
+    updated for the replaced rays (ρ̂² var_u there, a ray-count mix)."""
+    Lx, Ly, Lu, Lv, _ = der
+    m = valid.astype(np.float32)
+    t5 = FILTERS["fs5"].prefilter.astype(np.float32)
+    t3 = FILTERS["fs3"].prefilter.astype(np.float32)
+
+    def win(a):
+        out = np.ascontiguousarray(a * m, dtype=np.float32)
+        for _ in range(2):
+            out = correlate_axis(correlate_axis(out, t5, 3), t5, 4)
+        return correlate_axis(correlate_axis(out, t3, 1), t3, 2)
+
+    gx = np.where(valid, Lx, 0.0).astype(np.float32)
+    gy = np.where(valid, Ly, 0.0).astype(np.float32)
+    gu = np.where(valid, Lu, 0.0).astype(np.float32)
+    gv = np.where(valid, Lv, 0.0).astype(np.float32)
+    suu = win(gu * gu + gv * gv)
+    sxu = win(gx * gu + gy * gv)
+    sxx = win(gx * gx + gy * gy)
+    rho = np.where(suu > 0, sxu / np.maximum(suu, np.float32(1e-30)), np.float32(0.0)).astype(np.float32)
+    n = win(np.ones_like(m))
+    res = sxx - rho * sxu
+    use = valid & (res <= _DEPTH_KEEP * (var[0] + var[1]) * n)
+    Lx[use] = rho[use] * gu[use]
+    Ly[use] = rho[use] * gv[use]
+    out = np.asarray(var, float).copy()
+    nv = int(valid.sum())
+    if nv and use.any():
+        frac = float(use.sum()) / nv
+        r2 = float(np.mean(rho[use].astype(np.float64) ** 2))
+        out[0] = (1.0 - frac) * var[0] + frac * r2 * var[2]
+        out[1] = (1.0 - frac) * var[1] + frac * r2 * var[3]
+    return out
+
+
+# ============================================================================ whitening (GLS)
+
+
+@functools.lru_cache(maxsize=32)
+def _whitening_factor(taps: tuple, n: int, floor: float = 0.0) -> np.ndarray:
+    """(n, n) lower Cholesky factor C of K Kᵀ + floor I, K the (n, n + 2r) Toeplitz correlation
+    matrix of the prefilter ``taps`` (2r+1,) restricted to n interior outputs: K Kᵀ is the noise
+    covariance (per unit variance) that the prefilter gives n neighbouring samples along one
+    axis; ``floor`` caps the gain of C⁻¹ at the frequencies the prefilter removes. K Kᵀ is
+    banded Toeplitz (the taps' autocorrelation), so C is banded with bandwidth 2r."""
+    t = np.asarray(taps, float)
+    r = len(t) // 2
+    ac = np.array([float(np.dot(t[:len(t) - d], t[d:])) for d in range(2 * r + 1)])
+    KK = np.zeros((n, n))
+    for d in range(min(2 * r + 1, n)):
+        idx = np.arange(n - d)
+        KK[idx, idx + d] = ac[d]
+        KK[idx + d, idx] = ac[d]
+    return np.linalg.cholesky(KK + floor * np.eye(n))
+
+
+@numba.njit(parallel=True, cache=True)
+def _forward_axis(X, C, bw):
+    """X (A, n, B) ← C⁻¹ X along axis 1, in place; C (n, n) lower triangular with bandwidth
+    bw (banded forward substitution)."""
+    A, n, B = X.shape
+    for a in numba.prange(A):
+        for j in range(n):
+            inv = 1.0 / C[j, j]
+            for k in range(max(0, j - bw), j):
+                c = C[j, k]
+                for b in range(B):
+                    X[a, j, b] -= c * X[a, k, b]
+            for b in range(B):
+                X[a, j, b] *= inv
+
+
+def _whiten_rows(Z: np.ndarray, factors: list) -> None:
+    """Z (n_y, n_x, n_v, n_u, K) ← (⊗ₐ C_a)⁻¹ Z along axes 0..3 in place; ``factors``: per axis
+    (C_a, bandwidth) or None (that axis is not filtered: identity)."""
+    sh = Z.shape
+    for ax, fac in enumerate(factors):
+        if fac is None or sh[ax] <= 1:
+            continue
+        C, bw = fac
+        _forward_axis(Z.reshape(int(np.prod(sh[:ax], dtype=np.int64)), sh[ax], -1), C, bw)
+
+
+@numba.njit(parallel=True, cache=True)
+def _weighted_rows(Lx, Ly, Lu, Lv, Lt, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, Z, Wr):
+    """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7) and
+    the weights w into Wr (n_y, n_x, n_v, n_u): c the Eq. 5 coefficients (face frame), b = −L_t,
+    w = base weight × the IRLS weight (``kind`` 1 Tukey, 2 Huber, 0 none) of the residual at
+    p (face frame) normalised by 1 / inv_sc, as :func:`_accumulate_view` weights them."""
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    nv = box[5] - box[4]
+    nu = box[7] - box[6]
+    inv_f = 1.0 / f
+    for idx in numba.prange(ny * nx):
+        jj = idx // nx
+        ii = idx - jj * nx
+        j = box[0] + jj
+        i = box[2] + ii
+        x = xs[i]
+        y = ys[j]
+        for qv in range(nv):
+            jv = box[4] + qv
+            v = vs[jv]
+            for qu in range(nu):
+                iu = box[6] + qu
+                z = Z[jj, ii, qv, qu]
+                wi = np.float64(base[fc, j, i, jv, iu])
+                g0 = np.float64(Lx[fc, j, i, jv, iu])
+                g1 = np.float64(Ly[fc, j, i, jv, iu])
+                g2 = np.float64(Lu[fc, j, i, jv, iu])
+                g3 = np.float64(Lv[fc, j, i, jv, iu])
+                b = -np.float64(Lt[fc, j, i, jv, iu])
+                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, us[iu], v, z_pi, f, inv_f)
+                if kind != 0 and wi > 0.0:
+                    r = g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5] - b
+                    zz = abs(r) * inv_sc
+                    if kind == 1:
+                        wi *= (1.0 - zz * zz) ** 2 if zz < 1.0 else 0.0
+                    else:
+                        wi *= 1.0 if zz <= 1.0 else 1.0 / zz
+                if not wi > 0.0:
+                    wi = 0.0
+                Wr[jj, ii, qv, qu] = wi
+                sw = math.sqrt(wi)
+                z[0] = sw * g0
+                z[1] = sw * g1
+                z[2] = sw * c2
+                z[3] = sw * c3
+                z[4] = sw * c4
+                z[5] = sw * c5
+                z[6] = sw * b
+
+
+@numba.njit(parallel=True, cache=True)
+def _whitened_tile_sums(Z, Wr, v0, u0, tile, acc):
+    """acc (n_tv, n_tu, 29) ← per (u, v) tile (of the face's full (v, u) index, tile samples) the
+    sums of the whitened rows Z (n_y, n_x, n_v, n_u, 7) whose box starts at (v0, u0): the 21
+    entries of Σ z_c z_cᵀ, Σ z_c z_b (6), Σ z_b², and Σ w of the weights Wr."""
+    ny, nx, nv, nu, _ = Z.shape
+    n_tv = acc.shape[0]
+    for tv in numba.prange(n_tv):
+        acc[tv, :, :] = 0.0
+        lo = max(tv * tile - v0, 0)
+        hi = min((tv + 1) * tile - v0, nv)
+        for jj in range(ny):
+            for ii in range(nx):
+                for qv in range(lo, hi):
+                    for qu in range(nu):
+                        z = Z[jj, ii, qv, qu]
+                        a = acc[tv, (u0 + qu) // tile]
+                        k = 0
+                        for m in range(6):
+                            zm = z[m]
+                            for q in range(m, 6):
+                                a[k] += zm * z[q]
+                                k += 1
+                        for m in range(6):
+                            a[21 + m] += z[m] * z[6]
+                        a[27] += z[6] * z[6]
+                        a[28] += Wr[jj, ii, qv, qu]
+
+
+def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: float = 0.0) -> list:
+    """Per box axis (y, x, v, u): (C_a, bandwidth) of the axis' prefilter on the box's length,
+    or None where the axis is not filtered (radius 0)."""
+    out = []
+    for ax, name in enumerate(("y", "x", "v", "u")):
+        n = int(box[2 * ax + 1] - box[2 * ax])
+        if radius[name] == 0 or n <= 0:
+            out.append(None)
+            continue
+        taps = tuple(float(t) for t in filters[name].prefilter)
+        out.append((_whitening_factor(taps, n, floor), 2 * radius[name]))
+    return out
+
+
+def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs: np.ndarray,
+                   P: np.ndarray, kind: int, inv_sc: float, box: np.ndarray, factors: list,
+                   tile: int) -> np.ndarray:
+    """Tile sums (F, 1, n_tiles, 29) as :func:`_accumulate` returns them, but of the *whitened*
+    rows: per face, z = (⊗ₐ C_a)⁻¹ sqrt(w) (c, b) over the box (C_a C_aᵀ = K_a K_aᵀ, the noise
+    covariance of the prefiltered temporal difference up to 2σ²), so that Σ z_c z_cᵀ =
+    Aᵀ W^½ Σ⁻¹ W^½ A: generalised least squares. der: (Lx, Ly, Lu, Lv, Lt) (F, Ny, Nx, Nv, Nu);
+    base: base weights of the same dims; P (F, 6): p in each face's frame (IRLS residuals)."""
+    F, Ny, Nx, Nv, Nu = base.shape
+    n = [int(box[2 * a + 1] - box[2 * a]) for a in range(4)]
+    nt = (-(-Nv // tile), -(-Nu // tile))
+    acc = np.zeros((F, 1, nt[0] * nt[1], _NACC))
+    if min(n) <= 0:
+        return acc
+    Z = np.empty(tuple(n) + (7,))
+    Wr = np.empty(tuple(n))
+    xs, ys, us, vs = vals
+    for k in range(F):
+        _weighted_rows(*der, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
+                       np.ascontiguousarray(P[k], dtype=np.float64), kind, float(inv_sc), box, Z, Wr)
+        _whiten_rows(Z, factors)
+        a = np.empty(nt + (_NACC,))
+        _whitened_tile_sums(Z, Wr, int(box[4]), int(box[6]), int(tile), a)
+        acc[k, 0] = a.reshape(-1, _NACC)
+    return acc
+
+
+def _whitened_noise_gain(fp: FilterPair, n: int, floor: float = 0.0, derivative: bool = True) -> float:
+    """Mean over n interior samples of diag(C⁻¹ D Dᵀ C⁻ᵀ), D, C the derivative's (or with
+    ``derivative=False`` the prefilter's) Toeplitz matrix and the whitening factor
+    (:func:`_whitening_factor`) of the pair ``fp``: the whitened variance of the filtered unit
+    white noise along that axis (per sample step; Σ d² unwhitened; 1 for the prefilter
+    without floor)."""
+    r = fp.radius
+    C = _whitening_factor(tuple(float(t) for t in fp.prefilter), n, floor)
+    D = np.zeros((n, n + 2 * r))
+    for i in range(n):
+        D[i, i:i + 2 * r + 1] = fp.derivative if derivative else fp.prefilter
+    X = np.linalg.solve(C, D)
+    return float(np.sum(X * X) / n)
 
 
 # ============================================================================ solver rules (public)
@@ -1623,6 +1913,8 @@ class _Solver:
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
         self.st = _work_array("st", (nviews, _NSTAT), np.float64)
         self.n_base = 0
+        self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
+        self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
 
     # --------------------------------------------------------------- passes
 
@@ -1665,9 +1957,26 @@ class _Solver:
                         Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
                         np.zeros((self.shape[0], 6)), self.tile, self.box, self.h, self.var, final,
                         self.acc, self.st, parallel_chunks())
+        if opts.depth_regressors:
+            # Eq. 6 regressors, then the sums again (the fused kernel summed the measured ones)
+            var = self.var if self.var is not None else self.derivative_noise()
+            b = self.box
+            valid = np.zeros(self.shape, bool)
+            valid[:, b[0]:b[1], b[2]:b[3], b[4]:b[5], b[6]:b[7]] = True
+            valid &= self.base > 0
+            self.var = _depth_regularise(self.der, valid, self._var_measured(var))
+            _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
+                         np.zeros((self.shape[0], 6)), 0, 0.0, self.tile, self.box, self.h, self.var, final,
+                         self.acc, self.st, parallel_chunks())
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
+
+    def _var_measured(self, var: np.ndarray) -> np.ndarray:
+        """The derivative noise of the measured regressors (kept across re-preparations)."""
+        if getattr(self, "_var0", None) is None:
+            self._var0 = np.asarray(var, float).copy()
+        return self._var0
 
     def reweighted(self, p_rig: np.ndarray, final: bool):
         """Normal sums with IRLS weights of the residuals at p_rig (robust scale self.scale)."""
@@ -1713,6 +2022,66 @@ class _Solver:
             var.append(var_S * float(np.sum(self.filters[k].derivative ** 2)) * others / step[k] ** 2)
         return np.array(var)
 
+    # --------------------------------------------------------------- whitening
+
+    def whitened_sums(self, p_rig: np.ndarray | None) -> tuple:
+        """:func:`_reduce` of the whitened rows (:func:`_whitened_sums`) with the current
+        derivatives and base weights, IRLS weights of the residuals at p_rig (None: unit)."""
+        kind = self.kind if p_rig is not None else 0
+        P = self._face_params(p_rig) if p_rig is not None else np.zeros((self.shape[0], 6))
+        inv_sc = 1.0 / (self.scale * self.opts.robust_c) if kind else 0.0
+        factors = _whitening_factors(self.filters, self.radius, self.box, self.opts.whiten_floor)
+        acc = _whitened_sums(tuple(self.der), self.base, self.vals, self.zs, self.fs, P, kind, inv_sc,
+                             self.box, factors, self.tile)
+        return _reduce(acc, self.B)
+
+    def decide_whiten(self) -> bool:
+        """Switch the GLS re-solves on (``whiten="on"``, or ``auto`` when the whitened misfit at
+        the last solve is within ``whiten_ratio`` of the expected whitened noise 2σ²); from then
+        on the noise energy E is that of the whitened metric."""
+        opts = self.opts
+        var_n = _noise_variance(self.lev)
+        on = opts.whiten == "on"
+        if opts.whiten == "auto" and var_n > 0 and self.n_base > 0:
+            N, rhs, sbb, sw, _ = self.whitened_sums(self.p_w)
+            p = _solve_normal(N, rhs, opts.rcond)["p"]
+            s2 = max(sbb - 2.0 * float(p @ rhs) + float(p @ N @ p), 0.0) / max(sw - 6.0, 1.0)
+            noise = 2.0 * var_n * math.prod(self._prefilter_gains().values())
+            on = s2 <= opts.whiten_ratio * noise
+            log.debug("whiten: whitened misfit %.3g = %.2f x the expected noise %.3g: %s",
+                      s2, s2 / noise, noise, "on" if on else "off")
+        self.whitened = on
+        if on:
+            self.var = self.whitened_derivative_noise(var_n)
+        return on
+
+    def whitened_derivative_noise(self, var_n: float) -> np.ndarray:
+        """(4,) :meth:`derivative_noise` in the whitened metric: along the differentiated
+        axis the whitened gain of the derivative taps (:func:`_whitened_noise_gain`), along
+        the others 1 (whitening undoes their prefilters)."""
+        var_S = 0.5 * var_n
+        step = {"x": self.g.x.step, "y": self.g.y.step, "u": self.g.u.step, "v": self.g.v.step}
+        gains = self._prefilter_gains()
+        var = []
+        for k in ("x", "y", "u", "v"):
+            if self.radius[k] == 0 or not step[k] > 0 or not var_S > 0 or self._box_len(k) <= 0:
+                var.append(0.0)
+                continue
+            others = math.prod(gains[o] for o in "xyuv" if o != k)
+            var.append(var_S * _whitened_noise_gain(self.filters[k], self._box_len(k), self.opts.whiten_floor)
+                       * others / step[k] ** 2)
+        return np.array(var)
+
+    def _box_len(self, axis: str) -> int:
+        a = {"y": 0, "x": 1, "v": 2, "u": 3}[axis]
+        return int(self.box[2 * a + 1] - self.box[2 * a])
+
+    def _prefilter_gains(self) -> dict:
+        """Axis → whitened variance of prefiltered unit white noise (1 without whiten_floor;
+        1 on axes that are not filtered)."""
+        return {k: (_whitened_noise_gain(self.filters[k], self._box_len(k), self.opts.whiten_floor, False)
+                    if self.radius[k] > 0 and self._box_len(k) > 0 else 1.0) for k in "xyuv"}
+
     # --------------------------------------------------------------- solve
 
     def solve(self, M: np.ndarray) -> dict:
@@ -1724,12 +2093,18 @@ class _Solver:
         steps = opts.irls_steps if self.kind else 0
         (N, rhs, sbb, sw, tiles), st = self.prepare(M, final=steps == 0)
         sol = _solve_normal(N, rhs, opts.rcond)
+        self.p_w = None
         for i in range(steps):
             mad = max(self.mad(sol["p"]), _SCALE_FLOOR)
             # the scale may grow but never shrinks within a level: weights do not
             # tighten as the warp converges
             self.scale = mad if self.scale is None else max(self.scale, mad)
+            self.p_w = sol["p"]
             (N, rhs, sbb, sw, tiles), st = self.reweighted(sol["p"], final=i == steps - 1)
+            sol = _solve_normal(N, rhs, opts.rcond)
+        if self.whitened:
+            # generalised least squares with the same weights (the kernel's sums give counts and E)
+            N, rhs, sbb, sw, tiles = self.whitened_sums(self.p_w)
             sol = _solve_normal(N, rhs, opts.rcond)
         stats = st.sum(axis=1)                                  # (F, 25)
         E = np.zeros((6, 6))
@@ -1862,7 +2237,8 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         solver = None                             # free the previous level's buffers first
         solver = _Solver(levels[li], opts, filters)
         finest = li == 0
-        for it in range(opts.iterations):
+        whiten = finest and opts.whiten != "off"
+        for it in range(opts.iterations + (_WHITEN_ITERATIONS if whiten else 0)):
             sol = solver.solve(M)
             n_solves += 1
             p = sol["p"]
@@ -1878,13 +2254,19 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
                 # levels always take two steps.
                 C = diag[1][0]
                 chi2 = float(p @ np.linalg.pinv(C) @ p) if np.all(np.isfinite(C)) else math.inf
-                if chi2 < _CHI2_STOP or np.linalg.norm(p[:3]) + np.linalg.norm(p[3:]) < opts.tol:
+                done = chi2 < _CHI2_STOP or np.linalg.norm(p[:3]) + np.linalg.norm(p[3:]) < opts.tol
+                if whiten and solver.whitened is None and (done or it >= opts.iterations - 1) \
+                        and solver.decide_whiten():
+                    continue                      # converged: now the whitened (GLS) re-solves
+                if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
     return _result(index, M, diag, opts, n_solves)
 
 
 _CHI2_STOP = 12.6
 """95% quantile of χ² with 6 degrees of freedom: an increment below it is noise."""
+_WHITEN_ITERATIONS = 3
+"""Most whitened (GLS) re-solves after the plain solve converged at the finest level."""
 
 
 def _increment_covariance(sol: dict) -> tuple[np.ndarray, np.ndarray, float]:

@@ -21,7 +21,8 @@ from polycam.trajectory import Trajectory
 
 from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
-                        MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL)
+                        MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
+                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_WHITEN_GLS_RTOL, MOTION_WHITEN_VS_PLAIN)
 
 ROOM_RADIUS = 6.0
 
@@ -453,8 +454,9 @@ def test_two_stage_warp_matches_reference(rng, faces, views, directions, taps):
 
 @pytest.mark.parametrize("options", [MotionOptions(symmetric=True), MotionOptions(pyramid_xy=True, levels=2),
                                      MotionOptions(uv_taps=4, robust="huber", robust_c=1.345),
-                                     MotionOptions(filters="fs5", smooth_c=0.0, eiv=True)],
-                         ids=["symmetric", "pyramid-xy", "cubic-huber", "fs5-eiv"])
+                                     MotionOptions(filters="fs5", smooth_c=0.0, eiv=True),
+                                     MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True)],
+                         ids=["symmetric", "pyramid-xy", "cubic-huber", "fs5-eiv", "depth-regressors"])
 def test_solver_options(scene, options):
     grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
     rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
@@ -469,7 +471,121 @@ def test_bad_options():
         MotionOptions(uv_taps=3)
     with pytest.raises(ValueError, match="robust"):
         MotionOptions(robust="cauchy")
+    with pytest.raises(ValueError, match="whiten"):
+        MotionOptions(whiten="yes")
     grid = make_grid(("+z",))
     L = np.zeros(grid.shape, np.float32)
     with pytest.raises(InputError, match="filter"):
         estimate_motion(L, L, grid, options=MotionOptions(filters="sobel"))
+
+
+def test_whitened_sums_match_dense_gls(scene, rng):
+    """The GLS path (rows whitened by banded Cholesky factors per axis) gives the normal sums
+    Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box."""
+    from polycam.derivatives import FILTERS
+    from polycam.motion import _face_B, _reduce, _whitened_sums, _whitening_factors
+
+    grid = make_grid(("+z", "-x"), views=5, directions=16)
+    M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
+    names = MotionOptions().filters
+    der = plenoptic_derivatives(scene.render(grid, np.eye(4)), scene.render(grid, M), grid, filters=names)
+    w = rng.random(grid.shape).astype(np.float32)
+    filters = {k: FILTERS[v] for k, v in names.items()}
+    r = {k: fp.radius for k, fp in filters.items()}
+    F, Ny, Nx, Nv, Nu = grid.shape
+    box = np.array([r["y"], Ny - r["y"], r["x"], Nx - r["x"], r["v"], Nv - r["v"], r["u"], Nu - r["u"]], np.int64)
+    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    zs = np.array([face.z_pi for face in grid.faces])
+    fs = np.array([face.f for face in grid.faces])
+    acc = _whitened_sums((der.Lx, der.Ly, der.Lu, der.Lv, der.Lt), w, vals, zs, fs, np.zeros((F, 6)), 0, 0.0,
+                         box, _whitening_factors(filters, r, box), 8)
+    N, rhs, sbb, _, _ = _reduce(acc, [_face_B(face) for face in grid.faces])
+
+    S = np.ones((1, 1))
+    for a, n in zip("yxvu", (Ny, Nx, Nv, Nu)):
+        taps, ra = filters[a].prefilter, r[a]
+        K = np.zeros((n - 2 * ra, n))
+        for i in range(n - 2 * ra):
+            K[i, i:i + 2 * ra + 1] = taps
+        S = np.kron(S, K @ K.T)
+    Si = np.linalg.inv(S)
+    sl = tuple(slice(int(box[2 * a]), int(box[2 * a + 1])) for a in range(4))
+    N_ref, rhs_ref, sbb_ref = np.zeros((6, 6)), np.zeros(6), 0.0
+    for k in range(F):
+        sq = np.sqrt(w[k][sl].reshape(-1).astype(np.float64))
+        A = sq[:, None] * ray_motion_coefficients(der, grid, k)[sl].reshape(-1, 6)
+        b = -sq * der.Lt[k][sl].reshape(-1)
+        N_ref += A.T @ Si @ A
+        rhs_ref += A.T @ Si @ b
+        sbb_ref += b @ Si @ b
+    tol = MOTION_WHITEN_GLS_RTOL
+    assert np.allclose(N, N_ref, rtol=tol, atol=tol * np.abs(N_ref).max())
+    assert np.allclose(rhs, rhs_ref, rtol=tol, atol=tol * np.abs(rhs_ref).max())
+    assert sbb == pytest.approx(sbb_ref, rel=tol)
+
+
+def test_noise_aware_discontinuity_weight(rng):
+    """Pure noise keeps ~all rays (the noise-unaware weight discards most); a step edge in the
+    same noise is still down-weighted."""
+    from polycam.motion import discontinuity_weight
+
+    sigma = 0.02
+    S = (0.5 + rng.normal(0.0, sigma, (1, 3, 3, 48, 48))).astype(np.float32)
+    opts = MotionOptions(smooth_noise=True)
+    keep = np.mean(discontinuity_weight(S, opts, noise_var=sigma ** 2) > 0.5)
+    assert keep >= MOTION_NOISE_WEIGHT_KEEP
+    assert np.mean(discontinuity_weight(S, opts) > 0.5) < 0.5           # noise read as discontinuities
+    assert np.mean(discontinuity_weight(S, MotionOptions(smooth_noise=False), noise_var=sigma ** 2) > 0.5) < 0.5
+    S[..., 24:] += 0.5                                                    # a step along u
+    w = discontinuity_weight(S, opts, noise_var=sigma ** 2)
+    assert np.all(w[..., 23:25] < 0.5)
+    assert np.mean(w[..., :20] > 0.5) >= MOTION_NOISE_WEIGHT_KEEP
+
+
+def test_whitening_auto_and_on(scene):
+    """``whiten="auto"`` keeps the plain solution on noise-free data (the whitened misfit is
+    model error, not noise); under noise it takes the GLS re-solves, as ``on`` does, and the
+    estimate stays as accurate as the plain one."""
+    grid = make_grid(ALL, views=7, directions=16, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    off = estimate_motion(L0, L1, grid, options=MotionOptions(whiten="off"))
+    auto = estimate_motion(L0, L1, grid, options=MotionOptions(whiten="auto"))
+    assert np.array_equal(off.T_prev_next, auto.T_prev_next) and off.iterations == auto.iterations
+    rng = np.random.default_rng(7)
+    n0 = (L0 + rng.normal(0, 0.005, L0.shape)).astype(np.float32)
+    n1 = (L1 + rng.normal(0, 0.005, L1.shape)).astype(np.float32)
+    on = estimate_motion(n0, n1, grid, options=MotionOptions(whiten="on", whiten_floor=0.1))
+    auto = estimate_motion(n0, n1, grid, options=MotionOptions(whiten="auto", whiten_floor=0.1))
+    off = estimate_motion(n0, n1, grid, options=MotionOptions(whiten="off", whiten_floor=0.1))
+    assert on and np.array_equal(on.T_prev_next, auto.T_prev_next)
+    assert on.iterations > off.iterations
+    err = [np.linalg.norm(rt_from_T(r.T_prev_next) - rt) for r in (on, off)]
+    assert err[0] < MOTION_WHITEN_VS_PLAIN * err[1], err
+
+
+def test_depth_regressors_reduce_positional_noise(scene):
+    """Eq. 6 regressors ρ̂ L_u, ρ̂ L_v (ρ̂ pooled over a window) are closer to the noise-free
+    L_x, L_y than the measured noisy ones (the scene is Lambertian: one depth per ray)."""
+    from polycam.motion import _depth_regularise
+
+    grid = make_grid(("+z",), views=7, directions=32, spacing=0.01)
+    M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
+    names = MotionOptions().filters
+    clean = plenoptic_derivatives(L0, L1, grid, filters=names)
+    rng = np.random.default_rng(3)
+    sigma = 0.02
+    noisy = plenoptic_derivatives((L0 + rng.normal(0, sigma, L0.shape)).astype(np.float32),
+                                  (L1 + rng.normal(0, sigma, L1.shape)).astype(np.float32), grid, filters=names)
+    noise = plenoptic_derivatives(rng.normal(0, sigma, L0.shape).astype(np.float32),
+                                  rng.normal(0, sigma, L0.shape).astype(np.float32), grid, filters=names)
+    valid = np.broadcast_to(noisy.valid, L0.shape)
+    # the expected noise variances of the regressors (of the frames' mean: σ²/2 per sample)
+    var = np.array([0.5 * np.mean(getattr(noise, a)[valid].astype(np.float64) ** 2) for a in ("Lx", "Ly", "Lu", "Lv")])
+    der = [np.array(a) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
+    var_after = _depth_regularise(der, np.ascontiguousarray(valid), var)
+    err_before = np.sqrt(np.mean((noisy.Lx - clean.Lx)[valid] ** 2))
+    err_after = np.sqrt(np.mean((der[0] - clean.Lx)[valid] ** 2))
+    assert err_after < MOTION_DEPTH_REGRESSOR_GAIN * err_before, (err_after, err_before)
+    assert var_after[0] < var[0] and var_after[1] < var[1]
