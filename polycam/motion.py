@@ -323,6 +323,14 @@ def _lagrange(a, n, w):
         w[q] = acc
 
 
+@numba.njit(cache=True, inline="always")
+def _face_direction(R, u, v, f):
+    """``R (u, v, f)``: a face sample's direction (u, v, f) moved by the rotation R (3, 3)."""
+    return (R[0, 0] * u + R[0, 1] * v + R[0, 2] * f,
+            R[1, 0] * u + R[1, 1] * v + R[1, 2] * f,
+            R[2, 0] * u + R[2, 1] * v + R[2, 2] * f)
+
+
 @numba.njit(parallel=True, cache=True)
 def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
     """Resample ``src`` (K, Ny, Nx, Nv, Nu) of one face at the grid rays moved by (R, tr).
@@ -362,9 +370,7 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
                 v = vs[jv]
                 for iu in range(Nu):
                     u = us[iu]
-                    dx = R[0, 0] * u + R[0, 1] * v + R[0, 2] * f
-                    dy = R[1, 0] * u + R[1, 1] * v + R[1, 2] * f
-                    dz = R[2, 0] * u + R[2, 1] * v + R[2, 2] * f
+                    dx, dy, dz = _face_direction(R, u, v, f)
                     good = dz > 1e-9 * f
                     fx = fy = fu = fv = 0.0
                     if good:
@@ -1016,9 +1022,7 @@ def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy):
         v = vs[jv]
         for ju in range(Nu):
             u = us[ju]
-            d0 = R[0, 0] * u + R[0, 1] * v + R[0, 2] * f
-            d1 = R[1, 0] * u + R[1, 1] * v + R[1, 2] * f
-            d2 = R[2, 0] * u + R[2, 1] * v + R[2, 2] * f
+            d0, d1, d2 = _face_direction(R, u, v, f)
             good = d2 > 1e-9 * f
             dz = d2 if good else 1.0
             fv = (f * d1 / dz - vs[0]) / hv
