@@ -135,6 +135,7 @@ def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike,
     database before mapping (with their ``cam_from_rig`` given, the mapper registers whole
     rig frames and refines ``sensor_from_rig`` in its bundle adjustments)."""
     pycolmap = _pycolmap()
+    pycolmap.set_random_seed(int(seed))          # before matching too: its geometric verification is RANSAC
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     db = workdir / "database.db"
@@ -150,7 +151,7 @@ def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike,
                               camera_mode=getattr(pycolmap.CameraMode, camera_mode), reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = int(num_threads)
+    matching.num_threads = 1        # the verification's RANSAC draws depend on which thread gets which pair
     if sequential_overlap:
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = int(sequential_overlap)
@@ -165,7 +166,8 @@ def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike,
             database.close()
     # the incremental mapper is reproducible only on one thread (its multi-threaded bundle
     # adjustments and registration order vary from run to run: seen as 2 of 8 frames registered
-    # in one run of a session that registers 8 of 8 in others); extraction and matching stay threaded
+    # in one run of a session that registers 8 of 8 in others); so is the matching's
+    # verification (the same failure came back with a one-thread mapper); extraction stays threaded
     pycolmap.set_random_seed(int(seed))
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = 1
