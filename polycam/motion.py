@@ -124,6 +124,7 @@ from .derivatives import (FILTERS, Derivatives, FilterPair, correlate_axis, filt
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid
+from .motion_options import MotionOptions
 from .trajectory import Trajectory
 
 __all__ = [
@@ -161,91 +162,6 @@ PARAM_NAMES = ("t_x", "t_y", "t_z", "w_x", "w_y", "w_z")
 
 
 # ============================================================================ options / result
-
-
-@dataclass(frozen=True)
-class MotionOptions:
-    """Settings of the plenoptic motion solver (defaults are the tuned ones)."""
-
-    filters: str | dict = field(default_factory=lambda: {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"})
-    """Derivative filter pair name for all axes, or axis name (x y u v) → name (see FILTERS)."""
-    levels: int = 3
-    """Pyramid levels (1 = single scale)."""
-    pyramid_xy: bool = False
-    """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
-    iterations: int = 4
-    """Warp / re-solve iterations per level (the last level may stop early on convergence)."""
-    irls_steps: int = 2
-    """Re-weighted solves per iteration (0 = plain weighted least squares)."""
-    robust: str = "tukey"
-    """``tukey``, ``huber`` or ``none``: the IRLS loss on normalised residuals."""
-    robust_c: float = 4.685
-    """Loss constant in units of the robust residual scale (4.685 Tukey, 1.345 Huber)."""
-    smooth_c: float = 0.5
-    """Discontinuity weight ``1 / (1 + (e / (c · median e))²)``, e = the largest |∂²L/∂u²| +
-    |∂²L/∂v²| within ``smooth_radius`` samples (0 disables): silhouettes, creases and
-    aliased steps, where interpolation and linearisation fail, get little weight."""
-    smooth_radius: int = 2
-    """Half-width in (u, v) samples of the neighbourhood searched for discontinuities."""
-    eiv: bool = False
-    """Take each step with ``AᵀWA − E`` (E = expected sensor-noise energy in the derivatives,
-    errors in variables): with noisy derivatives AᵀWA alone under-steps, so the iteration
-    stops short of the answer (benchmarks/bench_noise.py: ~3x less translation error at 16
-    grey levels, unchanged noise-free). Off: the covariance then under-predicts the scatter
-    of repeated estimates by up to ~2x where t and ω couple (docs/motion.md)."""
-    smooth_noise: bool = False
-    """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
-    reaches (its 99th percentile for the noise variance estimated from the frames), so that
-    noise is not read as discontinuities (:func:`discontinuity_weight`). Helps with ``eiv``
-    at 16-32 grey levels; off because at 1-3 grey levels it lets more model error in
-    (bench_motion.py's 8-bit rows: translation error 3.8% → 4.4% at 3 grey levels)."""
-    depth_regressors: bool = False
-    """Replace the positional derivatives by ``ρ̂ L_u, ρ̂ L_v`` (paper Eq. 6, Lambertian:
-    ``L_x = ρ L_u``), ρ̂ = Σ (L_x L_u + L_y L_v) / Σ (L_u² + L_v²) pooled over a window (fs5
-    twice in (u, v), fs3 once across the views), except where one ρ does not explain the
-    window (its residual energy above 3x the expected noise of L_x, L_y: occlusions, and
-    noise-free data, where that noise is ~0): less noise in the regressors of the
-    translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
-    levels, 29.5 → 4.6 at 16)."""
-    whiten: str = "off"
-    """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
-    inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
-    the plain solve has converged, then re-solves; ``auto`` does so only when the whitened
-    residual is within ``whiten_ratio`` of the expected sensor noise (noise dominates the
-    misfit; whitening amplifies the high frequencies where aliasing lives); ``off`` never."""
-    whiten_floor: float = 0.3
-    """Ridge added to each axis' K_a K_aᵀ before whitening (its largest eigenvalue is about 1):
-    caps the amplification of the frequencies the prefilter removes (0: exact GLS, whose
-    whitened misfit on the noise-free sphere scene is ~10⁵ times the noise: aliasing and the
-    weights' edges; 0.3 measured best of 0.03, 0.1, 0.3 at 16-32 grey levels)."""
-    whiten_ratio: float = 2.0
-    """``whiten="auto"``: largest whitened residual variance, in units of the expected
-    whitened noise variance 2 σ², at which the whitened re-solve is taken."""
-    symmetric: bool = False
-    """Warp both frames half-way (else frame 2 by the whole estimate; measured equally
-    accurate with cubic interpolation, and half the warping cost)."""
-    uv_taps: int = 6
-    """Lagrange interpolation points along u and v in the warp: 2 (linear), 4 (cubic), 6
-    (quintic; measured: rotation error at 8-16 m from ~1% with 4 to ~0.1-0.2%)."""
-    rcond: float = 1e-7
-    """Jacobi-scaled eigenvalue ratio below which a direction is unobservable."""
-    min_rays: int = 64
-    """Fewer usable rays than this is a failed estimate."""
-    tol: float = 1e-7
-    """Stop iterating when the increment is below this (|t| [m] + |ω| [rad])."""
-    tile: int = 16
-    """Largest (u, v) tile in samples for the cluster-robust covariance (smaller on small
-    grids so that each face has about 8 x 8 tiles)."""
-
-    def __post_init__(self) -> None:
-        if self.robust not in ("tukey", "huber", "none"):
-            raise ValueError(f"robust must be tukey, huber or none, got {self.robust!r}")
-        if self.uv_taps not in (2, 4, 6):
-            raise ValueError(f"uv_taps must be 2, 4 or 6, got {self.uv_taps}")
-        if self.whiten not in ("auto", "on", "off"):
-            raise ValueError(f"whiten must be auto, on or off, got {self.whiten!r}")
-        if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
-            raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
 
 
 @dataclass(frozen=True)
