@@ -483,7 +483,8 @@ def test_whitened_sums_match_dense_gls(scene, rng):
     """The GLS path (rows whitened by banded Cholesky factors per axis) gives the normal sums
     Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box."""
     from polycam.derivatives import FILTERS
-    from polycam.motion import _face_B, _reduce, _whitened_sums, _whitening_factors
+    from polycam.eq5 import _face_B, _reduce
+    from polycam.motion import _whitened_sums, _whitening_factors
 
     grid = make_grid(("+z", "-x"), views=5, directions=16)
     M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
@@ -567,7 +568,7 @@ def test_whitening_auto_and_on(scene):
 def test_depth_regressors_reduce_positional_noise(scene):
     """Eq. 6 regressors ρ̂ L_u, ρ̂ L_v (ρ̂ pooled over a window) are closer to the noise-free
     L_x, L_y than the measured noisy ones (the scene is Lambertian: one depth per ray)."""
-    from polycam.motion import _depth_regularise
+    from polycam.eq5 import _depth_regularise
 
     grid = make_grid(("+z",), views=7, directions=32, spacing=0.01)
     M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))

@@ -1,0 +1,593 @@
+"""The rows of paper Eq. 5 and their normal sums: the fused ray loops of the motion solver.
+
+Each ray of face k gives one row ``c · (t, ω) = −L_t`` of the linearised brightness
+constancy constraint for the ray motion ``G`` (derivation and sign convention: the
+docstring of :mod:`polycam.motion`; frames and units: docs/conventions.md). This module
+holds
+
+- the row coefficients (:func:`ray_motion_coefficients`, numpy reference; the inline numba
+  ``_eq5_coefficients`` used by the kernels) and the rig → face map ``_face_B``;
+- the numba kernels that form, per view image and (u, v) tile, the weighted normal sums
+  ``Σ w c cᵀ``, ``Σ w c b``, ``Σ w b²``, ``Σ w`` together with the noise energy E of the
+  derivatives and the IRLS statistics (``_prepare_kernel``, ``_pass_kernel``), plus the
+  residual sampling and weighted median that give the robust scale;
+- their drivers ``_accumulate`` / ``_reduce`` (per-face tile sums → rig-frame N, rhs);
+- the depth-regularised regressors of paper Eq. 6 (``_depth_regularise``,
+  :attr:`~polycam.motion_options.MotionOptions.depth_regressors`).
+
+The ray loops are branch-free with unsigned indices and re-associated sums
+(``_FASTMATH``) so that LLVM vectorises them (speed figures: docs/motion.md).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .derivatives import FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
+from .lightfield import LightFieldGrid
+
+__all__ = ["ray_motion_coefficients"]
+
+
+_NACC = 29
+"""Sums per (u, v) tile: the 21 unique entries of Σ w c cᵀ, Σ w c b (6), Σ w b², Σ w."""
+
+
+_NSTAT = 25
+"""Statistics per view image: rays with w > 0, rays with base weight > 0, IRLS inliers
+(weight > 0.5), Σ w |∇L · h|², and the 21 unique entries of the noise energy E."""
+
+
+_ROBUST_KIND = {"none": 0, "tukey": 1, "huber": 2}
+
+
+@numba.njit(cache=True, inline="always")
+def _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f):
+    """Coefficients of (t_z, ω_x, ω_y, ω_z) in one ray's Eq. 5 row ``[L_x, L_y, L_u, L_v]
+    [M_t, M_ω]`` (those of t_x and t_y are L_x = g0 and L_y = g1); inv_f = 1 / f."""
+    c2 = -(u * g0 + v * g1) * inv_f
+    c3 = -(u * y * inv_f) * g0 - (v * y * inv_f + z_pi) * g1 - (u * v * inv_f) * g2 \
+        - (v * v * inv_f + f) * g3
+    c4 = (u * x * inv_f + z_pi) * g0 + (v * x * inv_f) * g1 + (u * u * inv_f + f) * g2 \
+        + (u * v * inv_f) * g3
+    c5 = -y * g0 + x * g1 - v * g2 + u * g3
+    return c2, c3, c4, c5
+
+
+@numba.njit(cache=True, inline="always")
+def _row_energy(x, y, v, z_pi, f, S, var, poly, st):
+    """Add one (x, y, v) row's Σ_u w Σ_j var_j m_j m_jᵀ to st[4:25] (upper triangle) from the
+    row's weight moments S[k] = Σ_u w u^k (k = 0..4). m_j are the Eq. 5 coefficients of a
+    unit derivative along axis j (x, y, u, v), quadratic in u: poly[0] + poly[1] u + poly[2] u²."""
+    inv_f = 1.0 / f
+    for jax in range(4):
+        vj = var[jax]
+        if vj == 0.0:
+            continue
+        poly[:, :] = 0.0
+        if jax == 0:                   # unit L_x
+            poly[0, 0] = 1.0
+            poly[0, 4] = z_pi
+            poly[0, 5] = -y
+            poly[1, 2] = -inv_f
+            poly[1, 3] = -y * inv_f
+            poly[1, 4] = x * inv_f
+        elif jax == 1:                 # unit L_y
+            poly[0, 1] = 1.0
+            poly[0, 2] = -v * inv_f
+            poly[0, 3] = -(v * y * inv_f + z_pi)
+            poly[0, 4] = v * x * inv_f
+            poly[0, 5] = x
+        elif jax == 2:                 # unit L_u
+            poly[0, 4] = f
+            poly[0, 5] = -v
+            poly[1, 3] = -v * inv_f
+            poly[2, 4] = inv_f
+        else:                          # unit L_v
+            poly[0, 3] = -(v * v * inv_f + f)
+            poly[1, 4] = v * inv_f
+            poly[1, 5] = 1.0
+        k = 4
+        for a in range(6):
+            for b in range(a, 6):
+                e = 0.0
+                for d1 in range(3):
+                    pa = poly[d1, a]
+                    if pa == 0.0:
+                        continue
+                    for d2 in range(3):
+                        e += pa * poly[d2, b] * S[d1 + d2]
+                st[k] += vj * e
+                k += 1
+
+
+_FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+"""LLVM fast-math flags of the accumulating kernels: re-associated sums let the ray loops
+vectorise (results change by float rounding only); no ``nnan`` / ``ninf``, so the
+``not w > 0`` tests keep their meaning."""
+
+
+@numba.njit(cache=True, inline="always")
+def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv_sc, tile,
+                     v_lo, v_hi, u_lo, u_hi, h, var, final, acc, st, poly, S):
+    """Eq. 5 normal-equation sums of one view image's rays (samples v_lo:v_hi, u_lo:u_hi).
+
+    gx .. lt, wb: (Nv, Nu) derivatives and base weights of the view; c = the ray's Eq. 5
+    coefficients in face coordinates, b = −L_t. With ``kind`` 1 (Tukey) or 2 (Huber) the
+    weight is wb times the IRLS weight of the residual ``r = L_t + c · p`` normalised by
+    1 / inv_sc. Adds the sums to acc (n_tv, n_tu, 29) per (u, v) tile of ``tile`` samples
+    and counts to st (25,); with ``final`` also the texture and the noise energy.
+    The ray loop has no branches (rays with weight <= 0 add zeros; their derivatives
+    are finite) and unsigned indices, so that it vectorises (callers use ``_FASTMATH``).
+    """
+    inv_f = 1.0 / f
+    tx = p[0]
+    ty = p[1]
+    tz = p[2]
+    wx = p[3]
+    wy = p[4]
+    wz = p[5]
+    hx2 = h[0] * h[0]
+    hy2 = h[1] * h[1]
+    hu2 = h[2] * h[2]
+    hv2 = h[3] * h[3]
+    n_w = 0.0
+    n_base = 0.0
+    n_in = 0.0
+    tex = 0.0
+    for jv in range(v_lo, v_hi):
+        v = vs[jv]
+        tv = jv // tile
+        rx = gx[jv]
+        ry = gy[jv]
+        ru = gu[jv]
+        rv = gv[jv]
+        rt = lt[jv]
+        rw = wb[jv]
+        s0 = s1 = s2 = s3 = s4 = 0.0
+        for tu in range(u_lo // tile, (u_hi - 1) // tile + 1):
+            n00 = n01 = n02 = n03 = n04 = n05 = 0.0
+            n11 = n12 = n13 = n14 = n15 = 0.0
+            n22 = n23 = n24 = n25 = 0.0
+            n33 = n34 = n35 = 0.0
+            n44 = n45 = 0.0
+            n55 = 0.0
+            r0 = r1 = r2 = r3 = r4 = r5 = 0.0
+            sbb = 0.0
+            sw = 0.0
+            for iu in range(numba.uint64(max(tu * tile, u_lo)), numba.uint64(min((tu + 1) * tile, u_hi))):
+                wraw = np.float64(rw[iu])
+                pos = wraw > 0.0
+                wi = wraw if pos else 0.0
+                n_base += 1.0 if pos else 0.0
+                u = us[iu]
+                g0 = np.float64(rx[iu])
+                g1 = np.float64(ry[iu])
+                g2 = np.float64(ru[iu])
+                g3 = np.float64(rv[iu])
+                b = -np.float64(rt[iu])
+                c0 = g0
+                c1 = g1
+                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
+                if kind != 0:
+                    r = c0 * tx + c1 * ty + c2 * tz + c3 * wx + c4 * wy + c5 * wz - b
+                    zz = abs(r) * inv_sc
+                    if kind == 1:
+                        q = 1.0 - zz * zz
+                        wr = q * q if zz < 1.0 else 0.0
+                    else:
+                        wr = 1.0 if zz <= 1.0 else 1.0 / zz
+                    n_in += 1.0 if (pos and wr > 0.5) else 0.0
+                    wi = wi * wr
+                n_w += 1.0 if wi > 0.0 else 0.0
+                w0 = wi * c0
+                w1 = wi * c1
+                w2 = wi * c2
+                w3 = wi * c3
+                w4 = wi * c4
+                w5 = wi * c5
+                n00 += w0 * c0
+                n01 += w0 * c1
+                n02 += w0 * c2
+                n03 += w0 * c3
+                n04 += w0 * c4
+                n05 += w0 * c5
+                n11 += w1 * c1
+                n12 += w1 * c2
+                n13 += w1 * c3
+                n14 += w1 * c4
+                n15 += w1 * c5
+                n22 += w2 * c2
+                n23 += w2 * c3
+                n24 += w2 * c4
+                n25 += w2 * c5
+                n33 += w3 * c3
+                n34 += w3 * c4
+                n35 += w3 * c5
+                n44 += w4 * c4
+                n45 += w4 * c5
+                n55 += w5 * c5
+                r0 += w0 * b
+                r1 += w1 * b
+                r2 += w2 * b
+                r3 += w3 * b
+                r4 += w4 * b
+                r5 += w5 * b
+                sbb += wi * b * b
+                sw += wi
+                if final:
+                    tex += wi * (g0 * g0 * hx2 + g1 * g1 * hy2 + g2 * g2 * hu2 + g3 * g3 * hv2)
+                    m = wi
+                    s0 += m
+                    m *= u
+                    s1 += m
+                    m *= u
+                    s2 += m
+                    m *= u
+                    s3 += m
+                    m *= u
+                    s4 += m
+            a = acc[tv, tu]
+            a[0] += n00
+            a[1] += n01
+            a[2] += n02
+            a[3] += n03
+            a[4] += n04
+            a[5] += n05
+            a[6] += n11
+            a[7] += n12
+            a[8] += n13
+            a[9] += n14
+            a[10] += n15
+            a[11] += n22
+            a[12] += n23
+            a[13] += n24
+            a[14] += n25
+            a[15] += n33
+            a[16] += n34
+            a[17] += n35
+            a[18] += n44
+            a[19] += n45
+            a[20] += n55
+            a[21] += r0
+            a[22] += r1
+            a[23] += r2
+            a[24] += r3
+            a[25] += r4
+            a[26] += r5
+            a[27] += sbb
+            a[28] += sw
+        if final and s0 > 0.0:
+            S[0] = s0
+            S[1] = s1
+            S[2] = s2
+            S[3] = s3
+            S[4] = s4
+            _row_energy(x, y, v, z_pi, f, S, var, poly, st)
+    st[0] += n_w
+    st[1] += n_base
+    st[2] += n_in
+    st[3] += tex
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
+                 box, h, var, final, acc, st, chunks):
+    """One pass over the rays of the view images box[0]:box[1] (y) x box[2]:box[3] (x),
+    samples box[4]:box[5] (v) x box[6]:box[7] (u) of every face: :func:`_accumulate_view`
+    with the stored derivatives (F, Ny, Nx, Nv, Nu) and base weights (unit weights
+    without ``has_base``). P (F, 6): the parameters in each face's frame.
+    acc (n_views, n_tv, n_tu, 29), st (n_views, 25), views ordered (face, y, x)."""
+    F, Ny, Nx, Nv, Nu = Lx.shape
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    n = F * ny * nx
+    chunks = max(1, min(n, chunks))
+    for c in numba.prange(chunks):
+        poly = np.empty((3, 6))
+        S = np.empty(5)
+        ones = np.ones((Nv if not has_base else 1, Nu if not has_base else 1), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (ny * nx)
+            rem = idx - fc * ny * nx
+            j = box[0] + rem // nx
+            i = box[2] + rem - (rem // nx) * nx
+            a = acc[idx]
+            a[:, :, :] = 0.0
+            s = st[idx]
+            s[:] = 0.0
+            wb = base[fc, j, i] if has_base else ones
+            _accumulate_view(Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i], wb,
+                             xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], kind, inv_sc, tile,
+                             box[4], box[5], box[6], box[7], h, var, final, a, s, poly, S)
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
+                    sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, h,
+                    var, final, acc, st, chunks):
+    """Per valid view image, in cache: the plenoptic derivatives of the (warped) pair
+    (L0, L1), the base weight = confidence ``conf`` minimised over the filter support
+    (``need_min``) × valid × ``smooth``, and the unit-IRLS-weight normal sums
+    (:func:`_accumulate_view`). box as in :func:`_pass_kernel` (the filter radii)."""
+    F, Ny, Nx, Nv, Nu = L0.shape
+    ry = box[0]
+    rx = box[2]
+    rv = box[4]
+    ru = box[6]
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    n = F * ny * nx
+    chunks = max(1, min(n, chunks))
+    for c in numba.prange(chunks):
+        buf = np.empty((7, Nv, Nu), np.float32)
+        poly = np.empty((3, 6))
+        S = np.empty(5)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (ny * nx)
+            rem = idx - fc * ny * nx
+            j = box[0] + rem // nx
+            i = box[2] + rem - (rem // nx) * nx
+            xy_view(L0, L1, fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
+            uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4],
+                    Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i])
+            cm = buf[5]
+            t2 = buf[6]
+            cm[:, :] = conf[fc, j, i]
+            if need_min:
+                # row-wise minima over contiguous rows (vectorise; unsigned indices)
+                for jj in range(j - ry, j + ry + 1):
+                    for ii in range(i - rx, i + rx + 1):
+                        src = conf[fc, jj, ii]
+                        for v in range(Nv):
+                            cr = cm[v]
+                            sr = src[v]
+                            for u in range(numba.uint64(Nu)):
+                                cr[u] = min(cr[u], sr[u])
+                for v in range(rv, Nv - rv):
+                    tr = t2[v]
+                    tr[:] = cm[v - rv]
+                    for d in range(v - rv + 1, v + rv + 1):
+                        sr = cm[d]
+                        for u in range(numba.uint64(Nu)):
+                            tr[u] = min(tr[u], sr[u])
+                n_in = numba.uint64(Nu - 2 * ru)
+                for v in range(rv, Nv - rv):
+                    tr = t2[v]
+                    cr = cm[v, ru:Nu - ru]
+                    cr[:] = tr[0:Nu - 2 * ru]
+                    for d in range(1, 2 * ru + 1):
+                        sr = tr[d:d + Nu - 2 * ru]
+                        for u in range(n_in):
+                            cr[u] = min(cr[u], sr[u])
+            b = base[fc, j, i]
+            b[:, :] = 0.0
+            for v in range(rv, Nv - rv):
+                for u in range(ru, Nu - ru):
+                    b[v, u] = cm[v, u] * smooth[fc, j, i, v, u] if has_smooth else cm[v, u]
+            a = acc[idx]
+            a[:, :, :] = 0.0
+            s = st[idx]
+            s[:] = 0.0
+            _accumulate_view(Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i], b,
+                             xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], 0, 0.0, tile,
+                             rv, Nv - rv, ru, Nu - ru, h, var, final, a, s, poly, S)
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, stride, out_a, out_w):
+    """|Eq. 5 residual| and base weight of the rays of every ``stride``-th (v) row of the
+    box's view images (rows numbered in C order over (face, y, x, v) inside box; whole
+    rows keep the memory access contiguous). out_a, out_w: (n_rows, box u width)."""
+    F, Ny, Nx, Nv, Nu = Lx.shape
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    nv = box[5] - box[4]
+    u0 = box[6]
+    for k in numba.prange(out_a.shape[0]):
+        q = k * stride
+        jv = box[4] + q % nv
+        q //= nv
+        i = box[2] + q % nx
+        q //= nx
+        j = box[0] + q % ny
+        fc = q // ny
+        f = fs[fc]
+        z_pi = zs[fc]
+        inv_f = 1.0 / f
+        x = xs[i]
+        y = ys[j]
+        v = vs[jv]
+        p0, p1, p2, p3, p4, p5 = P[fc, 0], P[fc, 1], P[fc, 2], P[fc, 3], P[fc, 4], P[fc, 5]
+        rx = Lx[fc, j, i, jv]
+        ry = Ly[fc, j, i, jv]
+        ru = Lu[fc, j, i, jv]
+        rv = Lv[fc, j, i, jv]
+        rt = Lt[fc, j, i, jv]
+        rw = base[fc, j, i, jv]
+        oa = out_a[k]
+        ow = out_w[k]
+        for m in range(numba.uint64(out_a.shape[1])):          # branch-free: vectorises
+            iu = numba.uint64(u0) + m
+            wb = rw[iu]
+            pos = wb > 0.0
+            u = us[iu]
+            g0 = np.float64(rx[iu])
+            g1 = np.float64(ry[iu])
+            g2 = np.float64(ru[iu])
+            g3 = np.float64(rv[iu])
+            c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
+            r = rt[iu] + g0 * p0 + g1 * p1 + c2 * p2 + c3 * p3 + c4 * p4 + c5 * p5
+            oa[m] = abs(r) if pos else 0.0
+            ow[m] = wb if pos else 0.0
+
+
+@numba.njit(cache=True)
+def _weighted_median(a, w):
+    """Weighted median of a >= 0 (the smallest a_k with Σ_{a_i <= a_k} w_i >= Σ w / 2) over
+    w > 0: a histogram finds the bin, a sort of that bin's values the sample."""
+    tot = 0.0
+    mean = 0.0
+    for k in range(a.shape[0]):
+        if w[k] > 0.0:
+            tot += w[k]
+            mean += w[k] * a[k]
+    if not tot > 0.0:
+        return 0.0
+    hi = 4.0 * mean / tot
+    if not hi > 0.0:
+        return 0.0
+    nb = 4096
+    hist = np.zeros(nb + 1)
+    for k in range(a.shape[0]):
+        if w[k] > 0.0:
+            hist[min(int(a[k] / hi * nb), nb)] += w[k]
+    half = 0.5 * tot
+    cum = 0.0
+    bi = 0
+    while bi < nb and cum + hist[bi] < half:
+        cum += hist[bi]
+        bi += 1
+    cnt = 0
+    for k in range(a.shape[0]):
+        if w[k] > 0.0 and min(int(a[k] / hi * nb), nb) == bi:
+            cnt += 1
+    vals = np.empty(cnt)
+    ws = np.empty(cnt)
+    cnt = 0
+    for k in range(a.shape[0]):
+        if w[k] > 0.0 and min(int(a[k] / hi * nb), nb) == bi:
+            vals[cnt] = a[k]
+            ws[cnt] = w[k]
+            cnt += 1
+    if cnt == 0:
+        return 0.0
+    order = np.argsort(vals)
+    for o in order:
+        cum += ws[o]
+        if cum >= half:
+            return vals[o]
+    return vals[order[cnt - 1]]
+
+
+def ray_motion_coefficients(der: Derivatives, grid: LightFieldGrid, k: int) -> np.ndarray:
+    """The Eq. 5 coefficient rows of face ``k`` in *rig* coordinates, dims (Ny, Nx, Nv, Nu, 6).
+
+    Row · (t, ω) of the ray motion G equals −L_t for an exact first-order model.
+    Reference implementation (numpy, allocates); the solver uses fused kernels.
+    """
+    face = grid.faces[k]
+    f, Z = face.f, face.z_pi
+    y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
+    gx, gy, gu, gv = (np.asarray(a[k], float) for a in (der.Lx, der.Ly, der.Lu, der.Lv))
+    c = np.stack([
+        gx, gy, -(u * gx + v * gy) / f,
+        -(u * y / f) * gx - (v * y / f + Z) * gy - (u * v / f) * gu - (v * v / f + f) * gv,
+        (u * x / f + Z) * gx + (v * x / f) * gy + (u * u / f + f) * gu + (u * v / f) * gv,
+        -y * gx + x * gy - v * gu + u * gv], axis=-1)
+    R = np.asarray(face.R_rig_face, float)
+    B = np.zeros((6, 6))
+    B[:3, :3] = R.T
+    B[3:, 3:] = R.T
+    return c @ B
+
+
+def _accumulate(der, base: np.ndarray, has_base: bool, grid: LightFieldGrid, P: np.ndarray, kind: int,
+                inv_sc: float, tile: int, box: np.ndarray, h: np.ndarray, var: np.ndarray,
+                final: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Run :func:`_pass_kernel` over ``der`` (anything with Lx .. Lt (F, Ny, Nx, Nv, Nu));
+    returns acc (F, n_views_per_face, n_tiles, 29) and st (F, n_views_per_face, 25)."""
+    F, Ny, Nx, Nv, Nu = der.Lx.shape
+    nv_ = max(int(box[1] - box[0]), 0) * max(int(box[3] - box[2]), 0)
+    nt = (-(-Nv // tile), -(-Nu // tile))
+    acc = np.empty((F * nv_,) + nt + (_NACC,))
+    st = np.empty((F * nv_, _NSTAT))
+    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    zs = np.array([face.z_pi for face in grid.faces], float)
+    fs = np.array([face.f for face in grid.faces], float)
+    if nv_ and box[5] > box[4] and box[7] > box[6]:
+        _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, base, has_base, *vals, zs, fs,
+                     np.ascontiguousarray(P, dtype=np.float64), kind, float(inv_sc), int(tile), box, h, var,
+                     final, acc, st, parallel_chunks())
+    else:
+        acc[:] = 0.0
+        st[:] = 0.0
+    return acc.reshape(F, nv_, nt[0] * nt[1], _NACC), st.reshape(F, nv_, _NSTAT)
+
+
+_IU = np.triu_indices(6)
+
+
+def _unpack_sym(a: np.ndarray) -> np.ndarray:
+    """(..., 21) upper-triangle entries → (..., 6, 6) symmetric matrices."""
+    N = np.zeros(a.shape[:-1] + (6, 6))
+    N[..., _IU[0], _IU[1]] = a
+    N[..., _IU[1], _IU[0]] = a
+    return N
+
+
+def _reduce(acc: np.ndarray, B: list) -> tuple:
+    """Rig-frame N (6, 6), rhs (6,), Σ w b², Σ w and the per-face tile sums (F, n_tiles, 29)
+    of acc (F, n_views, n_tiles, 29); B: per face the (6, 6) rig → face map."""
+    tiles = acc.sum(axis=1)
+    tot = tiles.sum(axis=1)                              # (F, 29)
+    N = np.zeros((6, 6))
+    rhs = np.zeros(6)
+    for k, Bk in enumerate(B):
+        N += Bk.T @ _unpack_sym(tot[k, :21]) @ Bk
+        rhs += Bk.T @ tot[k, 21:27]
+    return N, rhs, float(tot[:, 27].sum()), float(tot[:, 28].sum()), tiles
+
+
+def _face_B(face) -> np.ndarray:
+    """(6, 6) map from rig-frame (t, ω) to face-frame (t, ω)."""
+    R = np.asarray(face.R_rig_face, float)
+    B = np.zeros((6, 6))
+    B[:3, :3] = R.T
+    B[3:, 3:] = R.T
+    return B
+
+
+_DEPTH_KEEP = 3.0
+"""Depth-regularised regressors: keep the measured L_x, L_y where the window's residual energy
+exceeds this many times their expected noise variance (one depth does not explain it)."""
+
+
+def _depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
+    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims) and one depth
+    explains the window; returns (4,) the noise variances ``var`` of (L_x, L_y, L_u, L_v)
+    updated for the replaced rays (ρ̂² var_u there, a ray-count mix)."""
+    Lx, Ly, Lu, Lv, _ = der
+    m = valid.astype(np.float32)
+    t5 = FILTERS["fs5"].prefilter.astype(np.float32)
+    t3 = FILTERS["fs3"].prefilter.astype(np.float32)
+
+    def win(a):
+        out = np.ascontiguousarray(a * m, dtype=np.float32)
+        for _ in range(2):
+            out = correlate_axis(correlate_axis(out, t5, 3), t5, 4)
+        return correlate_axis(correlate_axis(out, t3, 1), t3, 2)
+
+    gx = np.where(valid, Lx, 0.0).astype(np.float32)
+    gy = np.where(valid, Ly, 0.0).astype(np.float32)
+    gu = np.where(valid, Lu, 0.0).astype(np.float32)
+    gv = np.where(valid, Lv, 0.0).astype(np.float32)
+    suu = win(gu * gu + gv * gv)
+    sxu = win(gx * gu + gy * gv)
+    sxx = win(gx * gx + gy * gy)
+    rho = np.where(suu > 0, sxu / np.maximum(suu, np.float32(1e-30)), np.float32(0.0)).astype(np.float32)
+    n = win(np.ones_like(m))
+    res = sxx - rho * sxu
+    use = valid & (res <= _DEPTH_KEEP * (var[0] + var[1]) * n)
+    Lx[use] = rho[use] * gu[use]
+    Ly[use] = rho[use] * gv[use]
+    out = np.asarray(var, float).copy()
+    nv = int(valid.sum())
+    if nv and use.any():
+        frac = float(use.sum()) / nv
+        r2 = float(np.mean(rho[use].astype(np.float64) ** 2))
+        out[0] = (1.0 - frac) * var[0] + frac * r2 * var[2]
+        out[1] = (1.0 - frac) * var[1] + frac * r2 * var[3]
+    return out
