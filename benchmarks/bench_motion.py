@@ -259,7 +259,7 @@ def numpy_full_solve(L0, L1, grid, schedule: list[int], opts: MotionOptions):
 
     from polycam.geometry import T_inverse
     from polycam.lightfield import Axis
-    from polycam.motion import _uv_stencils
+    from polycam.warp import _uv_stencils
 
     def down(a):
         for ax in (3, 4):
