@@ -484,7 +484,7 @@ def test_whitened_sums_match_dense_gls(scene, rng):
     Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box."""
     from polycam.derivatives import FILTERS
     from polycam.eq5 import _face_B, _reduce
-    from polycam.motion import _whitened_sums, _whitening_factors
+    from polycam.whitening import _whitened_sums, _whitening_factors
 
     grid = make_grid(("+z", "-x"), views=5, directions=16)
     M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))

@@ -1,0 +1,206 @@
+"""Generalised least squares for the motion solver: whitening of the Eq. 5 rows.
+
+The derivative prefilters correlate sensor noise across neighbouring samples; with
+:attr:`~polycam.motion_options.MotionOptions.whiten` the solver (:mod:`polycam.motion`)
+re-solves at the finest level with its rows multiplied by the inverse of that noise
+covariance ⊗ₐ K_a K_aᵀ (one banded Cholesky factor per axis, with a ridge
+``whiten_floor``). This module holds the factors (``_whitening_factor(s)``), the weighted
+rows (``_weighted_rows``, built on the row coefficients of :mod:`polycam.eq5`), the
+banded forward substitution along one axis, the whitened tile sums (same layout as
+:func:`polycam.eq5._accumulate`'s) and the whitened noise gain that scales the expected
+noise energy. Measurements: docs/motion.md.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numba
+import numpy as np
+
+from .derivatives import FilterPair
+from .eq5 import _NACC, _eq5_coefficients
+
+__all__: list[str] = []
+
+
+@functools.lru_cache(maxsize=32)
+def _whitening_factor(taps: tuple, n: int, floor: float = 0.0) -> np.ndarray:
+    """(n, n) lower Cholesky factor C of K Kᵀ + floor I, K the (n, n + 2r) Toeplitz correlation
+    matrix of the prefilter ``taps`` (2r+1,) restricted to n interior outputs: K Kᵀ is the noise
+    covariance (per unit variance) that the prefilter gives n neighbouring samples along one
+    axis; ``floor`` caps the gain of C⁻¹ at the frequencies the prefilter removes. K Kᵀ is
+    banded Toeplitz (the taps' autocorrelation), so C is banded with bandwidth 2r."""
+    t = np.asarray(taps, float)
+    r = len(t) // 2
+    ac = np.array([float(np.dot(t[:len(t) - d], t[d:])) for d in range(2 * r + 1)])
+    KK = np.zeros((n, n))
+    for d in range(min(2 * r + 1, n)):
+        idx = np.arange(n - d)
+        KK[idx, idx + d] = ac[d]
+        KK[idx + d, idx] = ac[d]
+    return np.linalg.cholesky(KK + floor * np.eye(n))
+
+
+@numba.njit(parallel=True, cache=True)
+def _forward_axis(X, C, bw):
+    """X (A, n, B) ← C⁻¹ X along axis 1, in place; C (n, n) lower triangular with bandwidth
+    bw (banded forward substitution)."""
+    A, n, B = X.shape
+    for a in numba.prange(A):
+        for j in range(n):
+            inv = 1.0 / C[j, j]
+            for k in range(max(0, j - bw), j):
+                c = C[j, k]
+                for b in range(B):
+                    X[a, j, b] -= c * X[a, k, b]
+            for b in range(B):
+                X[a, j, b] *= inv
+
+
+def _whiten_rows(Z: np.ndarray, factors: list) -> None:
+    """Z (n_y, n_x, n_v, n_u, K) ← (⊗ₐ C_a)⁻¹ Z along axes 0..3 in place; ``factors``: per axis
+    (C_a, bandwidth) or None (that axis is not filtered: identity)."""
+    sh = Z.shape
+    for ax, fac in enumerate(factors):
+        if fac is None or sh[ax] <= 1:
+            continue
+        C, bw = fac
+        _forward_axis(Z.reshape(int(np.prod(sh[:ax], dtype=np.int64)), sh[ax], -1), C, bw)
+
+
+@numba.njit(parallel=True, cache=True)
+def _weighted_rows(Lx, Ly, Lu, Lv, Lt, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, Z, Wr):
+    """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7) and
+    the weights w into Wr (n_y, n_x, n_v, n_u): c the Eq. 5 coefficients (face frame), b = −L_t,
+    w = base weight × the IRLS weight (``kind`` 1 Tukey, 2 Huber, 0 none) of the residual at
+    p (face frame) normalised by 1 / inv_sc, as :func:`_accumulate_view` weights them."""
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    nv = box[5] - box[4]
+    nu = box[7] - box[6]
+    inv_f = 1.0 / f
+    for idx in numba.prange(ny * nx):
+        jj = idx // nx
+        ii = idx - jj * nx
+        j = box[0] + jj
+        i = box[2] + ii
+        x = xs[i]
+        y = ys[j]
+        for qv in range(nv):
+            jv = box[4] + qv
+            v = vs[jv]
+            for qu in range(nu):
+                iu = box[6] + qu
+                z = Z[jj, ii, qv, qu]
+                wi = np.float64(base[fc, j, i, jv, iu])
+                g0 = np.float64(Lx[fc, j, i, jv, iu])
+                g1 = np.float64(Ly[fc, j, i, jv, iu])
+                g2 = np.float64(Lu[fc, j, i, jv, iu])
+                g3 = np.float64(Lv[fc, j, i, jv, iu])
+                b = -np.float64(Lt[fc, j, i, jv, iu])
+                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, us[iu], v, z_pi, f, inv_f)
+                if kind != 0 and wi > 0.0:
+                    r = g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5] - b
+                    zz = abs(r) * inv_sc
+                    if kind == 1:
+                        wi *= (1.0 - zz * zz) ** 2 if zz < 1.0 else 0.0
+                    else:
+                        wi *= 1.0 if zz <= 1.0 else 1.0 / zz
+                if not wi > 0.0:
+                    wi = 0.0
+                Wr[jj, ii, qv, qu] = wi
+                sw = math.sqrt(wi)
+                z[0] = sw * g0
+                z[1] = sw * g1
+                z[2] = sw * c2
+                z[3] = sw * c3
+                z[4] = sw * c4
+                z[5] = sw * c5
+                z[6] = sw * b
+
+
+@numba.njit(parallel=True, cache=True)
+def _whitened_tile_sums(Z, Wr, v0, u0, tile, acc):
+    """acc (n_tv, n_tu, 29) ← per (u, v) tile (of the face's full (v, u) index, tile samples) the
+    sums of the whitened rows Z (n_y, n_x, n_v, n_u, 7) whose box starts at (v0, u0): the 21
+    entries of Σ z_c z_cᵀ, Σ z_c z_b (6), Σ z_b², and Σ w of the weights Wr."""
+    ny, nx, nv, nu, _ = Z.shape
+    n_tv = acc.shape[0]
+    for tv in numba.prange(n_tv):
+        acc[tv, :, :] = 0.0
+        lo = max(tv * tile - v0, 0)
+        hi = min((tv + 1) * tile - v0, nv)
+        for jj in range(ny):
+            for ii in range(nx):
+                for qv in range(lo, hi):
+                    for qu in range(nu):
+                        z = Z[jj, ii, qv, qu]
+                        a = acc[tv, (u0 + qu) // tile]
+                        k = 0
+                        for m in range(6):
+                            zm = z[m]
+                            for q in range(m, 6):
+                                a[k] += zm * z[q]
+                                k += 1
+                        for m in range(6):
+                            a[21 + m] += z[m] * z[6]
+                        a[27] += z[6] * z[6]
+                        a[28] += Wr[jj, ii, qv, qu]
+
+
+def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: float = 0.0) -> list:
+    """Per box axis (y, x, v, u): (C_a, bandwidth) of the axis' prefilter on the box's length,
+    or None where the axis is not filtered (radius 0)."""
+    out = []
+    for ax, name in enumerate(("y", "x", "v", "u")):
+        n = int(box[2 * ax + 1] - box[2 * ax])
+        if radius[name] == 0 or n <= 0:
+            out.append(None)
+            continue
+        taps = tuple(float(t) for t in filters[name].prefilter)
+        out.append((_whitening_factor(taps, n, floor), 2 * radius[name]))
+    return out
+
+
+def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs: np.ndarray,
+                   P: np.ndarray, kind: int, inv_sc: float, box: np.ndarray, factors: list,
+                   tile: int) -> np.ndarray:
+    """Tile sums (F, 1, n_tiles, 29) as :func:`_accumulate` returns them, but of the *whitened*
+    rows: per face, z = (⊗ₐ C_a)⁻¹ sqrt(w) (c, b) over the box (C_a C_aᵀ = K_a K_aᵀ, the noise
+    covariance of the prefiltered temporal difference up to 2σ²), so that Σ z_c z_cᵀ =
+    Aᵀ W^½ Σ⁻¹ W^½ A: generalised least squares. der: (Lx, Ly, Lu, Lv, Lt) (F, Ny, Nx, Nv, Nu);
+    base: base weights of the same dims; P (F, 6): p in each face's frame (IRLS residuals)."""
+    F, Ny, Nx, Nv, Nu = base.shape
+    n = [int(box[2 * a + 1] - box[2 * a]) for a in range(4)]
+    nt = (-(-Nv // tile), -(-Nu // tile))
+    acc = np.zeros((F, 1, nt[0] * nt[1], _NACC))
+    if min(n) <= 0:
+        return acc
+    Z = np.empty(tuple(n) + (7,))
+    Wr = np.empty(tuple(n))
+    xs, ys, us, vs = vals
+    for k in range(F):
+        _weighted_rows(*der, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
+                       np.ascontiguousarray(P[k], dtype=np.float64), kind, float(inv_sc), box, Z, Wr)
+        _whiten_rows(Z, factors)
+        a = np.empty(nt + (_NACC,))
+        _whitened_tile_sums(Z, Wr, int(box[4]), int(box[6]), int(tile), a)
+        acc[k, 0] = a.reshape(-1, _NACC)
+    return acc
+
+
+def _whitened_noise_gain(fp: FilterPair, n: int, floor: float = 0.0, derivative: bool = True) -> float:
+    """Mean over n interior samples of diag(C⁻¹ D Dᵀ C⁻ᵀ), D, C the derivative's (or with
+    ``derivative=False`` the prefilter's) Toeplitz matrix and the whitening factor
+    (:func:`_whitening_factor`) of the pair ``fp``: the whitened variance of the filtered unit
+    white noise along that axis (per sample step; Σ d² unwhitened; 1 for the prefilter
+    without floor)."""
+    r = fp.radius
+    C = _whitening_factor(tuple(float(t) for t in fp.prefilter), n, floor)
+    D = np.zeros((n, n + 2 * r))
+    for i in range(n):
+        D[i, i:i + 2 * r + 1] = fp.derivative if derivative else fp.prefilter
+    X = np.linalg.solve(C, D)
+    return float(np.sum(X * X) / n)
