@@ -110,13 +110,14 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, correlate_axis, filter_taps, min_filter_axis, parallel_chunks
+from .derivatives import FILTERS, Derivatives, filter_taps, min_filter_axis, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _depth_regularise, _face_B, _pass_kernel, _prepare_kernel,
                   _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
-from .lightfield import Axis, LightFieldGrid
+from .lightfield import LightFieldGrid
 from .motion_options import MotionOptions
+from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import _T_sqrt, _views_inner, _warp_into, warp_lightfield, warp_lightfield_reference
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
@@ -245,92 +246,6 @@ def _valid_box(valid: np.ndarray) -> np.ndarray:
         idx = np.flatnonzero(valid.any(axis=tuple(a for a in range(4) if a != ax)))
         box += [int(idx[0]), int(idx[-1]) + 1] if idx.size else [0, 0]
     return np.array(box, np.int64)
-
-
-@numba.njit(parallel=True, cache=True)
-def _downsample_uv_kernel(a, taps, out):
-    """out[n, i, j] = Σ_s taps[s] Σ_t taps[t] a[n, clamp(2i + s − 2), clamp(2j + t − 2)] for
-    a (N, Nv, Nu) view stack: the binomial smoothing of both axes, evaluated only at the
-    kept samples (clamped borders, float32 sums in the order of :func:`correlate_axis`)."""
-    N, Nv, Nu = a.shape
-    Nv2 = out.shape[1]
-    Nu2 = out.shape[2]
-    for n in numba.prange(N):
-        row = np.empty(Nu, np.float32)
-        src = a[n]
-        for i in range(Nv2):
-            row[:] = 0.0
-            for s in range(5):
-                r = src[min(max(2 * i + s - 2, 0), Nv - 1)]
-                w = taps[s]
-                for u in range(Nu):
-                    row[u] += w * r[u]
-            o = out[n, i]
-            for j in range(Nu2):
-                acc = np.float32(0.0)
-                for t in range(5):
-                    acc += taps[t] * row[min(max(2 * j + t - 2, 0), Nu - 1)]
-                o[j] = acc
-
-
-def _downsample(a: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
-    """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu) array."""
-    taps = np.array([1, 4, 6, 4, 1], np.float32) / 16
-    out = np.ascontiguousarray(a, dtype=np.float32)
-    if tuple(axes) == (out.ndim - 2, out.ndim - 1):            # (v, u) together: one pass
-        Nv, Nu = out.shape[-2:]
-        res = np.empty(out.shape[:-2] + ((Nv - 1) // 2 + 1, (Nu - 1) // 2 + 1), np.float32)
-        _downsample_uv_kernel(out.reshape(-1, Nv, Nu), taps, res.reshape((-1,) + res.shape[-2:]))
-        return res
-    for ax in axes:
-        out = correlate_axis(out, taps, ax)
-        sl = [slice(None)] * out.ndim
-        sl[ax] = slice(None, None, 2)
-        out = np.ascontiguousarray(out[tuple(sl)])
-    return out
-
-
-def _half_axis(a: Axis) -> Axis:
-    n = (a.count - 1) // 2 + 1
-    return Axis(a.min, a.min + (n - 1) * 2 * a.step, n)
-
-
-@dataclass
-class _Level:
-    grid: LightFieldGrid
-    L0: np.ndarray      # (F, Ny, Nx, Nv, Nu) float32
-    L1: np.ndarray
-    W0: np.ndarray | None
-    W1: np.ndarray | None
-
-
-def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict) -> list[_Level]:
-    """Levels finest first. (u, v) are halved while ≥ 32 samples remain; (x, y) only with
-    ``pyramid_xy`` and while the halved axis still leaves valid derivative samples."""
-    levels = [_Level(grid, L0, L1, W0, W1)]
-    for _ in range(opts.levels - 1):
-        g = levels[-1].grid
-        axes, kw = [], {}
-        for name, ax_idx in (("v", 3), ("u", 4)):
-            a = getattr(g, name)
-            if a.count >= 32:
-                axes.append(ax_idx)
-                kw[name] = _half_axis(a)
-        if opts.pyramid_xy:
-            for name, ax_idx in (("y", 1), ("x", 2)):
-                a = getattr(g, name)
-                if (a.count - 1) // 2 + 1 >= 2 * pairs_radius[name] + 3:
-                    axes.append(ax_idx)
-                    kw[name] = _half_axis(a)
-        if not axes:
-            break
-        ng = replace(g, **kw)
-        prev = levels[-1]
-        def ds(a, axes=tuple(sorted(axes))):
-            return None if a is None else _downsample(a, axes)
-
-        levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1)))
-    return levels
 
 
 @numba.njit(parallel=True, cache=True)
