@@ -75,7 +75,7 @@ def _weighted_rows(Lx, Ly, Lu, Lv, Lt, base, fc, xs, ys, us, vs, z_pi, f, p, kin
     """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7) and
     the weights w into Wr (n_y, n_x, n_v, n_u): c the Eq. 5 coefficients (face frame), b = −L_t,
     w = base weight × the IRLS weight (``kind`` 1 Tukey, 2 Huber, 0 none) of the residual at
-    p (face frame) normalised by 1 / inv_sc, as :func:`_accumulate_view` weights them."""
+    p (face frame) normalised by 1 / inv_sc, as :func:`~polycam.eq5._accumulate_view` weights them."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     nv = box[5] - box[4]
@@ -167,7 +167,7 @@ def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: floa
 def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs: np.ndarray,
                    P: np.ndarray, kind: int, inv_sc: float, box: np.ndarray, factors: list,
                    tile: int) -> np.ndarray:
-    """Tile sums (F, 1, n_tiles, 29) as :func:`_accumulate` returns them, but of the *whitened*
+    """Tile sums (F, 1, n_tiles, 29) as :func:`~polycam.eq5._accumulate` returns them, but of the *whitened*
     rows: per face, z = (⊗ₐ C_a)⁻¹ sqrt(w) (c, b) over the box (C_a C_aᵀ = K_a K_aᵀ, the noise
     covariance of the prefiltered temporal difference up to 2σ²), so that Σ z_c z_cᵀ =
     Aᵀ W^½ Σ⁻¹ W^½ A: generalised least squares. der: (Lx, Ly, Lu, Lv, Lt) (F, Ny, Nx, Nv, Nu);

@@ -1,0 +1,289 @@
+"""Per-ray data weights of the motion solver: noise, discontinuities, confidence, IRLS.
+
+The weight of a ray in the Eq. 5 system (:mod:`polycam.motion`, section "Robust
+weighting" of its docstring; docs/motion.md) is its confidence minimised over the filter
+support (:func:`solver_filter_pairs`, :func:`min_over_support`) × validity × a
+discontinuity weight (:func:`discontinuity_weight`: large second derivatives in (u, v)
+near the ray, optionally above the level sensor noise alone reaches, with the noise
+variance estimated from second differences across viewpoints) × an IRLS weight
+(:func:`robust_weight` of the residual over :func:`robust_scale`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numba
+import numpy as np
+
+from .derivatives import FILTERS, min_filter_axis
+from .lightfield import LightFieldGrid
+from .motion_options import MotionOptions
+from .pyramid import _Level
+
+__all__ = [
+    "discontinuity_weight",
+    "solver_filter_pairs",
+    "min_over_support",
+    "robust_scale",
+    "robust_weight",
+    "robust_slope",
+]
+
+
+@numba.njit(parallel=True, cache=True)
+def _second_differences(L, W, has_w, ax, stride, out):
+    """|L[a-1] − 2 L[a] + L[a+1]| along axis ``ax`` (1..4) of L (F, Ny, Nx, Nv, Nu) on every
+    ``stride``-th (v) row (C order over the interior along ax, whole rows for contiguous
+    access; along u only the interior samples); NaN where the confidence W is not
+    positive (``has_w``). out: (n_rows, n_u)."""
+    F, Ny, Nx, Nv, Nu = L.shape
+    n3 = Nv - 2 if ax == 3 else Nv
+    n2 = Nx - 2 if ax == 2 else Nx
+    n1 = Ny - 2 if ax == 1 else Ny
+    dv = 1 if ax == 3 else 0
+    di = 1 if ax == 2 else 0
+    dj = 1 if ax == 1 else 0
+    du = 1 if ax == 4 else 0
+    two = np.float32(2.0)
+    for k in numba.prange(out.shape[0]):
+        q = k * stride
+        v = q % n3 + dv
+        q //= n3
+        i = q % n2 + di
+        q //= n2
+        j = q % n1 + dj
+        f = q // n1
+        for m in range(out.shape[1]):
+            u = m + du
+            if has_w and not W[f, j, i, v, u] > 0:
+                out[k, m] = np.nan
+                continue
+            out[k, m] = abs(L[f, j - dj, i - di, v - dv, u - du] - two * L[f, j, i, v, u]
+                            + L[f, j + dj, i + di, v + dv, u + du])
+
+
+def _noise_variance(lev: _Level, samples: int = 100_000) -> float:
+    """Sensor-noise variance per sample, from the robust spread of second differences
+    across viewpoints (the light field is smooth along x and y; the finest available
+    axis is used) on regularly spaced rows, about ``samples`` per frame:
+    σ² = (1.4826 · median |Δ²L|)² / 6."""
+    for ax in (2, 1, 4, 3):                             # x, y, then u, v
+        if lev.L0.shape[ax] >= 3:
+            break
+    else:
+        return 0.0
+    shape = list(lev.L0.shape)
+    shape[ax] -= 2
+    n_u = shape[4]
+    n_rows = int(np.prod(shape[:4]))
+    stride = max(1, n_rows * n_u // samples)
+    vals = []
+    for L, W in ((lev.L0, lev.W0), (lev.L1, lev.W1)):
+        out = np.empty((-(-n_rows // stride), n_u), np.float32)
+        _second_differences(L, L if W is None else W, W is not None, ax, stride, out)
+        out = out.reshape(-1)
+        vals.append(out[np.isfinite(out)])
+    v = np.concatenate(vals)
+    if v.size == 0:
+        return 0.0
+    return float((1.4826 * np.median(v)) ** 2 / 6.0)
+
+
+@numba.njit(parallel=True, cache=True)
+def _discontinuity_energy(L0, L1, W0, has_w, r, out):
+    """out = |∂²S/∂u²| + |∂²S/∂v²| (second differences, clamped borders) of the mean
+    S = (L0 + L1) / 2 (times W0 > 0 with ``has_w``) maximised over ±r samples in (u, v)
+    (windows clipped at the borders), per view image of (F, Ny, Nx, Nv, Nu) arrays."""
+    F, Ny, Nx, Nv, Nu = L0.shape
+    two = np.float32(2.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    n = F * Ny * Nx
+    chunks = max(1, min(n, 64))
+    # row-wise loops over contiguous u with unsigned indices (they vectorise)
+    un = numba.uint64(Nu)
+    for c in numba.prange(chunks):
+        img = np.empty((Nv, Nu), np.float32)
+        e = np.empty((Nv, Nu), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc = idx // (Ny * Nx)
+            rem = idx - fc * Ny * Nx
+            j = rem // Nx
+            i = rem - j * Nx
+            a0 = L0[fc, j, i]
+            a1 = L1[fc, j, i]
+            wv = W0[fc, j, i]
+            o = out[fc, j, i]
+            for v in range(Nv):
+                ir = img[v]
+                r0 = a0[v]
+                r1 = a1[v]
+                rw = wv[v]
+                for u in range(un):
+                    sv = (r0[u] + r1[u]) * half
+                    ir[u] = zero if (has_w and not rw[u] > 0) else sv
+            for v in range(Nv):
+                er = e[v]
+                ir = img[v]
+                if Nv >= 3:
+                    im = img[max(v - 1, 0)]
+                    ip = img[min(v + 1, Nv - 1)]
+                    for u in range(un):
+                        er[u] = zero + abs(im[u] - two * ir[u] + ip[u])
+                else:
+                    er[:] = zero
+                if Nu >= 3:
+                    er[0] += abs(ir[0] - two * ir[0] + ir[1])
+                    for u in range(numba.uint64(1), numba.uint64(Nu - 1)):
+                        er[u] += abs(ir[u - 1] - two * ir[u] + ir[u + 1])
+                    er[Nu - 1] += abs(ir[Nu - 2] - two * ir[Nu - 1] + ir[Nu - 1])
+            for v in range(Nv):                          # max over ±r rows
+                ir = img[v]
+                ir[:] = e[max(v - r, 0)]
+                for d in range(max(v - r, 0) + 1, min(v + r, Nv - 1) + 1):
+                    er = e[d]
+                    for u in range(un):
+                        ir[u] = max(ir[u], er[u])
+            for v in range(Nv):                          # max over ±r samples along u
+                ir = img[v]
+                orow = o[v]
+                for u in range(min(r, Nu)):              # left border (clipped windows)
+                    m = ir[max(u - r, 0)]
+                    for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                        m = max(m, ir[d])
+                    orow[u] = m
+                if Nu > 2 * r:
+                    m_in = numba.uint64(Nu - 2 * r)
+                    oi = orow[r:Nu - r]
+                    oi[:] = ir[0:Nu - 2 * r]
+                    for d in range(1, 2 * r + 1):
+                        sr = ir[d:d + Nu - 2 * r]
+                        for u in range(m_in):
+                            oi[u] = max(oi[u], sr[u])
+                for u in range(max(Nu - r, r), Nu):      # right border
+                    m = ir[max(u - r, 0)]
+                    for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
+                        m = max(m, ir[d])
+                    orow[u] = m
+
+
+_NOISE_ENERGY_Q = 0.99
+"""Quantile of the discontinuity energy of pure noise subtracted by the noise-aware weight."""
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_energy_quantile(radius: int) -> float:
+    """The ``_NOISE_ENERGY_Q`` quantile of the discontinuity energy e (:func:`_discontinuity_energy`,
+    window ±radius) of white noise of unit variance: e of noise of variance s² is s times this.
+    Computed once per radius from a seeded 128 x 128 noise image."""
+    n = np.random.default_rng(1234).standard_normal((1, 1, 1, 128, 128)).astype(np.float32)
+    e = np.empty_like(n)
+    _discontinuity_energy(n, n, n, False, radius, e)
+    return float(np.quantile(e, _NOISE_ENERGY_Q))
+
+
+def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
+                          samples: int = 200_000, noise_var: float = 0.0) -> np.ndarray:
+    """:func:`discontinuity_weight` of S = (L0 + L1) / 2 (zero where W0 <= 0); the median
+    from about ``samples`` values in whole rows. ``noise_var``: sensor-noise variance of S
+    per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e)."""
+    e = np.empty_like(L0)
+    _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e)
+    rows = e.reshape(-1, e.shape[-1])
+    m = float(np.median(rows[:: max(1, e.size // samples)]))
+    if not m > 0:
+        return np.ones_like(e)
+    if opts.smooth_noise and noise_var > 0:
+        # noise-aware: only energy above what noise alone reaches counts as a discontinuity
+        e -= np.float32(_noise_energy_quantile(max(int(opts.smooth_radius), 0)) * math.sqrt(noise_var))
+        np.maximum(e, np.float32(0.0), out=e)
+    e *= np.float32(1.0 / (opts.smooth_c * m))
+    np.multiply(e, e, out=e)
+    e += np.float32(1.0)
+    return np.reciprocal(e, out=e)
+
+
+def discontinuity_weight(S: np.ndarray, opts: MotionOptions, noise_var: float = 0.0) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) weights in (0, 1] of a light field S of the same dims: small near
+    intensity discontinuities.
+
+    e = |∂²S/∂u²| + |∂²S/∂v²|, maximised over ±``smooth_radius`` samples in (u, v);
+    w = 1 / (1 + (e / (smooth_c · median e))²). The solver applies it to the mean of a
+    frame pair; it depends on the data only (not on the motion), so it is the same in
+    every iteration of a level. Public so the design study predicts with the same weights.
+    With ``opts.smooth_noise`` and ``noise_var`` > 0 (the sensor-noise variance of S per
+    sample), e is first reduced by the level pure noise of that variance stays below with
+    99% probability (clipped at 0), so noise alone leaves the weights at 1.
+    """
+    S = np.ascontiguousarray(S, dtype=np.float32)
+    return _discontinuity_weight(S, S, None, opts, noise_var=noise_var)
+
+
+def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
+    """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data); the
+    mean of two frames has half the per-frame noise variance (:func:`_noise_variance`)."""
+    var_S = 0.5 * _noise_variance(lev) if opts.smooth_noise else 0.0
+    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts, noise_var=var_S)
+
+
+def solver_filter_pairs(grid: LightFieldGrid, opts: MotionOptions) -> dict:
+    """Axis name (x y u v) → the FilterPair the solver uses on this grid (None: the axis is
+    too short to differentiate)."""
+    names = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
+    counts = {"x": grid.x.count, "y": grid.y.count, "u": grid.u.count, "v": grid.v.count}
+    out = {}
+    for k in "xyuv":
+        fp = FILTERS[names.get(k, "fs5")]
+        out[k] = fp if counts[k] >= 2 * fp.radius + 1 else None
+    return out
+
+
+def min_over_support(c: np.ndarray, pairs: dict) -> np.ndarray:
+    """Minimum of a (F, Ny, Nx, Nv, Nu) confidence over each ray's filter support
+    (``pairs`` from :func:`solver_filter_pairs`): the solver's confidence rule."""
+    out = c
+    for name, ax in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
+        fp = pairs[name]
+        if fp is not None and fp.radius > 0 and out.shape[ax] > 1:
+            out = min_filter_axis(out, fp.radius, ax)
+    return out
+
+
+def robust_scale(res: np.ndarray, w: np.ndarray) -> float:
+    """The solver's robust residual scale: 1.4826 x the w-weighted median of |res| over
+    w > 0 (from at least 50 000 regularly spaced samples)."""
+    m = w.reshape(-1) > 0
+    a = np.abs(res.reshape(-1)[m]).astype(np.float64)
+    ww = w.reshape(-1)[m].astype(np.float64)
+    if a.size == 0:
+        return 0.0
+    step = max(1, a.size // 50_000)
+    a, ww = a[::step], ww[::step]
+    order = np.argsort(a)
+    cw = np.cumsum(ww[order])
+    i = int(np.searchsorted(cw, 0.5 * cw[-1]))
+    return 1.4826 * float(a[order[min(i, a.size - 1)]])
+
+
+def robust_weight(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
+    """The solver's IRLS weight w(r) of residuals ``res`` (any dims) at robust ``scale``
+    (Tukey or Huber with ``opts.robust_c``; ones without robust weighting)."""
+    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * opts.robust_c)
+    if opts.robust == "huber":
+        return np.where(z <= 1.0, 1.0, 1.0 / np.maximum(z, 1e-12)).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) ** 2, 0.0).astype(np.float32)
+
+
+def robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarray:
+    """ψ'(res) of the IRLS loss (ψ(r) = w(r) r; 1 where the loss is quadratic): how much a
+    small change of a ray's residual moves the robust (M-)estimate that IRLS converges to."""
+    if opts.robust == "none" or opts.irls_steps == 0 or not scale > 0:
+        return np.ones_like(res)
+    z = np.abs(res) / np.float32(scale * opts.robust_c)
+    if opts.robust == "huber":
+        return (z <= 1.0).astype(np.float32)
+    return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
