@@ -12,7 +12,7 @@ holds
   derivatives and the IRLS statistics (``_prepare_kernel``, ``_pass_kernel``), plus the
   residual sampling and weighted median that give the robust scale;
 - their drivers ``_accumulate`` / ``_reduce`` (per-face tile sums → rig-frame N, rhs);
-- the depth-regularised regressors of paper Eq. 6 (``_depth_regularise``,
+- the depth-regularised regressors of paper Eq. 6 (``depth_regularise``,
   :attr:`~polycam.motion_options.MotionOptions.depth_regressors`).
 
 The ray loops are branch-free with unsigned indices and re-associated sums
@@ -27,7 +27,7 @@ import numpy as np
 from .derivatives import FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
 from .lightfield import LightFieldGrid
 
-__all__ = ["ray_motion_coefficients"]
+__all__ = ["ray_motion_coefficients", "depth_regularise"]
 
 
 _NACC = 29
@@ -554,7 +554,7 @@ _DEPTH_KEEP = 3.0
 exceeds this many times their expected noise variance (one depth does not explain it)."""
 
 
-def _depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarray:
+def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarray:
     """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
     (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims) and one depth
     explains the window; returns (4,) the noise variances ``var`` of (L_x, L_y, L_u, L_v)

@@ -109,7 +109,7 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _depth_regularise, _face_B, _pass_kernel, _prepare_kernel,
+from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, depth_regularise, _face_B, _pass_kernel, _prepare_kernel,
                   _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
@@ -395,7 +395,7 @@ class _Solver:
             valid = np.zeros(self.shape, bool)
             valid[:, b[0]:b[1], b[2]:b[3], b[4]:b[5], b[6]:b[7]] = True
             valid &= self.base > 0
-            self.var = _depth_regularise(self.der, valid, self._var_measured(var))
+            self.var = depth_regularise(self.der, valid, self._var_measured(var))
             _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                          np.zeros((self.shape[0], 6)), 0, 0.0, self.tile, self.box, self.h, self.var, final,
                          self.acc, self.st, parallel_chunks())

@@ -568,7 +568,7 @@ def test_whitening_auto_and_on(scene):
 def test_depth_regressors_reduce_positional_noise(scene):
     """Eq. 6 regressors ρ̂ L_u, ρ̂ L_v (ρ̂ pooled over a window) are closer to the noise-free
     L_x, L_y than the measured noisy ones (the scene is Lambertian: one depth per ray)."""
-    from polycam.eq5 import _depth_regularise
+    from polycam.eq5 import depth_regularise
 
     grid = make_grid(("+z",), views=7, directions=32, spacing=0.01)
     M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
@@ -585,7 +585,7 @@ def test_depth_regressors_reduce_positional_noise(scene):
     # the expected noise variances of the regressors (of the frames' mean: σ²/2 per sample)
     var = np.array([0.5 * np.mean(getattr(noise, a)[valid].astype(np.float64) ** 2) for a in ("Lx", "Ly", "Lu", "Lv")])
     der = [np.array(a) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
-    var_after = _depth_regularise(der, np.ascontiguousarray(valid), var)
+    var_after = depth_regularise(der, np.ascontiguousarray(valid), var)
     err_before = np.sqrt(np.mean((noisy.Lx - clean.Lx)[valid] ** 2))
     err_after = np.sqrt(np.mean((der[0] - clean.Lx)[valid] ** 2))
     assert err_after < MOTION_DEPTH_REGRESSOR_GAIN * err_before, (err_after, err_before)
