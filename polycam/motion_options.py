@@ -49,16 +49,14 @@ class MotionOptions:
     noise is not read as discontinuities (:func:`~polycam.motion.discontinuity_weight`). Helps with ``eiv``
     at 16-32 grey levels; off because at 1-3 grey levels it lets more model error in
     (bench_motion.py's 8-bit rows: translation error 3.8% → 4.4% at 3 grey levels)."""
-    depth_regressors: bool = True
+    depth_regressors: bool = False
     """Replace the positional derivatives by ``ρ̂ L_u, ρ̂ L_v`` (paper Eq. 6, Lambertian:
     ``L_x = ρ L_u``), ρ̂ = Σ (L_x L_u + L_y L_v) / Σ (L_u² + L_v²) pooled over a window (fs5
     twice in (u, v), fs3 once across the views), except where one ρ does not explain the
     window (its residual energy above 3x the expected noise of L_x, L_y: occlusions, and
     noise-free data, where that noise is ~0): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
-    levels, 29.5 → 4.6 at 16). On by default since session 4: on low-noise data the keep rule
-    leaves the measured derivatives (the demo, the Fig. 5c sweep and the tests give the same
-    figures either way; docs/motion.md)."""
+    levels, 29.5 → 4.6 at 16)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
