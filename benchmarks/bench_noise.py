@@ -24,9 +24,12 @@ give the noise-only ratio (RMS of the deviation from the draws' mean / bound) an
 (which knows the discontinuity and Tukey weights but not the errors-in-variables step,
 the noise-aware weight or the whitening); ``GLS`` counts the estimates in which
 ``whiten="auto"`` took the whitened (generalised least squares) re-solves.
-``--variants`` repeats the measurement for several :class:`MotionOptions`; ``--probe``
-makes one unweighted linear solve at the true motion with the solver's regressors and
-with depth-regularised positional regressors (Eq. 6; a possible solver change).
+``--variants`` repeats the measurement for several :class:`MotionOptions` (since session 4
+the defaults include ``depth_regressors=True``; the variants other than the explicit
+``depth_regressors=False`` row do too); ``--probe`` (``--probe-only``) decomposes the
+linearised estimator at the true motion (:func:`linear_probe`): which part of the gap to the
+bound an estimator with noise-free regressors (oracle) would still have on the rays the warp
+keeps, with plain or whitened least squares, against the measured and the Eq. 6 regressors.
 
 The bound (derivation)
 ----------------------
@@ -56,7 +59,15 @@ linear Gaussian model with known a the Fisher information is
 applied axis by axis (the K_a K_aᵀ are at most 64 x 64), and Cov(p̂) ≥ I⁻¹ for any
 unbiased estimator from y (Cramér–Rao). I⁻¹ is mapped to the rig motion's (t, r)
 (``T_prev_next = [R_from_r(r) | t]``) with the Jacobian of p ↦ (t, r)(exp(p)⁻¹) at the
-true p (numerical). Left out, deliberately: noise in a (errors in variables — the
+true p (numerical). Noise in a is not a reason for a larger bound: with the light field
+itself an unknown nuisance (observed in both frames, frame 2 its moved copy), the Fisher
+information of the motion is, to first order, that of the difference of the frames with
+noise-free regressors — per spatial frequency the nuisance direction (1, 1) is projected
+out of (0, ∂/∂p), which halves the information whatever the motion size when the motion
+maps rays to rays — i.e. exactly the 2σ² above. An estimator that takes its regressors
+from the noisy frames loses efficiency (an instrumental-variables estimator with noisy
+instruments), but that is the estimator's loss, not the bound's. Left out, deliberately:
+noise in a (errors in variables — the
 solver's derivatives are noisy, which biases it towards zero at high noise), the
 warp (the solver interpolates frame 2 at the moved rays, which smooths its noise and
 loses rays that leave the grid) and model error (the first-order model is not exact
@@ -85,7 +96,8 @@ sys.path.insert(0, str(REPO))
 
 import dataclasses  # noqa: E402
 
-from polycam.derivatives import FILTERS, correlate_axis, plenoptic_derivatives  # noqa: E402
+from polycam.derivatives import FILTERS, plenoptic_derivatives  # noqa: E402
+from polycam.eq5 import depth_regularise  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
@@ -177,6 +189,33 @@ def linear_model_bounds(L0: np.ndarray, L1: np.ndarray, grid, M: np.ndarray,
     Ni = np.linalg.inv(N)
     ols = J @ (Ni @ meat @ Ni) @ J.T
     return 0.5 * (crb + crb.T), 0.5 * (ols + ols.T)
+
+
+def raw_sample_bounds(faces: str, D: float, supersample: int, directions: int,
+                      M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(6, 6) CRBs (over the samples of the filtered model's ray set V, over all samples) of the rig motion's (t, r) per unit σ² from the *raw* samples, no filters:
+    ``2 (Jᵀ J)⁻¹`` with J (n_samples, 6) the exact Jacobian of frame 2's samples with respect to
+    (t, r) at the true motion (central differences of the renderer: 1 mm, 0.1 mrad steps), the
+    factor 2 for the noise of both frames (the first-order bound with the scene unknown: for a
+    motion that maps rays to rays the nuisance costs exactly that factor). A reference for how much the filtered
+    linear model (:func:`linear_model_bounds`) already leaves to the estimator: the
+    high-frequency content of the raw samples that the derivative filters cannot use."""
+    grid = default_lightfield_grid(faces, directions=directions)
+    ren = LightFieldRenderer(spheres_scene(D, seed=0), grid, supersample)
+    q = np.concatenate([M[:3, 3], rt_from_T(M)[:3]])
+    steps = (1e-3,) * 3 + (1e-4,) * 3
+    cols = []
+    for i, h in enumerate(steps):
+        e = np.zeros(6)
+        e[i] = h
+        a, b = (ren.render(T_from_Rt(R_from_r(qq[3:]), qq[:3])).astype(np.float64) for qq in (q + e, q - e))
+        d = (a - b) / (2 * h)
+        cols.append(d)
+    out = []
+    for sl in ((slice(None), slice(1, -1), slice(1, -1), slice(2, -2), slice(2, -2)), (slice(None),) * 5):
+        J = np.stack([c[sl].reshape(-1) for c in cols], axis=1)
+        out.append(2.0 * np.linalg.inv(J.T @ J))
+    return out[0], out[1]
 
 
 def regressor_snr(L0: np.ndarray, L1: np.ndarray, grid, filters: dict, seed: int = 3) -> dict:
@@ -304,7 +343,8 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     snr = regressor_snr(L0, L1, grid, filters)
     print("\nregressor signal / noise RMS at σ = 1 grey level (divide by σ for other levels): "
           + ", ".join(f"{k} {v:.0f}" for k, v in snr.items()))
-    worst = max(max(r["err_t"] / r["crb_t"], r["err_w"] / r["crb_w"]) for r in rows if r["sigma"] > 0)
+    worst = max((max(r["err_t"] / r["crb_t"], r["err_w"] / r["crb_w"]) for r in rows if r["sigma"] > 0),
+                default=math.nan)
     print(f"\nworst measured / CRB ratio over σ > 0: {worst:.2f} (goal ≤ 1.5: {'met' if worst <= 1.5 else 'NOT met'}); "
           f"|t| = {1e3 * np.linalg.norm(M[:3, 3]):.1f} mm, |ω| = {1e6 * np.linalg.norm(rt_from_T(M)[:3]):.0f} µrad")
     return rows
@@ -323,7 +363,7 @@ VARIANTS = {
     "eiv, smooth_noise, whiten=on (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="on"),
     "eiv, smooth_noise, whiten=on, floor 0.1": MotionOptions(eiv=True, smooth_noise=True, whiten="on",
                                                              whiten_floor=0.1),
-    "depth_regressors": MotionOptions(depth_regressors=True),
+    "depth_regressors=False (the default before session 4)": MotionOptions(depth_regressors=False),
     "depth_regressors, eiv, smooth_noise": HIGH_NOISE,
     "whiten=on, floor 0 (exact GLS)": MotionOptions(whiten="on", whiten_floor=0.0),
     "smooth_c=0": MotionOptions(smooth_c=0.0),
@@ -359,68 +399,106 @@ def variant_table(name: str, grid, L0, L1, M, sigmas, draws: int) -> None:
 # ---------------------------------------------------------------------------- linear probe
 
 
-def depth_regularised(der, passes: int = 2):
-    """The derivatives with L_x, L_y replaced by ρ̂ L_u, ρ̂ L_v (Lambertian, paper Eq. 6:
-    L_x = ρ L_u with ρ = f / Z), ρ̂ = Σ L_x L_u / Σ L_u² (L_x regressed on the clean L_u) over a
-    (u, v) window (the fs5 prefilter applied ``passes`` times) — the proposed solver change."""
-    taps = FILTERS["fs5"].prefilter
+def _true_motion_mask(grid, ok: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) float64 0/1: rays whose derivative filters see only samples that the
+    warp by the true motion kept inside the grid (``ok``, eroded by the filter radii: 1 in x, y,
+    2 in u, v), and that lie in the filters' interior (``valid``): the rays the solver can use."""
+    okv = ok.astype(np.float32)
+    for ax, r in ((1, 1), (2, 1), (3, 2), (4, 2)):
+        okv = np.minimum(okv, np.minimum.reduce([np.roll(okv, d, axis=ax) for d in range(-r, r + 1)]))
+    return (okv * valid).astype(np.float64)
 
-    def win(a):
-        out = np.ascontiguousarray(a, dtype=np.float32)
-        for _ in range(passes):
-            out = correlate_axis(correlate_axis(out, taps, 3), taps, 4)
-        return out
 
-    suu = win(der.Lu * der.Lu + der.Lv * der.Lv)
-    sxu = win(der.Lx * der.Lu + der.Ly * der.Lv)
-    rho = np.where(suu > 0, sxu / np.maximum(suu, 1e-30), 0.0).astype(np.float32)
-    return dataclasses.replace(der, Lx=rho * der.Lu, Ly=rho * der.Lv)
+PROBE_FLOORS = (None, 0.3)
+"""Weightings of the probe: None = plain least squares, else whitened with this ridge
+(``MotionOptions.whiten_floor``)."""
 
 
 def linear_probe(name: str, grid, L0, L1, M, sigmas, draws: int) -> None:
-    """One unweighted linear solve of Eq. 5 at the true motion (frame 2 warped by it, as the
-    solver sees it at convergence): RMS of the increment over draws / CRB, with the solver's
-    regressors and with depth-regularised positional regressors."""
+    """The linearised estimator at its fixed point, decomposed: frame 2 warped by the true
+    motion, one linear solve of Eq. 5 restricted to the rays the warp keeps, with the noise-free
+    Jacobian ``J`` (derivatives of the noise-free warped pair) as the model, so that the error is
+    ``−(Bᵀ W J)⁻¹ Bᵀ W (b₀ + n)``: ``b₀`` the noise-free data term (model error: the bias) and
+    ``n`` its noise; ``B`` the instruments (regressors) the estimator multiplies by — the
+    noise-free ``J`` itself (oracle), the measured derivatives, or Eq. 6's ``ρ̂ L_u, ρ̂ L_v``
+    (:func:`polycam.eq5.depth_regularise` as the solver computes them); ``W`` plain least squares or
+    whitened by ``(⊗ₐ K_a K_aᵀ + floor I)⁻¹`` on the interior box (rays outside the warp's set are
+    zero rows, so the whitening is approximate there). The oracle row is what an estimator that
+    knew the noise-free derivatives would reach on the same rays: how much of the gap to the
+    CRB is in the rays and the weighting rather than in the solver's regressors."""
     filters = MotionOptions().filters
     crb1, _ = linear_model_bounds(L0, L1, grid, M, filters)
-    J = _ray_to_rig(np.zeros(6))
-    print(f"\n## {name}: one linear solve at the true motion, RMS increment / CRB (t, ω), {draws} draws\n")
-    print("| regressors | " + " | ".join(f"σ = {s:g}" for s in sigmas) + " |")
-    print("|---|" + "---|" * len(sigmas))
-    cells = {"L_x, L_y as measured (solver)": [], "ρ̂ L_u, ρ̂ L_v (Eq. 6, proposed)": []}
+    Jr = _ray_to_rig(np.zeros(6))
+    F = len(grid.faces)
+    w1c, ok = warp_lightfield(L1[None], grid, T_inverse(M))
+    derc = plenoptic_derivatives(L0, w1c[0], grid, filters=filters)
+    spec = _axis_filters(derc, grid, filters)
+    sl = tuple(spec[a][0] for a in AXES)
+    mats = [spec[a][1] for a in AXES]
+    WM = _true_motion_mask(grid, ok, derc.valid)
+    frac = float(WM[(slice(None),) + sl].mean())
+
+    def rows(der):
+        return [ray_motion_coefficients(der, grid, k)[sl] * WM[k][sl][..., None] for k in range(F)]
+
+    def solve(B, y, floor):
+        N = np.zeros((6, 6))
+        rhs = np.zeros(6)
+        for k in range(F):
+            WB = B[k] if floor is None else _apply_axes(
+                B[k], [m + floor * np.eye(len(m)) for m in mats], inverse=True)
+            WB = WB.reshape(-1, 6)
+            N += WB.T @ J[k].reshape(-1, 6)
+            rhs -= WB.T @ y[k].reshape(-1)
+        return Jr @ np.linalg.solve(N, rhs)
+
+    J = rows(derc)
+    b0 = [derc.Lt[k][sl] * WM[k][sl] for k in range(F)]
+    kinds = ("noise-free J (oracle)", "measured (solver, depth_regressors=False)",
+             "ρ̂ L_u, ρ̂ L_v (Eq. 6, depth_regressors)")
+
+    def instruments(der):
+        var = np.full(4, 1e30)                 # the keep rule off: Eq. 6 wherever valid
+        reg = [der.Lx.copy(), der.Ly.copy(), der.Lu, der.Lv, der.Lt]
+        depth_regularise(reg, np.broadcast_to(der.valid, L0.shape), var)
+        return J, rows(der), rows(dataclasses.replace(der, Lx=reg[0], Ly=reg[1]))
+
+    crb = crb1 / 255.0 ** 2
+    bt1, bw1 = math.sqrt(np.trace(crb[:3, :3])), math.sqrt(np.trace(crb[3:, 3:]))
+    bias = {}
+    for kind, B in zip(kinds, instruments(derc)):
+        for fl in PROBE_FLOORS:
+            e0 = solve(B, b0, fl)
+            bias[(kind, fl)] = f"{np.linalg.norm(e0[:3]) / bt1:.1f}, {np.linalg.norm(e0[3:]) / bw1:.1f}"
+    print(f"\n## {name}: the linearised estimator at the true motion, RMS error / CRB (t, ω), noise-only "
+          f"part in brackets, {draws} draws; the warp keeps {100 * frac:.0f}% of the bound's rays\n")
+    print("| instruments | weighting | σ = 0: bias / CRB at σ = 1 | " + " | ".join(f"σ = {s:g}" for s in sigmas) + " |")
+    print("|---|---|---|" + "---|" * len(sigmas))
+    cells = {(k, fl): [] for k in kinds for fl in PROBE_FLOORS}
     for s in sigmas:
         sig = s / 255.0
         rng = np.random.default_rng([29, int(s * 1000)])
-        errs = {k: [] for k in cells}
-        for _ in range(draws if s > 0 else 1):
-            a = (L0 + rng.normal(0.0, sig, L0.shape)).astype(np.float32) if s > 0 else L0
-            b = (L1 + rng.normal(0.0, sig, L1.shape)).astype(np.float32) if s > 0 else L1
-            w1, ok = warp_lightfield(b[None], grid, T_inverse(M))
+        errs = {key: [] for key in cells}
+        for _ in range(draws):
+            a = (L0 + rng.normal(0.0, sig, L0.shape)).astype(np.float32)
+            b = (L1 + rng.normal(0.0, sig, L1.shape)).astype(np.float32)
+            w1, _ = warp_lightfield(b[None], grid, T_inverse(M))
             der = plenoptic_derivatives(a, w1[0], grid, filters=filters)
-            okv = ok.astype(np.float32)
-            for ax, r in ((1, 1), (2, 1), (3, 2), (4, 2)):
-                okv = np.minimum(okv, np.minimum.reduce([np.roll(okv, d, axis=ax) for d in range(-r, r + 1)]))
-            w = okv * der.valid[None]
-            for key, d in (("L_x, L_y as measured (solver)", der),
-                           ("ρ̂ L_u, ρ̂ L_v (Eq. 6, proposed)", depth_regularised(der))):
-                N = np.zeros((6, 6))
-                rhs = np.zeros(6)
-                for k in range(len(grid.faces)):
-                    A = ray_motion_coefficients(d, grid, k).reshape(-1, 6)
-                    wk = w[k].reshape(-1).astype(np.float64)
-                    N += (A * wk[:, None]).T @ A
-                    rhs -= (A * wk[:, None]).T @ d.Lt[k].reshape(-1)
-                errs[key].append(J @ np.linalg.solve(N, rhs))
-        for key in cells:
-            e = np.array(errs[key])
-            if s == 0:
-                cells[key].append(f"bias {1e3 * rms_norm(e[:, :3]):.4f} mm, {1e6 * rms_norm(e[:, 3:]):.2f} µrad")
-            else:
-                crb = crb1 * sig * sig
-                cells[key].append(f"{rms_norm(e[:, :3]) / math.sqrt(np.trace(crb[:3, :3])):.2f}, "
-                                  f"{rms_norm(e[:, 3:]) / math.sqrt(np.trace(crb[3:, 3:])):.2f}")
-    for key, c in cells.items():
-        print(f"| {key} | " + " | ".join(c) + " |", flush=True)
+            n = [der.Lt[k][sl] * WM[k][sl] - b0[k] for k in range(F)]
+            for kind, B in zip(kinds, instruments(der)):
+                for fl in PROBE_FLOORS:
+                    errs[(kind, fl)].append((solve(B, b0, fl), solve(B, n, fl)))
+        bt, bw = bt1 * s, bw1 * s
+        for key, v in errs.items():
+            e0 = np.array([x[0] for x in v])
+            en = np.array([x[1] for x in v])
+            tot, dev = e0 + en, en - en.mean(axis=0)
+            c = math.sqrt(len(v) / (len(v) - 1)) if len(v) > 1 else math.nan
+            cells[key].append(f"{rms_norm(tot[:, :3]) / bt:.2f}, {rms_norm(tot[:, 3:]) / bw:.2f} "
+                              f"({c * rms_norm(dev[:, :3]) / bt:.2f}, {c * rms_norm(dev[:, 3:]) / bw:.2f})")
+    for (kind, fl), c in cells.items():
+        print(f"| {kind} | {'least squares' if fl is None else f'whitened, floor {fl:g}'} | {bias[(kind, fl)]} | "
+              + " | ".join(c) + " |", flush=True)
 
 
 def main() -> None:
@@ -433,7 +511,13 @@ def main() -> None:
     ap.add_argument("--faces", nargs="+", default=["all", "+z"])
     ap.add_argument("--variant-sigmas", type=float, nargs="+", default=[0.0, 1.0, 8.0])
     ap.add_argument("--variants-only", action="store_true", help="skip the main table")
-    ap.add_argument("--probe", action="store_true", help="also the one-linear-solve regressor probe")
+    ap.add_argument("--probe", action="store_true",
+                    help="also the linearised estimator at the true motion, decomposed (oracle regressors, whitening)")
+    ap.add_argument("--probe-only", action="store_true", help="only the --probe table")
+    ap.add_argument("--raw-bound", action="store_true",
+                    help="also the CRB of the raw samples (exact renderer Jacobian, no filters) next to the linear model's")
+    ap.add_argument("--raw-bound-only", action="store_true", help="only the --raw-bound table")
+    ap.add_argument("--probe-sigmas", type=float, nargs="+", default=[4.0, 16.0], help="noise levels of --probe")
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
                     help="also the table for depth_regressors=True, eiv=True, smooth_noise=True")
@@ -444,14 +528,27 @@ def main() -> None:
     for faces in args.faces:
         grid, L0, L1, M = setup(faces, args.distance, ss, 64)
         label = "six faces" if faces == "all" else f"one face {faces}"
-        if not args.variants_only:
+        if args.raw_bound or args.raw_bound_only:
+            crb_f, _ = linear_model_bounds(L0, L1, grid, M, MotionOptions().filters)
+            print(f"\n## {label}, D = {args.distance:g} m: bounds at σ = 1 grey level, sqrt(trace) t [mm], ω [µrad]\n")
+            print("| bound | t | ω |\n|---|---|---|")
+            crb_v, crb_all = raw_sample_bounds(faces, args.distance, ss, 64, M)
+            for bname, C in (("linear model, prefiltered derivatives (the yardstick)", crb_f),
+                             ("raw samples, exact Jacobian, rays of V", crb_v),
+                             ("raw samples, exact Jacobian, all rays", crb_all)):
+                C = C / 255.0 ** 2
+                print(f"| {bname} | {1e3 * math.sqrt(np.trace(C[:3, :3])):.5f} | {1e6 * math.sqrt(np.trace(C[3:, 3:])):.4f} |",
+                      flush=True)
+        if args.raw_bound_only:
+            continue
+        if not (args.variants_only or args.probe_only):
             noise_table(f"{label}, D = {args.distance:g} m, default options", grid, L0, L1, M, sigmas, draws,
                         MotionOptions(), not args.no_predict)
             if args.high_noise:
                 noise_table(f"{label}, D = {args.distance:g} m, depth_regressors, eiv, smooth_noise", grid, L0, L1, M,
                             sigmas, draws, HIGH_NOISE, not args.no_predict)
-        if args.probe:
-            linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, (0.0, 1.0, 8.0), draws)
+        if args.probe or args.probe_only:
+            linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.probe_sigmas), draws)
         if args.variants or args.variants_only:
             variant_table(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.variant_sigmas), draws)
 
