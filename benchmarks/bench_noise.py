@@ -192,7 +192,7 @@ def linear_model_bounds(L0: np.ndarray, L1: np.ndarray, grid, M: np.ndarray,
 
 
 def raw_sample_bounds(faces: str, D: float, supersample: int, directions: int,
-                      M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                      M: np.ndarray, blur: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(6, 6) CRBs (over the samples of the filtered model's ray set V, over all samples) of the rig motion's (t, r) per unit σ² from the *raw* samples, no filters:
     ``2 (Jᵀ J)⁻¹`` with J (n_samples, 6) the exact Jacobian of frame 2's samples with respect to
     (t, r) at the true motion (central differences of the renderer: 1 mm, 0.1 mrad steps), the
@@ -208,7 +208,8 @@ def raw_sample_bounds(faces: str, D: float, supersample: int, directions: int,
     for i, h in enumerate(steps):
         e = np.zeros(6)
         e[i] = h
-        a, b = (ren.render(T_from_Rt(R_from_r(qq[3:]), qq[:3])).astype(np.float64) for qq in (q + e, q - e))
+        a, b = (optics(ren.render(T_from_Rt(R_from_r(qq[3:]), qq[:3])), blur).astype(np.float64)
+                for qq in (q + e, q - e))
         d = (a - b) / (2 * h)
         cols.append(d)
     out = []
@@ -287,11 +288,25 @@ def rms_norm(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(e * e, axis=-1))))
 
 
-def setup(faces: str, D: float, supersample: int, directions: int):
+def setup(faces: str, D: float, supersample: int, directions: int, blur: float = 0.0,
+          motion_scale: float = 1.0):
+    """(grid, L0, L1, M): the noise-free frame pair of the set-up. ``blur``: std [samples] of a
+    Gaussian optics blur along u and v of every view (0: the renderer's pixel averaging only);
+    ``motion_scale``: multiplies the motion (|t| = 1.5 cm, |ω| = 0.2° at 1)."""
     grid = default_lightfield_grid(faces, directions=directions)
     ren = LightFieldRenderer(spheres_scene(D, seed=0), grid, supersample)
-    M = random_motion(np.random.default_rng(8000), 0.015, math.radians(0.2))
-    return grid, ren.render(np.eye(4)), ren.render(M), M
+    M = random_motion(np.random.default_rng(8000), 0.015 * motion_scale, math.radians(0.2) * motion_scale)
+    return grid, optics(ren.render(np.eye(4)), blur), optics(ren.render(M), blur), M
+
+
+def optics(L: np.ndarray, blur: float) -> np.ndarray:
+    """L (F, Ny, Nx, Nv, Nu) blurred along u and v by a Gaussian of std ``blur`` samples (0: as is)."""
+    if blur <= 0:
+        return L
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(gaussian_filter1d(L, blur, axis=3, mode="nearest"), blur, axis=4,
+                             mode="nearest").astype(L.dtype)
 
 
 def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOptions,
@@ -516,6 +531,9 @@ def main() -> None:
     ap.add_argument("--probe-only", action="store_true", help="only the --probe table")
     ap.add_argument("--raw-bound", action="store_true",
                     help="also the CRB of the raw samples (exact renderer Jacobian, no filters) next to the linear model's")
+    ap.add_argument("--blur", type=float, default=0.0,
+                    help="Gaussian optics blur along u, v of every view [samples] (default 0: sharp, aliased)")
+    ap.add_argument("--motion-scale", type=float, default=1.0, help="multiplies the motion (1: 1.5 cm, 0.2 deg)")
     ap.add_argument("--raw-bound-only", action="store_true", help="only the --raw-bound table")
     ap.add_argument("--probe-sigmas", type=float, nargs="+", default=[4.0, 16.0], help="noise levels of --probe")
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
@@ -526,13 +544,13 @@ def main() -> None:
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
     ss = 2 if args.quick else 3
     for faces in args.faces:
-        grid, L0, L1, M = setup(faces, args.distance, ss, 64)
+        grid, L0, L1, M = setup(faces, args.distance, ss, 64, args.blur, args.motion_scale)
         label = "six faces" if faces == "all" else f"one face {faces}"
         if args.raw_bound or args.raw_bound_only:
             crb_f, _ = linear_model_bounds(L0, L1, grid, M, MotionOptions().filters)
             print(f"\n## {label}, D = {args.distance:g} m: bounds at σ = 1 grey level, sqrt(trace) t [mm], ω [µrad]\n")
             print("| bound | t | ω |\n|---|---|---|")
-            crb_v, crb_all = raw_sample_bounds(faces, args.distance, ss, 64, M)
+            crb_v, crb_all = raw_sample_bounds(faces, args.distance, ss, 64, M, args.blur)
             for bname, C in (("linear model, prefiltered derivatives (the yardstick)", crb_f),
                              ("raw samples, exact Jacobian, rays of V", crb_v),
                              ("raw samples, exact Jacobian, all rays", crb_all)):
