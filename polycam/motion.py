@@ -109,8 +109,8 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, depth_regularise, _face_B, _pass_kernel, _prepare_kernel,
-                  _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
+from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, depth_rho, _face_B, _pass_kernel,
+                  _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
@@ -280,6 +280,13 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
     return np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6)
 
 
+_RHO_PREPS = 2
+"""Preparations per pyramid level, from its first, at which ρ̂ of the Eq. 6 regressors is
+recomputed (later ones reuse it)."""
+
+_NO_RHO = np.zeros((1,) * 5, np.float32)
+"""Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
+
 _WORK = threading.local()
 """Per-thread flat work arrays of the last estimate, by name: see :func:`free_work_buffers`."""
 
@@ -343,6 +350,9 @@ class _Solver:
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
         self.st = _work_array("st", (nviews, _NSTAT), np.float64)
+        self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors; NaN: kept)
+        self.var_dr: np.ndarray | None = None
+        self.n_rho = 0
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
         self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
@@ -384,18 +394,24 @@ class _Solver:
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der
+        # Eq. 6 regressors: ρ̂ depends on the scene's depth, not on the warp, so it is computed
+        # once per level (at its first preparation, from the measured regressors, then the sums
+        # again) and the fused kernel replaces L_x, L_y with it at the later preparations
+        first_dr = opts.depth_regressors and self.n_rho < _RHO_PREPS
+        self.n_rho += first_dr
+        has_rho = opts.depth_regressors and not first_dr
+        if has_rho:
+            self.var = self.var_dr
         _prepare_kernel(L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
                         Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
                         np.zeros((self.shape[0], 6)), self.tile, self.box, self.h, self.var, final,
-                        self.acc, self.st, parallel_chunks())
-        if opts.depth_regressors:
-            # Eq. 6 regressors, then the sums again (the fused kernel summed the measured ones)
+                        self.acc, self.st, parallel_chunks(), self.rho if has_rho else _NO_RHO, has_rho,
+                        not first_dr)
+        if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
-            b = self.box
-            valid = np.zeros(self.shape, bool)
-            valid[:, b[0]:b[1], b[2]:b[3], b[4]:b[5], b[6]:b[7]] = True
-            valid &= self.base > 0
-            self.var = depth_regularise(self.der, valid, self._var_measured(var))
+            self.rho = _work_array("rho", self.shape)
+            self.var = self.var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho)
+            _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
             _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                          np.zeros((self.shape[0], 6)), 0, 0.0, self.tile, self.box, self.h, self.var, final,
                          self.acc, self.st, parallel_chunks())
