@@ -794,7 +794,8 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     t9 = np.convolve(t5, t5).astype(np.float32)
     t3 = FILTERS["fs3"].prefilter.astype(np.float32)
     F, Ny, Nx = Lx.shape[:3]
-    parts = max(1, min(int(box[1] - box[0]), -(-2 * parallel_chunks() // max(1, F * int(box[3] - box[2])))))
+    # about two units per thread (each unit recomputes the products of two extra view rows)
+    parts = max(1, min(int(box[1] - box[0]), -(-2 * numba.get_num_threads() // max(1, F * int(box[3] - box[2])))))
     stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 3))
     box = np.asarray(box, np.int64)
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:

@@ -281,8 +281,16 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
 
 
 _RHO_PREPS = 2
-"""Preparations per pyramid level, from its first, at which ρ̂ of the Eq. 6 regressors is
-recomputed (later ones reuse it)."""
+"""Preparations of a level, from its first, that compute ρ̂ of the Eq. 6 regressors afresh
+(later ones reuse the last). Measured (bench_noise.py, six faces, σ = 8 / 16 grey levels,
+4 draws): fresh at every preparation t 0.437 / 0.582 mm; at the first two 0.443 / 0.598;
+at the first only 0.560 / 1.526 (ρ̂ of the warp before the level's first step does not fit
+the converged one); at the second only 0.429 / 1.029."""
+
+_DR_LEVELS = 1
+"""depth_regressors applies at this many of the finest pyramid levels: at the coarse levels
+it changes nothing measurable (bench_noise.py as above: t 0.443 / 0.598 mm at all levels,
+0.447 / 0.605 at the finest only) and would cost ~8 ms per estimate."""
 
 _NO_RHO = np.zeros((1,) * 5, np.float32)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
@@ -314,8 +322,9 @@ def free_work_buffers() -> None:
 class _Solver:
     """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
-    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0):
         self.lev = lev
+        self.level = level                   # 0: the finest
         self.g = g = lev.grid
         self.opts = opts
         self.filters = filters
@@ -394,12 +403,14 @@ class _Solver:
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der
-        # Eq. 6 regressors: ρ̂ depends on the scene's depth, not on the warp, so it is computed
-        # once per level (at its first preparation, from the measured regressors, then the sums
-        # again) and the fused kernel replaces L_x, L_y with it at the later preparations
-        first_dr = opts.depth_regressors and self.n_rho < _RHO_PREPS
+        # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ follows the scene's depth, not the
+        # warp, so once the warp has settled it is reused: computed from the measured
+        # regressors at the level's first _RHO_PREPS preparations (then the sums again), after
+        # that the fused kernel replaces L_x, L_y with it
+        dr = opts.depth_regressors and self.level < _DR_LEVELS
+        first_dr = dr and self.n_rho < _RHO_PREPS
         self.n_rho += first_dr
-        has_rho = opts.depth_regressors and not first_dr
+        has_rho = dr and not first_dr
         if has_rho:
             self.var = self.var_dr
         _prepare_kernel(L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
@@ -683,7 +694,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     diag = None
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
-        solver = _Solver(levels[li], opts, filters)
+        solver = _Solver(levels[li], opts, filters, li)
         finest = li == 0
         whiten = finest and opts.whiten != "off"
         for it in range(opts.iterations + (_WHITEN_ITERATIONS if whiten else 0)):
