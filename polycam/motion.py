@@ -280,17 +280,19 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
     return np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6)
 
 
-_RHO_PREPS = 2
-"""Preparations of a level, from its first, that compute ρ̂ of the Eq. 6 regressors afresh
-(later ones reuse the last). Measured (bench_noise.py, six faces, σ = 8 / 16 grey levels,
-4 draws): fresh at every preparation t 0.437 / 0.582 mm; at the first two 0.443 / 0.598;
-at the first only 0.560 / 1.526 (ρ̂ of the warp before the level's first step does not fit
-the converged one); at the second only 0.429 / 1.029."""
+_RHO_SETTLED = 0.05
+"""ρ̂ of the Eq. 6 regressors is reused while the warp has moved no ray by more than this
+many samples (of any axis) since it was computed (:meth:`_Solver.warp_change`). Measured
+(bench_noise.py, six faces, σ = 8 / 16 grey levels, 4 draws, t error): ρ̂ fresh at every
+preparation 0.437 / 0.582 mm; computed at a level's first two preparations and reused
+after 0.443 / 0.598, but on tests/test_motion.py's one-face pair (large motion, one level)
+the covariance then under-predicts the scatter by 2.4x; at the first only 0.560 / 1.526.
+Between solves the warp typically moves rays by 0.2-1 samples, so ρ̂ is mostly fresh."""
 
 _DR_LEVELS = 1
 """depth_regressors applies at this many of the finest pyramid levels: at the coarse levels
-it changes nothing measurable (bench_noise.py as above: t 0.443 / 0.598 mm at all levels,
-0.447 / 0.605 at the finest only) and would cost ~8 ms per estimate."""
+it changes nothing measurable (bench_noise.py as above, ρ̂ at the first two preparations: t
+0.443 / 0.598 mm at all levels, 0.447 / 0.605 at the finest only) and would cost ~8 ms per estimate."""
 
 _NO_RHO = np.zeros((1,) * 5, np.float32)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
@@ -361,7 +363,7 @@ class _Solver:
         self.st = _work_array("st", (nviews, _NSTAT), np.float64)
         self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors; NaN: kept)
         self.var_dr: np.ndarray | None = None
-        self.n_rho = 0
+        self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
         self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
@@ -403,13 +405,17 @@ class _Solver:
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der
-        # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ follows the scene's depth, not the
-        # warp, so once the warp has settled it is reused: computed from the measured
-        # regressors at the level's first _RHO_PREPS preparations (then the sums again), after
-        # that the fused kernel replaces L_x, L_y with it
+        # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ from the measured regressors, then the
+        # sums again; reused (the fused kernel replaces L_x, L_y) only while the warp has not
+        # moved since (ρ̂ of a warp a step before the converged one costs accuracy)
         dr = opts.depth_regressors and self.level < _DR_LEVELS
-        first_dr = dr and self.n_rho < _RHO_PREPS
-        self.n_rho += first_dr
+        moved = self.warp_change(self.M_rho, M) if dr and self.M_rho is not None else math.inf
+        first_dr = dr and moved > _RHO_SETTLED
+        if dr:
+            log.debug("depth regressors: warp moved %.3g samples since rho: %s", moved,
+                      "fresh" if first_dr else "reused")
+        if first_dr:
+            self.M_rho = np.array(M, float)
         has_rho = dr and not first_dr
         if has_rho:
             self.var = self.var_dr
@@ -429,6 +435,30 @@ class _Solver:
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
+
+    def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
+        """Largest first-order displacement of a ray of this level's grid between the warps of
+        estimates M_a and M_b (both (4, 4)), in samples of its axis (x, y, u or v), over the
+        corners of each face's (x, y, u, v) box (the displacement is at most quadratic there)."""
+        D = T_inverse(M_a) @ M_b
+        p = np.concatenate([D[:3, 3], r_from_R(D[:3, :3])])
+        g = self.g
+        best = 0.0
+        for k, face in enumerate(g.faces):
+            tx, ty, tz, wx, wy, wz = self.B[k] @ p
+            f, z = face.f, face.z_pi
+            for x in (g.x.values[0], g.x.values[-1]):
+                for y in (g.y.values[0], g.y.values[-1]):
+                    for u in (g.u.values[0], g.u.values[-1]):
+                        for v in (g.v.values[0], g.v.values[-1]):
+                            d = (tx - u / f * tz - u * y / f * wx + (u * x / f + z) * wy - y * wz,
+                                 ty - v / f * tz - (v * y / f + z) * wx + v * x / f * wy + x * wz,
+                                 -u * v / f * wx + (u * u / f + f) * wy - v * wz,
+                                 -(v * v / f + f) * wx + u * v / f * wy + u * wz)
+                            for dk, hk in zip(d, self.h):
+                                if hk > 0:
+                                    best = max(best, abs(dk) / hk)
+        return best
 
     def _var_measured(self, var: np.ndarray) -> np.ndarray:
         """The derivative noise of the measured regressors (kept across re-preparations)."""
