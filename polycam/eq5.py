@@ -12,7 +12,8 @@ holds
   derivatives and the IRLS statistics (``_prepare_kernel``, ``_pass_kernel``), plus the
   residual sampling and weighted median that give the robust scale;
 - their drivers ``_accumulate`` / ``_reduce`` (per-face tile sums → rig-frame N, rhs);
-- the depth-regularised regressors of paper Eq. 6 (``depth_regularise``,
+- the depth-regularised regressors of paper Eq. 6 (``depth_regularise``, numpy reference;
+  ``depth_rho``, the kernel the solver uses;
   :attr:`~polycam.motion_options.MotionOptions.depth_regressors`).
 
 The ray loops are branch-free with unsigned indices and re-associated sums
@@ -27,7 +28,7 @@ import numpy as np
 from .derivatives import FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
 from .lightfield import LightFieldGrid
 
-__all__ = ["ray_motion_coefficients", "depth_regularise"]
+__all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho"]
 
 
 _NACC = 29
