@@ -367,7 +367,7 @@ MEMORY_CHILD = """
 import sys
 import numpy as np
 sys.path.insert(0, {repo!r})
-from polycam.motion import estimate_motion
+from polycam.motion import MotionOptions, estimate_motion
 from polycam.synth import default_lightfield_grid
 
 
@@ -385,12 +385,12 @@ grid = default_lightfield_grid("+z", directions={directions})
 with open("/proc/self/clear_refs", "w") as f:            # reset the peak resident set (VmHWM)
     f.write("5")
 before = status("VmRSS")
-estimate_motion(L0, L1, grid)
+estimate_motion(L0, L1, grid, options=MotionOptions(depth_regressors={dr}))
 print(status("VmHWM") - before)
 """
 
 
-def peak_memory(L0, L1, directions: int) -> int:
+def peak_memory(L0, L1, directions: int, depth_regressors: bool = False) -> int:
     """Peak growth of the resident set [bytes] during one full estimate, in a fresh process
     (frames loaded and kernels warmed up on a small grid first; Linux: the peak is reset
     through /proc/self/clear_refs, so earlier peaks such as imports do not hide it)."""
@@ -401,7 +401,7 @@ def peak_memory(L0, L1, directions: int) -> int:
         f0, f1 = str(Path(tmp) / "L0.npy"), str(Path(tmp) / "L1.npy")
         np.save(f0, L0)
         np.save(f1, L1)
-        code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions)
+        code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions, dr=depth_regressors)
         out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
     return int(out.stdout.split()[-1])
 
@@ -436,13 +436,19 @@ def speed(repeat: int, directions: int) -> None:
     t_der = best_time(ours_der, repeat)
     t_base = best_time(base, max(1, repeat // 2))
     t_full = best_time(lambda: estimate_motion(L0, L1, grid), repeat)
+    dr = MotionOptions(depth_regressors=True)
+    t_full_dr = best_time(lambda: estimate_motion(L0, L1, grid, options=dr), repeat)
+    t_full = min(t_full, best_time(lambda: estimate_motion(L0, L1, grid), repeat))   # alternate: same load
+    t_full_dr = min(t_full_dr, best_time(lambda: estimate_motion(L0, L1, grid, options=dr), repeat))
     t_full_np = best_time(lambda: numpy_full_solve(L0, L1, grid, schedule, MotionOptions()), 1)
     c_ours = cpu_time(ours, repeat)
     c_der = cpu_time(ours_der, repeat)
     c_base = cpu_time(base, max(1, repeat // 2))
     c_full = cpu_time(lambda: estimate_motion(L0, L1, grid), repeat)
+    c_full_dr = cpu_time(lambda: estimate_motion(L0, L1, grid, options=dr), repeat)
     c_full_np = cpu_time(lambda: numpy_full_solve(L0, L1, grid, schedule, MotionOptions()), 1)
     mem = peak_memory(L0, L1, directions)
+    mem_dr = peak_memory(L0, L1, directions, True)
     import numba
 
     threads = numba.get_num_threads()
@@ -457,6 +463,8 @@ def speed(repeat: int, directions: int) -> None:
           f"{n / t_base / 1e6:.1f} | {1e3 * c_base:.1f} |")
     print(f"| full default estimate (pyramid, warps, IRLS, covariance), ours | {1e3 * t_full:.0f} | "
           f"{n / t_full / 1e6:.1f} | {1e3 * c_full:.0f} |")
+    print(f"| the same with `depth_regressors=True` | {1e3 * t_full_dr:.0f} | {n / t_full_dr / 1e6:.1f} "
+          f"| {1e3 * c_full_dr:.0f} |")
     print(f"| the same algorithm and solve schedule {schedule} in numpy/scipy | {1e3 * t_full_np:.0f} | "
           f"{n / t_full_np / 1e6:.2f} | {1e3 * c_full_np:.0f} |")
     print(f"\nspeed-up of ours over the baselines: derivatives + solve {t_base / t_ours:.1f}x "
@@ -468,7 +476,10 @@ def speed(repeat: int, directions: int) -> None:
     d = np.abs(rt_from_T(T_np) - rt_from_T(T_ours))
     print(f"numpy baseline vs ours: max |Δr| = {d[:3].max():.1e} rad, max |Δt| = {d[3:].max():.1e} m")
     print(f"peak memory of one full estimate (growth of the resident set, fresh process): "
-          f"{mem / 2**20:.0f} MiB = {mem / L0.nbytes:.1f} x one frame ({L0.nbytes / 2**20:.1f} MiB)")
+          f"{mem / 2**20:.0f} MiB = {mem / L0.nbytes:.1f} x one frame ({L0.nbytes / 2**20:.1f} MiB); "
+          f"with depth_regressors {mem_dr / 2**20:.0f} MiB = {mem_dr / L0.nbytes:.1f} frames")
+    print(f"depth_regressors: +{1e3 * (t_full_dr - t_full):.1f} ms wall (best of {2 * repeat}, alternating), "
+          f"+{1e3 * (c_full_dr - c_full):.0f} ms CPU time")
 
 
 def main() -> None:

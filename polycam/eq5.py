@@ -12,7 +12,8 @@ holds
   derivatives and the IRLS statistics (``_prepare_kernel``, ``_pass_kernel``), plus the
   residual sampling and weighted median that give the robust scale;
 - their drivers ``_accumulate`` / ``_reduce`` (per-face tile sums → rig-frame N, rhs);
-- the depth-regularised regressors of paper Eq. 6 (``depth_regularise``,
+- the depth-regularised regressors of paper Eq. 6 (``depth_regularise``, numpy reference;
+  ``depth_rho``, the kernel the solver uses;
   :attr:`~polycam.motion_options.MotionOptions.depth_regressors`).
 
 The ray loops are branch-free with unsigned indices and re-associated sums
@@ -27,7 +28,7 @@ import numpy as np
 from .derivatives import FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
 from .lightfield import LightFieldGrid
 
-__all__ = ["ray_motion_coefficients", "depth_regularise"]
+__all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho"]
 
 
 _NACC = 29
@@ -306,11 +307,14 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, h,
-                    var, final, acc, st, chunks):
+                    var, final, acc, st, chunks, rho, has_rho, sums):
     """Per valid view image, in cache: the plenoptic derivatives of the (warped) pair
     (L0, L1), the base weight = confidence ``conf`` minimised over the filter support
-    (``need_min``) × valid × ``smooth``, and the unit-IRLS-weight normal sums
-    (:func:`_accumulate_view`). box as in :func:`_pass_kernel` (the filter radii)."""
+    (``need_min``) × valid × ``smooth``, with ``has_rho`` the Eq. 6 regressors L_x, L_y ←
+    ρ̂ L_u, ρ̂ L_v where ``rho`` (same dims) is a number and the base weight > 0
+    (:func:`depth_rho`), and with ``sums`` the unit-IRLS-weight normal sums
+    (:func:`_accumulate_view`; else acc and st are left as they are). box as in
+    :func:`_pass_kernel` (the filter radii)."""
     F, Ny, Nx, Nv, Nu = L0.shape
     ry = box[0]
     rx = box[2]
@@ -366,6 +370,21 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
             for v in range(rv, Nv - rv):
                 for u in range(ru, Nu - ru):
                     b[v, u] = cm[v, u] * smooth[fc, j, i, v, u] if has_smooth else cm[v, u]
+            if has_rho:
+                q = rho[fc, j, i]
+                gx = Lx[fc, j, i]
+                gy = Ly[fc, j, i]
+                gu = Lu[fc, j, i]
+                gv = Lv[fc, j, i]
+                for v in range(rv, Nv - rv):
+                    qr = q[v]
+                    br = b[v]
+                    for u in range(ru, Nu - ru):
+                        ok = br[u] > 0.0 and qr[u] == qr[u]
+                        gx[v, u] = qr[u] * gu[v, u] if ok else gx[v, u]
+                        gy[v, u] = qr[u] * gv[v, u] if ok else gy[v, u]
+            if not sums:
+                continue
             a = acc[idx]
             a[:, :, :] = 0.0
             s = st[idx]
@@ -591,3 +610,208 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarra
         out[0] = (1.0 - frac) * var[0] + frac * r2 * var[2]
         out[1] = (1.0 - frac) * var[1] + frac * r2 * var[3]
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def _depth_products(Lx, Ly, Lu, Lv, base, box, fc, j, i, w, out):
+    """out[c] += w × the masked Eq. 6 products of view image (fc, j, i) (indices already
+    clamped): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v, 2 L_x² + L_y², 3 the mask, all
+    0 outside the valid box and where base <= 0 (a view outside the box adds nothing)."""
+    if j < box[0] or j >= box[1] or i < box[2] or i >= box[3] or w == 0.0:
+        return
+    for v in range(box[4], box[5]):
+        gx = Lx[fc, j, i, v]
+        gy = Ly[fc, j, i, v]
+        gu = Lu[fc, j, i, v]
+        gv = Lv[fc, j, i, v]
+        bw = base[fc, j, i, v]
+        o0 = out[0, v]
+        o1 = out[1, v]
+        o2 = out[2, v]
+        o3 = out[3, v]
+        for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
+            m = w if bw[u] > 0.0 else np.float32(0.0)
+            a = gu[u]
+            b = gv[u]
+            c = gx[u]
+            d = gy[u]
+            o0[u] += m * (a * a + b * b)
+            o1[u] += m * (c * a + d * b)
+            o2[u] += m * (c * c + d * d)
+            o3[u] += m
+
+
+@numba.njit(cache=True, inline="always")
+def _window_uv(A, B, C, t9, box):
+    """The (u, v) part of the Eq. 6 window on the box's samples: C[c, v, u] = Σ t9 ⊗ t9 over
+    A (4, Nv + 8, Nu + 8), the (v, u) samples padded by 4 zeros on each side; B (4, Nv, Nu + 8)
+    holds the v pass (zero outside the box's u range). t9 = fs5 ∗ fs5 (symmetric: folded)."""
+    v0, v1, u0, u1 = box[4], box[5], box[6], box[7]
+    w0, w1, w2, w3, w4 = t9[0], t9[1], t9[2], t9[3], t9[4]
+    nu = numba.uint64(u1 - u0)
+    for c in range(4):
+        for v in range(v0, v1):
+            o = B[c, v, 4 + u0:4 + u1]
+            a0 = A[c, v, 4 + u0:4 + u1]
+            a1 = A[c, v + 1, 4 + u0:4 + u1]
+            a2 = A[c, v + 2, 4 + u0:4 + u1]
+            a3 = A[c, v + 3, 4 + u0:4 + u1]
+            a4 = A[c, v + 4, 4 + u0:4 + u1]
+            a5 = A[c, v + 5, 4 + u0:4 + u1]
+            a6 = A[c, v + 6, 4 + u0:4 + u1]
+            a7 = A[c, v + 7, 4 + u0:4 + u1]
+            a8 = A[c, v + 8, 4 + u0:4 + u1]
+            for u in range(nu):
+                o[u] = w4 * a4[u] + w0 * (a0[u] + a8[u]) + w1 * (a1[u] + a7[u]) + w2 * (a2[u] + a6[u]) \
+                    + w3 * (a3[u] + a5[u])
+        for v in range(v0, v1):
+            row = B[c, v]
+            o = C[c, v, u0:u1]
+            b0 = row[u0:u1]
+            b1 = row[u0 + 1:u1 + 1]
+            b2 = row[u0 + 2:u1 + 2]
+            b3 = row[u0 + 3:u1 + 3]
+            b4 = row[u0 + 4:u1 + 4]
+            b5 = row[u0 + 5:u1 + 5]
+            b6 = row[u0 + 6:u1 + 6]
+            b7 = row[u0 + 7:u1 + 7]
+            b8 = row[u0 + 8:u1 + 8]
+            for u in range(nu):
+                o[u] = w4 * b4[u] + w0 * (b0[u] + b8[u]) + w1 * (b1[u] + b7[u]) + w2 * (b2[u] + b6[u]) \
+                    + w3 * (b3[u] + b5[u])
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho, stats, parts):
+    """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho (F, Ny, Nx, Nv, Nu) float32,
+    NaN where the measured L_x, L_y are kept (inside the box: base <= 0, or the window is not
+    explained by one depth; the caller fills the views outside the box). The window sums
+    are separable: fs3 across x (per view row, rolling over y), fs3 across y, then t9 =
+    fs5 ∗ fs5 along v and u with zeros outside the box (= :func:`depth_regularise`'s two fs5
+    passes with "nearest" borders on every ray at least 2 samples inside the (u, v) border).
+    Work units: columns (face, x) of view images, each cut into ``parts`` runs of y;
+    stats (units, 3): valid rays, used rays, Σ ρ̂² over the used ones."""
+    F, Ny, Nx, Nv, Nu = Lx.shape
+    nx = box[3] - box[2]
+    ny = box[1] - box[0]
+    n_units = F * nx * parts
+    for k in numba.prange(n_units):
+        col = k // parts
+        part = k - col * parts
+        fc = col // nx
+        i = box[2] + col - fc * nx
+        ja = box[0] + ny * part // parts
+        jb = box[0] + ny * (part + 1) // parts
+        st = stats[k]
+        st[:] = 0.0
+        if jb <= ja:
+            continue
+        px = np.zeros((3, 4, Nv, Nu), np.float32)     # rows r = j-1, j, j+1 at slot (r + 3) % 3
+        A = np.zeros((4, Nv + 8, Nu + 8), np.float32)
+        B = np.zeros((4, Nv, Nu + 8), np.float32)
+        C = np.empty((4, Nv, Nu), np.float32)
+        for r in range(ja - 1, jb + 1):
+            s = px[(r + 3) % 3]
+            s[:, :, :] = 0.0
+            rc = min(max(r, 0), Ny - 1)
+            for dx in range(3):
+                ic = min(max(i + dx - 1, 0), Nx - 1)
+                _depth_products(Lx, Ly, Lu, Lv, base, box, fc, rc, ic, t3[dx], s)
+            if r < ja + 1:
+                continue
+            j = r - 1                                   # rows j-1, j, j+1 are ready
+            a0 = px[(j + 2) % 3]
+            a1 = px[(j + 3) % 3]
+            a2 = px[(j + 4) % 3]
+            for c in range(4):
+                for v in range(box[4], box[5]):
+                    o = A[c, v + 4, 4 + box[6]:4 + box[7]]
+                    s0 = a0[c, v, box[6]:box[7]]
+                    s1 = a1[c, v, box[6]:box[7]]
+                    s2 = a2[c, v, box[6]:box[7]]
+                    for u in range(numba.uint64(box[7] - box[6])):
+                        o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
+            _window_uv(A, B, C, t9, box)
+            out = rho[fc, j, i]
+            out[:, :] = np.nan
+            bw = base[fc, j, i]
+            n_valid = 0.0
+            n_use = 0.0
+            r2 = 0.0
+            for v in range(box[4], box[5]):
+                suu = C[0, v]
+                sxu = C[1, v]
+                sxx = C[2, v]
+                sn = C[3, v]
+                o = out[v]
+                b = bw[v]
+                for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
+                    ok = b[u] > 0.0
+                    q = sxu[u] / max(suu[u], np.float32(1e-30)) if suu[u] > 0.0 else np.float32(0.0)
+                    res = np.float64(sxx[u] - q * sxu[u])
+                    use = ok and res <= thr * np.float64(sn[u])
+                    o[u] = q if use else np.float32(np.nan)
+                    n_valid += 1.0 if ok else 0.0
+                    n_use += 1.0 if use else 0.0
+                    r2 += np.float64(q) * np.float64(q) if use else 0.0
+            st[0] += n_valid
+            st[1] += n_use
+            st[2] += r2
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
+    """L_x, L_y ← ρ̂ L_u, ρ̂ L_v in place where ρ̂ is a number and base > 0 (inside box (8,),
+    as :func:`depth_rho`; rho is NaN elsewhere)."""
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    F = Lx.shape[0]
+    for idx in numba.prange(F * ny * nx):
+        fc = idx // (ny * nx)
+        rem = idx - fc * ny * nx
+        j = box[0] + rem // nx
+        i = box[2] + rem - (rem // nx) * nx
+        for v in range(box[4], box[5]):
+            q = rho[fc, j, i, v]
+            b = base[fc, j, i, v]
+            gx = Lx[fc, j, i, v]
+            gy = Ly[fc, j, i, v]
+            gu = Lu[fc, j, i, v]
+            gv = Lv[fc, j, i, v]
+            for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
+                ok = b[u] > 0.0 and q[u] == q[u]
+                gx[u] = q[u] * gu[u] if ok else gx[u]
+                gy[u] = q[u] * gv[u] if ok else gy[u]
+
+
+def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
+    gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
+    outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
+    der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
+    L_u, L_v). Returns (4,) the variances for the replaced regressors, as depth_regularise."""
+    Lx, Ly, Lu, Lv = der[:4]
+    t5 = FILTERS["fs5"].prefilter
+    t9 = np.convolve(t5, t5).astype(np.float32)
+    t3 = FILTERS["fs3"].prefilter.astype(np.float32)
+    F, Ny, Nx = Lx.shape[:3]
+    # about two units per thread (each unit recomputes the products of two extra view rows)
+    parts = max(1, min(int(box[1] - box[0]), -(-2 * numba.get_num_threads() // max(1, F * int(box[3] - box[2])))))
+    stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 3))
+    box = np.asarray(box, np.int64)
+    if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
+        for sl in (np.s_[:, :box[0]], np.s_[:, box[1]:], np.s_[:, :, :box[2]], np.s_[:, :, box[3]:]):
+            out[sl] = np.nan                            # views outside the box (the kernel does the rest)
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, float(_DEPTH_KEEP * (var[0] + var[1])), out,
+                          stats, parts)
+    else:
+        out[...] = np.nan
+        stats[:] = 0.0
+    n_valid, n_use, r2 = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0)
+    res = np.asarray(var, float).copy()
+    if n_valid and n_use:
+        frac = n_use / n_valid
+        r2 = r2 / n_use
+        res[0] = (1.0 - frac) * var[0] + frac * r2 * var[2]
+        res[1] = (1.0 - frac) * var[1] + frac * r2 * var[3]
+    return res

@@ -109,8 +109,8 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, depth_regularise, _face_B, _pass_kernel, _prepare_kernel,
-                  _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
+from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, depth_rho, _face_B, _pass_kernel,
+                  _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
@@ -280,6 +280,23 @@ def _warped_confidence(out: np.ndarray) -> np.ndarray:
     return np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6)
 
 
+_RHO_SETTLED = 0.05
+"""ρ̂ of the Eq. 6 regressors is reused while the warp has moved no ray by more than this
+many samples (of any axis) since it was computed (:meth:`_Solver.warp_change`). Measured
+(bench_noise.py, six faces, σ = 8 / 16 grey levels, 4 draws, t error): ρ̂ fresh at every
+preparation 0.437 / 0.582 mm; computed at a level's first two preparations and reused
+after 0.443 / 0.598, but on tests/test_motion.py's one-face pair (large motion, one level)
+the covariance then under-predicts the scatter by 2.4x; at the first only 0.560 / 1.526.
+Between solves the warp typically moves rays by 0.2-1 samples, so ρ̂ is mostly fresh."""
+
+_DR_LEVELS = 1
+"""depth_regressors applies at this many of the finest pyramid levels: at the coarse levels
+it changes nothing measurable (bench_noise.py as above, ρ̂ at the first two preparations: t
+0.443 / 0.598 mm at all levels, 0.447 / 0.605 at the finest only) and would cost ~8 ms per estimate."""
+
+_NO_RHO = np.zeros((1,) * 5, np.float32)
+"""Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
+
 _WORK = threading.local()
 """Per-thread flat work arrays of the last estimate, by name: see :func:`free_work_buffers`."""
 
@@ -307,8 +324,9 @@ def free_work_buffers() -> None:
 class _Solver:
     """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
-    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict):
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0):
         self.lev = lev
+        self.level = level                   # 0: the finest
         self.g = g = lev.grid
         self.opts = opts
         self.filters = filters
@@ -343,6 +361,9 @@ class _Solver:
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
         self.st = _work_array("st", (nviews, _NSTAT), np.float64)
+        self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors; NaN: kept)
+        self.var_dr: np.ndarray | None = None
+        self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
         self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
@@ -384,24 +405,60 @@ class _Solver:
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der
+        # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ from the measured regressors, then the
+        # sums again; reused (the fused kernel replaces L_x, L_y) only while the warp has not
+        # moved since (ρ̂ of a warp a step before the converged one costs accuracy)
+        dr = opts.depth_regressors and self.level < _DR_LEVELS
+        moved = self.warp_change(self.M_rho, M) if dr and self.M_rho is not None else math.inf
+        first_dr = dr and moved > _RHO_SETTLED
+        if dr:
+            log.debug("depth regressors: warp moved %.3g samples since rho: %s", moved,
+                      "fresh" if first_dr else "reused")
+        if first_dr:
+            self.M_rho = np.array(M, float)
+        has_rho = dr and not first_dr
+        if has_rho:
+            self.var = self.var_dr
         _prepare_kernel(L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
                         Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
                         np.zeros((self.shape[0], 6)), self.tile, self.box, self.h, self.var, final,
-                        self.acc, self.st, parallel_chunks())
-        if opts.depth_regressors:
-            # Eq. 6 regressors, then the sums again (the fused kernel summed the measured ones)
+                        self.acc, self.st, parallel_chunks(), self.rho if has_rho else _NO_RHO, has_rho,
+                        not first_dr)
+        if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
-            b = self.box
-            valid = np.zeros(self.shape, bool)
-            valid[:, b[0]:b[1], b[2]:b[3], b[4]:b[5], b[6]:b[7]] = True
-            valid &= self.base > 0
-            self.var = depth_regularise(self.der, valid, self._var_measured(var))
+            self.rho = _work_array("rho", self.shape)
+            self.var = self.var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho)
+            _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
             _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                          np.zeros((self.shape[0], 6)), 0, 0.0, self.tile, self.box, self.h, self.var, final,
                          self.acc, self.st, parallel_chunks())
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
+
+    def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
+        """Largest first-order displacement of a ray of this level's grid between the warps of
+        estimates M_a and M_b (both (4, 4)), in samples of its axis (x, y, u or v), over the
+        corners of each face's (x, y, u, v) box (the displacement is at most quadratic there)."""
+        D = T_inverse(M_a) @ M_b
+        p = np.concatenate([D[:3, 3], r_from_R(D[:3, :3])])
+        g = self.g
+        best = 0.0
+        for k, face in enumerate(g.faces):
+            tx, ty, tz, wx, wy, wz = self.B[k] @ p
+            f, z = face.f, face.z_pi
+            for x in (g.x.values[0], g.x.values[-1]):
+                for y in (g.y.values[0], g.y.values[-1]):
+                    for u in (g.u.values[0], g.u.values[-1]):
+                        for v in (g.v.values[0], g.v.values[-1]):
+                            d = (tx - u / f * tz - u * y / f * wx + (u * x / f + z) * wy - y * wz,
+                                 ty - v / f * tz - (v * y / f + z) * wx + v * x / f * wy + x * wz,
+                                 -u * v / f * wx + (u * u / f + f) * wy - v * wz,
+                                 -(v * v / f + f) * wx + u * v / f * wy + u * wz)
+                            for dk, hk in zip(d, self.h):
+                                if hk > 0:
+                                    best = max(best, abs(dk) / hk)
+        return best
 
     def _var_measured(self, var: np.ndarray) -> np.ndarray:
         """The derivative noise of the measured regressors (kept across re-preparations)."""
@@ -667,7 +724,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     diag = None
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
-        solver = _Solver(levels[li], opts, filters)
+        solver = _Solver(levels[li], opts, filters, li)
         finest = li == 0
         whiten = finest and opts.whiten != "off"
         for it in range(opts.iterations + (_WHITEN_ITERATIONS if whiten else 0)):

@@ -56,7 +56,8 @@ class MotionOptions:
     window (its residual energy above 3x the expected noise of L_x, L_y: occlusions, and
     noise-free data, where that noise is ~0): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
-    levels, 29.5 → 4.6 at 16)."""
+    levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+25 ms CPU time per
+    estimate on 1.33 M rays (docs/motion.md)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once

@@ -22,7 +22,8 @@ from polycam.trajectory import Trajectory
 from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
-                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_WHITEN_GLS_RTOL, MOTION_WHITEN_VS_PLAIN)
+                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL, MOTION_WHITEN_GLS_RTOL,
+                        MOTION_WHITEN_VS_PLAIN)
 
 ROOM_RADIUS = 6.0
 
@@ -590,3 +591,40 @@ def test_depth_regressors_reduce_positional_noise(scene):
     err_after = np.sqrt(np.mean((der[0] - clean.Lx)[valid] ** 2))
     assert err_after < MOTION_DEPTH_REGRESSOR_GAIN * err_before, (err_after, err_before)
     assert var_after[0] < var[0] and var_after[1] < var[1]
+
+
+def test_depth_rho_kernel_matches_numpy(scene):
+    """The Eq. 6 kernel (depth_rho, used by the solver) gives the ρ̂ and the keep / replace
+    decisions of the numpy reference depth_regularise, with holes in the base weight, and
+    the same noise variances of the replaced regressors."""
+    from polycam.eq5 import _apply_rho, depth_regularise, depth_rho
+
+    grid = make_grid(("+z", "-x"), views=7, directions=32, spacing=0.01)
+    M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
+    rng = np.random.default_rng(5)
+    L0, L1 = (scene.render(grid, T) + rng.normal(0, 0.01, grid.shape) for T in (np.eye(4), M))
+    noisy = plenoptic_derivatives(L0.astype(np.float32), L1.astype(np.float32), grid, filters=MotionOptions().filters)
+    der = [np.ascontiguousarray(a, dtype=np.float32) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
+    base = (rng.random(grid.shape) > 0.1).astype(np.float32) * rng.random(grid.shape).astype(np.float32)
+    F, Ny, Nx, Nv, Nu = grid.shape
+    box = np.array([1, Ny - 1, 1, Nx - 1, 2, Nv - 2, 2, Nu - 2], np.int64)
+    valid = np.zeros(grid.shape, bool)
+    valid[:, 1:Ny - 1, 1:Nx - 1, 2:Nv - 2, 2:Nu - 2] = True
+    valid &= base > 0
+    var = np.array([0.5 * np.mean(a[valid].astype(np.float64) ** 2) for a in der[:4]]) * 0.3
+    ref = [a.copy() for a in der]
+    var_ref = depth_regularise(ref, valid, var)
+    rho = np.empty(grid.shape, np.float32)
+    var_k = depth_rho(der, base, box, var, rho)
+    replaced = valid & ((ref[0] != der[0]) | (ref[1] != der[1]))
+    used = np.isfinite(rho)
+    assert not np.any(used & ~valid)
+    assert 0.1 * valid.sum() < replaced.sum() < 0.9 * valid.sum()      # both cases occur
+    assert np.sum(used ^ replaced) <= MOTION_DEPTH_RHO_FLIPS * valid.sum()
+    _apply_rho(*der[:4], base, rho, box)
+    both = used & replaced
+    for k in (0, 1):
+        scale = np.abs(ref[k][valid]).max()
+        assert np.abs(der[k] - ref[k])[both].max() <= MOTION_DEPTH_RHO_RTOL * scale
+        assert np.array_equal(der[k][~used], ref[k][~used])
+    np.testing.assert_allclose(var_k, var_ref, rtol=MOTION_DEPTH_RHO_RTOL)
