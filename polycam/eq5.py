@@ -573,11 +573,13 @@ _DEPTH_KEEP = 3.0
 exceeds this many times their expected noise variance (one depth does not explain it)."""
 
 
-def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarray:
+def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0) -> np.ndarray:
     """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
-    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims) and one depth
-    explains the window; returns (4,) the noise variances ``var`` of (L_x, L_y, L_u, L_v)
-    updated for the replaced rays (ρ̂² var_u there, a ray-count mix)."""
+    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims) and either one
+    depth explains the window to within the noise (``var`` (4,): noise variances of L_x, L_y,
+    L_u, L_v) or ``|ρ̂| ≤ rho_max`` (ρ̂ in units of u per unit x: the views are nearly
+    parallel there, :attr:`MotionOptions.depth_gate`); returns (4,) ``var`` updated for the
+    replaced rays (ρ̂² var_u there, a ray-count mix). The numpy reference of :func:`depth_rho`."""
     Lx, Ly, Lu, Lv, _ = der
     m = valid.astype(np.float32)
     t5 = FILTERS["fs5"].prefilter.astype(np.float32)
@@ -599,7 +601,7 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray) -> np.ndarra
     rho = np.where(suu > 0, sxu / np.maximum(suu, np.float32(1e-30)), np.float32(0.0)).astype(np.float32)
     n = win(np.ones_like(m))
     res = sxx - rho * sxu
-    use = valid & (res <= _DEPTH_KEEP * (var[0] + var[1]) * n)
+    use = valid & ((res <= _DEPTH_KEEP * (var[0] + var[1]) * n) | (np.abs(rho) <= rho_max))
     Lx[use] = rho[use] * gu[use]
     Ly[use] = rho[use] * gv[use]
     out = np.asarray(var, float).copy()
@@ -682,7 +684,7 @@ def _window_uv(A, B, C, t9, box):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho, stats, parts):
+def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho_max, rho, stats, parts):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho (F, Ny, Nx, Nv, Nu) float32,
     NaN where the measured L_x, L_y are kept (inside the box: base <= 0, or the window is not
     explained by one depth; the caller fills the views outside the box). The window sums
@@ -749,7 +751,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho, stats, parts)
                     ok = b[u] > 0.0
                     q = sxu[u] / max(suu[u], np.float32(1e-30)) if suu[u] > 0.0 else np.float32(0.0)
                     res = np.float64(sxx[u] - q * sxu[u])
-                    use = ok and res <= thr * np.float64(sn[u])
+                    use = ok and (res <= thr * np.float64(sn[u]) or abs(q) <= rho_max)
                     o[u] = q if use else np.float32(np.nan)
                     n_valid += 1.0 if ok else 0.0
                     n_use += 1.0 if use else 0.0
@@ -784,12 +786,14 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
                 gy[u] = q[u] * gv[u] if ok else gy[u]
 
 
-def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray) -> np.ndarray:
+def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
+              rho_max: float = 0.0) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
     der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
-    L_u, L_v). Returns (4,) the variances for the replaced regressors, as depth_regularise."""
+    L_u, L_v); ``rho_max``: as :func:`depth_regularise`. Returns (4,) the variances for the
+    replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
@@ -802,8 +806,8 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
         for sl in (np.s_[:, :box[0]], np.s_[:, box[1]:], np.s_[:, :, :box[2]], np.s_[:, :, box[3]:]):
             out[sl] = np.nan                            # views outside the box (the kernel does the rest)
-        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, float(_DEPTH_KEEP * (var[0] + var[1])), out,
-                          stats, parts)
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, float(_DEPTH_KEEP * (var[0] + var[1])),
+                          float(rho_max), out, stats, parts)
     else:
         out[...] = np.nan
         stats[:] = 0.0

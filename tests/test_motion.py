@@ -593,10 +593,12 @@ def test_depth_regressors_reduce_positional_noise(scene):
     assert var_after[0] < var[0] and var_after[1] < var[1]
 
 
-def test_depth_rho_kernel_matches_numpy(scene):
+@pytest.mark.parametrize("gate", [0.0, 0.5])
+def test_depth_rho_kernel_matches_numpy(scene, gate):
     """The Eq. 6 kernel (depth_rho, used by the solver) gives the ρ̂ and the keep / replace
     decisions of the numpy reference depth_regularise, with holes in the base weight, and
-    the same noise variances of the replaced regressors."""
+    the same noise variances of the replaced regressors; with the disparity gate
+    (``rho_max``, here ``gate`` x the median |L_x| / |L_u|) more rays are replaced."""
     from polycam.eq5 import _apply_rho, depth_regularise, depth_rho
 
     grid = make_grid(("+z", "-x"), views=7, directions=32, spacing=0.01)
@@ -612,10 +614,15 @@ def test_depth_rho_kernel_matches_numpy(scene):
     valid[:, 1:Ny - 1, 1:Nx - 1, 2:Nv - 2, 2:Nu - 2] = True
     valid &= base > 0
     var = np.array([0.5 * np.mean(a[valid].astype(np.float64) ** 2) for a in der[:4]]) * 0.3
+    rho_max = gate * float(np.median(np.abs(der[0][valid])) / np.median(np.abs(der[2][valid])))
     ref = [a.copy() for a in der]
-    var_ref = depth_regularise(ref, valid, var)
+    var_ref = depth_regularise(ref, valid, var, rho_max)
     rho = np.empty(grid.shape, np.float32)
-    var_k = depth_rho(der, base, box, var, rho)
+    var_k = depth_rho(der, base, box, var, rho, rho_max)
+    if gate > 0:
+        ungated = np.empty(grid.shape, np.float32)
+        depth_rho(der, base, box, var, ungated)
+        assert np.isfinite(rho).sum() > np.isfinite(ungated).sum()
     replaced = valid & ((ref[0] != der[0]) | (ref[1] != der[1]))
     used = np.isfinite(rho)
     assert not np.any(used & ~valid)
