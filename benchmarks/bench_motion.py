@@ -101,7 +101,8 @@ def plot_fig5c(path: str, table: dict) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), sharex=True)
-    styles = {"baseline": dict(color="tab:red", marker="s"), "polycam": dict(color="tab:blue", marker="o")}
+    styles = {"baseline": dict(color="tab:red", marker="s"), "polycam": dict(color="tab:blue", marker="o"),
+              DR_NAME: dict(color="tab:green", marker="^")}
     for j, (ax, name) in enumerate(zip(axes.ravel(), NAMES)):
         for method, rows in table.items():
             D = np.array([d for d, _ in rows])
@@ -126,7 +127,12 @@ def plot_fig5c(path: str, table: dict) -> None:
     plt.close(fig)
 
 
-def accuracy(distances, n_motions: int, supersample: int, directions: int, plot: str | None = None) -> None:
+DR_NAME = "polycam, depth_regressors"
+"""The accuracy rows of ``MotionOptions(depth_regressors=True)`` (``--depth-regressors``)."""
+
+
+def accuracy(distances, n_motions: int, supersample: int, directions: int, plot: str | None = None,
+             depth_regressors: bool = False) -> None:
     grid = default_lightfield_grid("all", directions=directions)
     print(f"\n## Accuracy: six faces, f = {grid.faces[0].f:g}, {grid.y.count}x{grid.x.count} views "
           f"{grid.x.step * 100:g} cm apart, {grid.v.count}x{grid.u.count} directions, "
@@ -135,7 +141,10 @@ def accuracy(distances, n_motions: int, supersample: int, directions: int, plot:
           + " | med err t | med err w | time/pair [s] |")
     print("|---|---|" + "---|" * (len(NAMES) + 3))
     summary = []
-    fig5c = {"baseline": [], "polycam": []}
+    methods = [("baseline", BASELINE), ("polycam", MotionOptions())]
+    if depth_regressors:
+        methods.append((DR_NAME, MotionOptions(depth_regressors=True)))
+    fig5c = {name: [] for name, _ in methods}
     noise_at = distances[len(distances) // 2]
     noise_rows = []
     for D in distances:
@@ -145,7 +154,7 @@ def accuracy(distances, n_motions: int, supersample: int, directions: int, plot:
         rng = np.random.default_rng(int(D * 1000))
         motions = [random_motion(rng, 0.015, np.radians(0.2)) for _ in range(n_motions)]
         frames = [ren.render(M) for M in motions]
-        for name, opts in (("baseline", BASELINE), ("polycam", MotionOptions())):
+        for name, opts in methods:
             ratios, errs_t, errs_w, times = [], [], [], []
             for M, L1 in zip(motions, frames):
                 t0 = time.perf_counter()
@@ -160,8 +169,8 @@ def accuracy(distances, n_motions: int, supersample: int, directions: int, plot:
             rel = np.abs(np.array(ratios) - 1)
             med_t, med_w = np.median(rel[:, :3]), np.median(rel[:, 3:])
             summary.append((D, name, med_t, med_w))
-            if D == noise_at and name == "polycam":
-                noise_rows = noise_table(L0, frames[0], motions[0], grid)
+            if D == noise_at and name == methods[-1][0]:
+                noise_rows = noise_table(L0, frames[0], motions[0], grid, methods)
             print(f"| {D:g} | {name} | " + " | ".join(f"{v:.4f}" for v in r)
                   + f" | {100 * med_t:.2f}% | {100 * med_w:.2f}% | {np.mean(times):.2f} |", flush=True)
     print("\nmedian relative error per component (|est/true - 1|, median over the 3 components and"
@@ -175,17 +184,19 @@ def accuracy(distances, n_motions: int, supersample: int, directions: int, plot:
     for row in noise_rows:
         print(row)
     base = {D: (t, w) for D, n, t, w in summary if n == "baseline"}
-    ours = {D: (t, w) for D, n, t, w in summary if n == "polycam"}
-    print("\n| D [m] | baseline err t / ours | baseline err w / ours |")
-    print("|---|---|---|")
-    for D in distances:
-        bt, bw = base[D]
-        ot, ow = ours[D]
-        print(f"| {D:g} | {bt / max(ot, 1e-12):.0f}x | {bw / max(ow, 1e-12):.0f}x |")
+    for method, _ in methods[1:]:
+        ours = {D: (t, w) for D, n, t, w in summary if n == method}
+        print(f"\n| D [m] | baseline err t / {method} | baseline err w / {method} |")
+        print("|---|---|---|")
+        for D in distances:
+            bt, bw = base[D]
+            ot, ow = ours[D]
+            print(f"| {D:g} | {bt / max(ot, 1e-12):.0f}x | {bw / max(ow, 1e-12):.0f}x |")
 
 
-def noise_table(L0, L1, M, grid) -> list[str]:
-    """Rows: both frames quantised to 8 bits after adding Gaussian noise (seeded)."""
+def noise_table(L0, L1, M, grid, methods) -> list[str]:
+    """Rows: both frames quantised to 8 bits after adding Gaussian noise (seeded); ``methods``:
+    (name, MotionOptions) pairs."""
     rng = np.random.default_rng(7)
     rows = []
     tru = params(M)
@@ -194,7 +205,7 @@ def noise_table(L0, L1, M, grid) -> list[str]:
             return (np.round(np.clip(L + rng.normal(0, sigma / 255, L.shape), 0, 1) * 255) / 255
                     ).astype(np.float32)
         a, b = q(L0), q(L1)
-        for name, opts in (("baseline", BASELINE), ("polycam", MotionOptions())):
+        for name, opts in methods:
             res = estimate_motion(a, b, grid, options=opts)
             rel = np.abs(params(res.T_prev_next) / tru - 1)
             err_t = np.linalg.norm(params(res.T_prev_next)[:3] - tru[:3])
@@ -488,6 +499,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
+    ap.add_argument("--depth-regressors", action="store_true",
+                    help="also the accuracy rows of MotionOptions(depth_regressors=True) (Eq. 6 regressors)")
     ap.add_argument("--plot", metavar="PNG", default=None,
                     help="write the accuracy figure (paper Fig. 5c, measured) to this file")
     args = ap.parse_args()
@@ -495,9 +508,10 @@ def main() -> None:
         speed(args.repeat, 128)
     if not args.skip_accuracy:
         if args.quick:
-            accuracy([4.0, 8.0, 16.0], 1, 2, 64, plot=args.plot)
+            accuracy([4.0, 8.0, 16.0], 1, 2, 64, plot=args.plot, depth_regressors=args.depth_regressors)
         else:
-            accuracy([4.0, 6.0, 8.0, 12.0, 16.0, 24.0], 3, 3, 64, plot=args.plot)
+            accuracy([4.0, 6.0, 8.0, 12.0, 16.0, 24.0], 3, 3, 64, plot=args.plot,
+                     depth_regressors=args.depth_regressors)
 
 
 if __name__ == "__main__":
