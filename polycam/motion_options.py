@@ -64,8 +64,10 @@ class MotionOptions:
     measured L_x, L_y are tiny and carry the aliasing of the directions (a view's samples
     shift by a fraction of a sample), while ρ̂ L_u does not: on the sphere scene (0.04-0.15
     samples per view at 4-16 m) the noise-free translation error drops 4x at 8-16 m
-    (benchmarks/bench_motion.py); in the room of the demo (median 0.45) it changes nothing.
-    0: only where one depth explains the window to within the noise."""
+    (benchmarks/bench_motion.py); in the room of the demo (median 0.45) it changes nothing,
+    but a noisy near room seen by one face of views 1 cm apart (nearly all rays under the
+    gate) gets 2.3x the translation scatter (docs/motion.md). 0: only where one depth
+    explains the window to within the noise."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
