@@ -88,3 +88,4 @@ MOTION_WHITEN_GLS_RTOL = 1e-7   # whitened (banded Cholesky per axis) normal sum
 MOTION_NOISE_WEIGHT_KEEP = 0.97  # share of pure-noise rays the noise-aware discontinuity weight keeps above 0.5 (99% quantile subtracted)
 MOTION_WHITEN_VS_PLAIN = 2.0    # |error| of the whitened (GLS) estimate / the plain one, 7x7-view six-face test under noise (one draw)
 MOTION_DEPTH_REGRESSOR_GAIN = 0.6  # RMS error of the Eq. 6 regressor ρ̂ L_u / that of the measured L_x vs the noise-free L_x (σ = 0.02, one face; measured 0.44)
+RESAMPLE_VIEWFILL_OFFGRID_GAIN = 2.0   # view fill from cameras ~0.15 view steps off their views (textured plane): RMS error with offsets from the grid indices / from the camera centres, at least (measured 0.0142 / 0.0046 = 3.1)
