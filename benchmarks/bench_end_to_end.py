@@ -199,6 +199,9 @@ def main() -> int:
                     help="plenoptic: the solver's discontinuity-weight constant (default: polycam run's)")
     ap.add_argument("--repeat", type=int, default=2, help="runs per method and session; the fastest counts")
     ap.add_argument("--rig", default=str(REPO / "rigs" / "mock5x5.toml"))
+    ap.add_argument("--perturbed", action="store_true",
+                    help="true cameras off the rig file by polycam run's perturbations (RunOptions.perturb_*: "
+                         "~1 mm, 0.3 deg, 0.5%%), the true models as the calibration")
     ap.add_argument("--max-trials", type=int, default=None,
                     help="pycolmap: cap on RANSAC trials (default pycolmap's 100000; with --neighbours the "
                          "default cap takes minutes per pair)")
@@ -220,7 +223,10 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
-            sess = synth_session(rig, Path(tmp) / f"s{seed}", frames=args.frames, seed=seed, bit_depth=8)
+            perturb = ({"perturb_position_m": RunOptions.perturb_position_m,
+                        "perturb_rotation_deg": RunOptions.perturb_rotation_deg,
+                        "perturb_focal_frac": RunOptions.perturb_focal_frac} if args.perturbed else {})
+            sess = synth_session(rig, Path(tmp) / f"s{seed}", frames=args.frames, seed=seed, bit_depth=8, **perturb)
             from polycam.session import open_session
 
             gt = open_session(sess).groundtruth()
@@ -230,7 +236,7 @@ def main() -> int:
                 rows.append((seed, name, float(np.median(e.t_rel)), float(np.median(e.w_rel)),
                              1e3 * float(np.median(e.t_err)), np.degrees(float(np.median(e.w_err))),
                              1e3 * ate_rmse(traj, gt), tm))
-    print(f"{rig.name}: {len(rig.cameras)} cameras of {rig.cameras[0].width}x{rig.cameras[0].height}, "
+    print(f"{rig.name}{' (perturbed)' if args.perturbed else ''}: {len(rig.cameras)} cameras of {rig.cameras[0].width}x{rig.cameras[0].height}, "
           f"{args.frames} frames per session, seeds {args.seeds}; plenoptic uv step {args.uv_step} px, "
           f"smooth_c {args.smooth_c:g}; best of {args.repeat} runs; times in s per frame pair")
     print(f"{'seed':>4} {'method':<24} {'t err %':>8} {'r err %':>8} {'t err mm':>9} {'r err deg':>10} "

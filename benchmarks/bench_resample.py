@@ -1,12 +1,13 @@
 """Resampling: quality against a direct render, speed against a kd-tree baseline, and real photos.
 
-Run: ``.venv/bin/python benchmarks/bench_resample.py [--quick] [--out DIR] [--repeat N]``
+Run: ``.venv/bin/python benchmarks/bench_resample.py [--quick] [--out DIR] [--repeat N] [--perturb-position-mm MM]``
 
 **Quality.** A session of an irregular 5x5 rig from :func:`polycam.synth.synth_session`:
 320x240 grey cameras 2 cm apart, 60 deg, a real lens (the OPENCV8 model
 ``../shared/data/mrcal-models/cam0.opencv8.cameramodel`` rescaled to the imager, as
 ``lens =`` in a rig file does), camera rotations of 2 deg std per axis and focal
-lengths of 1% std (``true_cameramodels``), 8-bit images of the textured room moving
+lengths of 1% std (``true_cameramodels``; ``--perturb-position-mm``: camera centres off
+the rig file too, as in ``polycam run``), 8-bit images of the textured room moving
 smoothly; the true models are the calibration. It is resampled onto the automatic
 grid (9x9 views: one at every camera and one half-way; one (u, v) step per pixel) with
 the default settings (the views between cameras filled along the disparity of a plane
@@ -169,6 +170,7 @@ def quality_and_speed(args, work: Path) -> dict:
     frames = 3 if args.quick else 4
     t = time.perf_counter()
     synth_session(rig, work / "session", frames=frames, seed=1, supersample=2, bit_depth=8,
+                  perturb_position_m=args.perturb_position_mm / 1e3,
                   perturb_rotation_deg=2.0, perturb_focal_frac=0.01, overwrite=True)
     print(f"session: {len(rig.cameras)} cameras x {frames} frames of 320x240 rendered in "
           f"{time.perf_counter() - t:.1f} s")
@@ -488,6 +490,9 @@ def main() -> int:
     ap.add_argument("--out", default=os.path.join(tempfile.gettempdir(), "polycam-bench-resample"),
                     help="folder for the PNGs and the work files")
     ap.add_argument("--skip-kettle", action="store_true")
+    ap.add_argument("--perturb-position-mm", type=float, default=0.0,
+                    help="std of the camera centres' offsets from the rig file [mm] (polycam run's rig: 1; "
+                         "default 0: the cameras on the grid views)")
     args = ap.parse_args()
     out = Path(args.out)
     work = out / "work"

@@ -30,7 +30,7 @@ from polycam.lightfield import LightFieldGrid
 
 from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
 from .pushpull import SCHEDULES, PushPull, weighted_views
-from .viewfill import ViewFillOptions, ViewFillPlan, camera_views, fill_views, plan_view_fill
+from .viewfill import ViewFillOptions, ViewFillPlan, camera_positions, fill_views, plan_view_fill
 
 VIEW_FILLS = ("depth", "pushpull")
 """How views no camera measured are filled: along the disparity found by a plane sweep
@@ -193,7 +193,7 @@ class Resampler:
 
                 T = np.stack([T_rig_cam_of(self.models[c]) for c in geo.layout.ids])
                 plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill,
-                                      camera_views=camera_views(self.grid, T[:, :3, 3], T[:, :3, 2]))
+                                      camera_positions=camera_positions(self.grid, T[:, :3, 3], T[:, :3, 2]))
             else:
                 log.warning("resample: the cameras are not on the focal plane z_pi (a grid view is then a "
                             "patchwork of several cameras): the views between them are filled by the "

@@ -11,7 +11,12 @@ viewpoints its direction moves by ``Δu = -f Δx / Z``. In grid indices, with th
 *disparity* ``δ = f · step_x / (step_u · Z)`` (u-steps per x-step),
 
     L(target)(iv, iu) ≈ L(source s)(iv - δ r_y Δiy_s, iu - δ Δix_s),
-    r_y = (step_y / step_x) (step_u / step_v),   Δi_s = source index − target index.
+    r_y = (step_y / step_x) (step_u / step_v),   Δi_s = source position − target position,
+
+positions in (fractional) grid indices: a source view holds its camera's view from the
+camera centre, which on a real rig is not exactly on the grid view (a 1 mm offset is
+0.1 view steps of a 1 cm grid), so ``Δi_s`` is measured from that centre
+(:func:`camera_positions`); a target view's position is its grid index.
 
 **Which views.** A *source* is a view the cameras measured (a share of at least
 ``source_coverage`` of its cells have a full splat weight); a *target* is a view
@@ -56,7 +61,7 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["camera_views", "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
+__all__ = ["camera_views", "camera_positions", "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +112,8 @@ class ViewFillPlan:
     sources: tuple[np.ndarray, ...]
     """Per target: (S, 2) int64 source view indices (iy, ix) on the same face."""
     offsets: tuple[np.ndarray, ...]
-    """Per target: (S, 2) float64 source minus target index (Δiy, Δix)."""
+    """Per target: (S, 2) float64 source minus target position (Δiy, Δix) [view steps]: grid
+    indices, or the camera centres where the plan was given them (``camera_positions``)."""
     weights: tuple[np.ndarray, ...]
     """Per target: (S,) float32 source weights ``1 / distance²`` (distance in metres), summing to 1."""
     disparities: np.ndarray
@@ -123,34 +129,56 @@ class ViewFillPlan:
         return len(self.targets)
 
 
-def camera_views(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
-    """(F, Ny, Nx) bool: the grid view nearest each camera centre, on the face its optical
-    axis points into. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and optical
-    axes in the rig frame."""
+def camera_positions(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx, 2) float64: at the grid view nearest each camera centre (on the face its
+    optical axis points into), that centre's position (iy, ix) in fractional grid indices;
+    NaN at the other views. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and
+    optical axes in the rig frame. Offsets below 1e-6 view steps are rounded away (a camera
+    on a grid view is exactly there)."""
     F, Ny, Nx = grid.shape[:3]
-    out = np.zeros((F, Ny, Nx), bool)
+    out = np.full((F, Ny, Nx, 2), np.nan)
     normals = np.stack([np.asarray(fc.R_rig_face, float)[:, 2] for fc in grid.faces])
     for c, a in zip(np.asarray(centres_rig, float), np.asarray(axes_rig, float)):
         k = int(np.argmax(normals @ a))
         p = np.asarray(grid.faces[k].R_rig_face, float).T @ c
-        ix = int(round((p[0] - grid.x.min) / grid.x.step)) if grid.x.count > 1 else 0
-        iy = int(round((p[1] - grid.y.min) / grid.y.step)) if grid.y.count > 1 else 0
+        fx = (p[0] - grid.x.min) / grid.x.step if grid.x.count > 1 else 0.0
+        fy = (p[1] - grid.y.min) / grid.y.step if grid.y.count > 1 else 0.0
+        ix, iy = int(round(fx)), int(round(fy))
         if 0 <= ix < Nx and 0 <= iy < Ny:
-            out[k, iy, ix] = True
+            pos = np.array([fy, fx])
+            snap = np.abs(pos - np.round(pos)) < 1e-6
+            out[k, iy, ix] = np.where(snap, np.round(pos), pos)
     return out
 
 
+def camera_views(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx) bool: the grid view nearest each camera centre, on the face its optical
+    axis points into. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and optical
+    axes in the rig frame."""
+    return ~np.isnan(camera_positions(grid, centres_rig, axes_rig)[..., 0])
+
+
 def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
-                   options: ViewFillOptions | None = None, camera_views: np.ndarray | None = None) -> ViewFillPlan:
+                   options: ViewFillOptions | None = None, camera_views: np.ndarray | None = None,
+                   camera_positions: np.ndarray | None = None) -> ViewFillPlan:
     """The fill plan for ``grid`` given the clamped splat weights ``w_clamped``
     (F, Ny, Nx, Nv, Nu) in [0, 1] (1 = measured). ``camera_views``: optional (F, Ny, Nx)
     bool, the views nearest a camera centre (:func:`camera_views`); the others count as
     unmeasured whatever splat weight they got (with cameras off the views, the splat
     kernel's tail gives the neighbouring views full weight from one camera's pixels: a
-    copy of that camera's view at the wrong viewpoint)."""
+    copy of that camera's view at the wrong viewpoint). ``camera_positions``: optional
+    (F, Ny, Nx, 2) from :func:`camera_positions` (implies ``camera_views``): the offsets
+    and weights of a source are measured from its camera centre (and those of a measured
+    view whose holes are re-filled from its own), not from its grid index."""
     opts = options or ViewFillOptions()
     F, Ny, Nx, Nv, Nu = grid.shape
     cov = np.mean(np.asarray(w_clamped) >= 1.0, axis=(3, 4))             # (F, Ny, Nx)
+    pos = None
+    if camera_positions is not None:
+        pos = np.asarray(camera_positions, float)
+        if pos.shape != (F, Ny, Nx, 2):
+            raise ValueError(f"camera_positions must be (F, Ny, Nx, 2) = {(F, Ny, Nx, 2)}")
+        camera_views = ~np.isnan(pos[..., 0]) if camera_views is None else camera_views
     if camera_views is not None:
         cov = np.where(np.asarray(camera_views, bool), cov, 0.0)
     sx = grid.x.step if grid.x.count > 1 else 0.0
@@ -175,12 +203,17 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
                     continue
                 jj = jj + max(0, j - r)
                 ii = ii + max(0, i - r)
-                d2 = ((jj - j) * sy) ** 2 + ((ii - i) * sx) ** 2
+                off = np.stack([jj - j, ii - i], axis=1).astype(np.float64)
+                if pos is not None:         # from the camera centres (the target: its own, if any)
+                    p_src = np.where(np.isnan(pos[f, jj, ii]), np.stack([jj, ii], axis=1), pos[f, jj, ii])
+                    p_tgt = pos[f, j, i] if own and not np.isnan(pos[f, j, i, 0]) else np.array([j, i], float)
+                    off = p_src - p_tgt
+                d2 = (off[:, 0] * sy) ** 2 + (off[:, 1] * sx) ** 2
                 w = 1.0 / np.maximum(d2, 1e-30)
                 targets.append((f, j, i))
                 holes_only.append(own)
                 sources.append(np.stack([jj, ii], axis=1).astype(np.int64))
-                offsets.append(np.stack([jj - j, ii - i], axis=1).astype(np.float64))
+                offsets.append(off)
                 weights.append((w / w.sum()).astype(np.float32))
     # candidate disparities: 0 (infinity) up to the nearest depth, on the face with the largest f
     r_y = []

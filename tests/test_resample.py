@@ -22,7 +22,7 @@ from resample import (KernelOptions, ResampleOptions, Resampler, auto_grid, buil
 from resample.geometry import camera_layout
 from resample.pushpull import pyramid_schedule
 from tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL, RESAMPLE_VIEWFILL_DISPARITY_ATOL,
-                        RESAMPLE_VIEWFILL_RMS)
+                        RESAMPLE_VIEWFILL_OFFGRID_GAIN, RESAMPLE_VIEWFILL_RMS)
 
 
 def _lens(tmp_path: Path) -> Path:
@@ -359,7 +359,7 @@ def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
     tail gives the views beside a camera full weight from its pixels, but only the view
     nearest each camera counts as measured; all the others are filled from depth."""
     from resample import ViewFillOptions
-    from resample.viewfill import camera_views
+    from resample.viewfill import camera_positions, camera_views
 
     rig = _grid_rig(tmp_path)
     models = true_cameramodels(rig, seed=4, perturb_position_m=0.0015, perturb_rotation_deg=2.0,
@@ -377,6 +377,14 @@ def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
     assert leaked.max() > ViewFillOptions().target_coverage     # without camera_views some would be kept
     plan = rs.fill_plan()
     assert sorted(plan.targets) == [(0, j, i) for j in range(5) for i in range(5) if j % 2 or i % 2]
+    # the sources' offsets are measured from their camera centres (0.15 view steps off)
+    pos = camera_positions(grid, T[:, :3, 3], T[:, :3, 2])
+    np.testing.assert_array_equal(~np.isnan(pos[..., 0]), expected)
+    off_grid = []
+    for (f, j, i), src, off in zip(plan.targets, plan.sources, plan.offsets):
+        np.testing.assert_allclose(off, pos[f, src[:, 0], src[:, 1]] - [j, i])
+        off_grid.append(np.abs(off - (src - [j, i])).max())
+    assert max(off_grid) > 0.05
 
 
 def test_view_fill_recovers_the_views_of_a_plane():
@@ -412,6 +420,55 @@ def test_view_fill_recovers_the_views_of_a_plane():
     assert np.sqrt(np.mean(err_blend ** 2)) > 4 * RESAMPLE_VIEWFILL_RMS        # the test has teeth
     np.testing.assert_allclose(np.median(disp[tgt]), delta, atol=RESAMPLE_VIEWFILL_DISPARITY_ATOL)
     np.testing.assert_array_equal(L6[..., 0][cam], truth[cam])                  # camera views untouched
+
+
+def test_view_fill_from_cameras_off_the_views():
+    """Cameras ~0.15 view steps off their grid views (a real rig): each camera view holds
+    the plane seen from the camera centre. Measured from the centres
+    (``camera_positions``), the filled views match the truth at the grid views; measured
+    from the grid indices (the camera view taken as seen from the grid view) they are
+    off by the disparity times the offset."""
+    from resample import ViewFillOptions, fill_views, plan_view_fill
+
+    axis = Axis(0.0, 0.04, 5)
+    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=axis, y=axis, u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    delta = 1.7
+    rng = np.random.default_rng(11)
+    cam = np.zeros(grid.shape, bool)
+    cam[:, ::2, ::2] = True
+    pos = np.full((1, 5, 5, 2), np.nan)
+    for j in range(0, 5, 2):
+        for i in range(0, 5, 2):
+            pos[0, j, i] = (j, i) + rng.normal(scale=0.15, size=2)
+    iv, iu = np.meshgrid(np.arange(80), np.arange(96), indexing="ij")
+
+    def plane_view(py, px):     # the plane of _plane_lightfield seen from fractional view (py, px)
+        a = iu + delta * px
+        b = iv + delta * py
+        return 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+
+    truth = _plane_lightfield(grid, delta)
+    L = truth.copy()
+    for j in range(0, 5, 2):
+        for i in range(0, 5, 2):
+            L[0, j, i] = plane_view(*pos[0, j, i])
+    W = np.where(cam, 1.0, 0.25).astype(np.float32)
+    opts = ViewFillOptions(min_depth=0.4)
+    inner = np.zeros(grid.shape, bool)
+    inner[..., 8:-8, 8:-8] = True
+    rms = {}
+    for name, kw in (("centres", {"camera_positions": pos}), ("indices", {"camera_views": cam[..., 0, 0]})):
+        plan = plan_view_fill(grid, cam.astype(np.float32), opts, **kw)
+        assert len(plan) == 16
+        L6 = np.ascontiguousarray(L[..., None])
+        fill_views(L6, W, plan, opts)
+        rms[name] = float(np.sqrt(np.mean((L6[..., 0] - truth)[inner & ~cam] ** 2)))
+        np.testing.assert_array_equal(L6[..., 0][cam], L[cam])           # camera views untouched
+        if name == "centres":
+            for (f, j, i), src, off in zip(plan.targets, plan.sources, plan.offsets):
+                np.testing.assert_allclose(off, pos[f, src[:, 0], src[:, 1]] - [j, i])
+    assert rms["centres"] <= RESAMPLE_VIEWFILL_RMS, rms
+    assert rms["indices"] >= RESAMPLE_VIEWFILL_OFFGRID_GAIN * rms["centres"], rms
 
 
 def test_view_fill_options_and_colour(tmp_path):
