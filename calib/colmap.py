@@ -124,6 +124,10 @@ def reconstruction_poses(rec) -> dict[str, np.ndarray]:
     return out
 
 
+_MAPPING_ATTEMPTS = 3
+"""Incremental mappings (seeds seed, seed + 1, ...) tried before a session counts as unmappable."""
+
+
 def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike, *,
                        camera_mode: str = "PER_FOLDER", camera_model: str = "SIMPLE_RADIAL",
                        max_image_size: int = 1600, max_features: int = 8192, sequential_overlap: int | None = None,
@@ -274,6 +278,8 @@ def calibrate_colmap(session, *, board=None, cameras: list[str] | None = None, f
         starting ``cam_from_rig`` (whole frames are registered together, so every camera is
         registered whenever its frame is); False: map without it and derive ``sensor_from_rig``
         from the unconstrained model afterwards (camera 0's images must then carry the rig).
+    seed: COLMAP's random seed; when a mapping registers too few frames (or no image of a
+        camera) it is retried with seed + 1, seed + 2 (``_MAPPING_ATTEMPTS`` in all).
     """
     import mrcal
 
@@ -302,20 +308,40 @@ def calibrate_colmap(session, *, board=None, cameras: list[str] | None = None, f
                 pycolmap.RigConfigCamera(image_prefix=f"{c}/", ref_sensor=False, cam_from_rig=pycolmap.Rigid3d(
                     (T_inverse(session.rig.camera(c).T_rig_cam) @ T0)[:3, :]))
                 for k, c in enumerate(cams)])]
-        rec, db_path = reconstruct_images(img_dir, workdir, camera_model=camera_model, max_image_size=max_image_size,
-                                          max_features=max_features, sequential_overlap=sequential_overlap,
-                                          seed=seed, rig_configs=configs)
-        rms0 = _rms_reprojection(rec)
-        registered = {rec.image(i).name for i in rec.reg_image_ids()}
-        missing = [c for c in cams if not any(n.startswith(f"{c}/") for n in registered)]
+        for attempt in range(_MAPPING_ATTEMPTS):
+            # COLMAP's incremental mapping now and then starts from a poor initial pair and
+            # registers only a few frames of a session it maps whole with another seed: retry
+            # with the next seeds before giving up (each attempt is reproducible)
+            if (workdir / "sparse").exists():
+                shutil.rmtree(workdir / "sparse")
+            last = attempt + 1 == _MAPPING_ATTEMPTS
+            try:
+                rec, db_path = reconstruct_images(img_dir, workdir, camera_model=camera_model,
+                                                  max_image_size=max_image_size, max_features=max_features,
+                                                  sequential_overlap=sequential_overlap, seed=seed + attempt,
+                                                  rig_configs=configs)
+            except PolycamError as e:
+                if last:
+                    raise
+                log.warning("colmap: seed %d: %s; retrying with the next seed", seed + attempt, e)
+                continue
+            registered = {rec.image(i).name for i in rec.reg_image_ids()}
+            missing = [c for c in cams if not any(n.startswith(f"{c}/") for n in registered)]
+            reg_frames = {int(Path(n.split("/", 1)[1]).stem) for n in registered}
+            enough = len(reg_frames) >= max(2, math.ceil(0.5 * len(frames)))
+            if enough and not missing:
+                break
+            log.warning("colmap: seed %d registered %d of %d frames%s; %s", seed + attempt, len(reg_frames),
+                        len(frames), f", no image of {', '.join(missing)}" if missing else "",
+                        "giving up" if last else "retrying with the next seed")
         if missing:
             raise PolycamError(f"{session.path}: COLMAP registered no image of camera(s) {', '.join(missing)} "
                                "(not enough overlap or texture)")
-        reg_frames = {int(Path(n.split("/", 1)[1]).stem) for n in registered}
-        if len(reg_frames) < max(2, math.ceil(0.5 * len(frames))):
+        if not enough:
             raise PolycamError(f"{session.path}: COLMAP registered only {len(reg_frames)} of {len(frames)} frames; "
                                "the target-free method needs a rig moving through a static textured scene (a board "
                                "session of a static rig is not one: use the board method)")
+        rms0 = _rms_reprojection(rec)
         log.info("colmap: first model: %d of %d images, %d points, RMS %.3f px", len(registered),
                  sum(1 for _ in img_dir.rglob("*.png")), rec.num_points3D(), rms0)
 

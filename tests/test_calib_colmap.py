@@ -5,7 +5,9 @@ tables, and the target-free COLMAP calibration on a small synthetic session (slo
 from __future__ import annotations
 
 import json
+import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,11 +186,8 @@ def test_cli_from_colmap(tmp_path):
     assert (tmp_path / "k" / "colmap" / "rig_config.json").is_file()
 
 
-@pytest.mark.slow
-def test_colmap_target_free_on_a_moving_rig(tmp_path):
-    """SIFT + mapping + rig bundle adjustment on a rendered 2x2 rig moving through a room:
-    camera centres (metric from the rig file) and focal lengths near the truth."""
-    from calib import calibrate_colmap
+def _moving_rig_session(tmp_path):
+    """A rendered 2x2 rig (cameras 6 cm apart, perturbed) moving through a room, 8 frames."""
     from polycam.session import open_session
     from polycam.synth import synth_session
 
@@ -214,7 +213,16 @@ step_r_deg = 2.0
     rig = load_rig(p)
     out = synth_session(rig, tmp_path / "s", frames=8, perturb_position_m=0.001, perturb_rotation_deg=0.3,
                         perturb_focal_frac=0.01)
-    s = open_session(out)
+    return open_session(out)
+
+
+@pytest.mark.slow
+def test_colmap_target_free_on_a_moving_rig(tmp_path):
+    """SIFT + mapping + rig bundle adjustment on a rendered 2x2 rig moving through a room:
+    camera centres (metric from the rig file) and focal lengths near the truth."""
+    from calib import calibrate_colmap
+
+    s = _moving_rig_session(tmp_path)
     cal = calibrate_colmap(s)
     true = s.calibration()
     assert cal.frames_registered == 8 and cal.rms_px < 0.5
@@ -229,6 +237,30 @@ step_r_deg = 2.0
         f_est, f_true = cal.models[c].intrinsics()[1][0], true[c].intrinsics()[1][0]
         assert abs(f_est / f_true - 1) <= CALIB_COLMAP_FOCAL_REL
     assert math.isfinite(cal.scale) and cal.scale_source == "rig"
+
+
+@pytest.mark.slow
+def test_colmap_retries_a_poor_mapping_with_the_next_seed(tmp_path, monkeypatch, caplog):
+    """A mapping that registers too few frames (here: the first attempt sees only frames 0
+    and 1) is retried with the next seed, which maps the whole session."""
+    import calib.colmap as cc
+
+    s = _moving_rig_session(tmp_path)
+    real = cc.reconstruct_images
+    seeds = []
+
+    def first_poor(img_dir, workdir, **kw):
+        seeds.append(kw["seed"])
+        if len(seeds) == 1:
+            kw["image_names"] = sorted(str(q.relative_to(img_dir)) for q in Path(img_dir).rglob("*.png")
+                                       if int(q.stem) in (0, 1))
+        return real(img_dir, workdir, **kw)
+
+    monkeypatch.setattr(cc, "reconstruct_images", first_poor)
+    with caplog.at_level(logging.WARNING, logger="calib.colmap"):
+        cal = cc.calibrate_colmap(s, seed=5)
+    assert seeds == [5, 6] and cal.frames_registered == 8
+    assert "retrying with the next seed" in caplog.text
 
 
 def test_board_scale_from_triangulated_corners(tmp_path):
