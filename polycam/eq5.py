@@ -122,13 +122,22 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     The ray loop has no branches (rays with weight <= 0 add zeros; their derivatives
     are finite) and unsigned indices, so that it vectorises (callers use ``_FASTMATH``).
     """
-    inv_f = 1.0 / f
-    tx = p[0]
-    ty = p[1]
-    tz = p[2]
-    wx = p[3]
-    wy = p[4]
-    wz = p[5]
+    # the per-ray arithmetic and the sums over one row of a tile are float32 (16 rays:
+    # the rounding is that of the float32 derivatives); they are added to float64 sums
+    one = np.float32(1.0)
+    z32 = np.float32(0.0)
+    inv_f = np.float32(1.0 / f)
+    f32 = np.float32(f)
+    z32_pi = np.float32(z_pi)
+    x32 = np.float32(x)
+    y32 = np.float32(y)
+    isc = np.float32(inv_sc)
+    tx = np.float32(p[0])
+    ty = np.float32(p[1])
+    tz = np.float32(p[2])
+    wx = np.float32(p[3])
+    wy = np.float32(p[4])
+    wz = np.float32(p[5])
     hx2 = h[0] * h[0]
     hy2 = h[1] * h[1]
     hu2 = h[2] * h[2]
@@ -139,6 +148,7 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     tex = 0.0
     for jv in range(v_lo, v_hi):
         v = vs[jv]
+        v32 = np.float32(v)
         tv = jv // tile
         rx = gx[jv]
         ry = gy[jv]
@@ -148,40 +158,43 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
         rw = wb[jv]
         s0 = s1 = s2 = s3 = s4 = 0.0
         for tu in range(u_lo // tile, (u_hi - 1) // tile + 1):
-            n00 = n01 = n02 = n03 = n04 = n05 = 0.0
-            n11 = n12 = n13 = n14 = n15 = 0.0
-            n22 = n23 = n24 = n25 = 0.0
-            n33 = n34 = n35 = 0.0
-            n44 = n45 = 0.0
-            n55 = 0.0
-            r0 = r1 = r2 = r3 = r4 = r5 = 0.0
-            sbb = 0.0
-            sw = 0.0
+            n00 = n01 = n02 = n03 = n04 = n05 = z32
+            n11 = n12 = n13 = n14 = n15 = z32
+            n22 = n23 = n24 = n25 = z32
+            n33 = n34 = n35 = z32
+            n44 = n45 = z32
+            n55 = z32
+            r0 = r1 = r2 = r3 = r4 = r5 = z32
+            sbb = z32
+            sw = z32
+            c_base = z32
+            c_in = z32
+            c_w = z32
             for iu in range(numba.uint64(max(tu * tile, u_lo)), numba.uint64(min((tu + 1) * tile, u_hi))):
-                wraw = np.float64(rw[iu])
-                pos = wraw > 0.0
-                wi = wraw if pos else 0.0
-                n_base += 1.0 if pos else 0.0
-                u = us[iu]
-                g0 = np.float64(rx[iu])
-                g1 = np.float64(ry[iu])
-                g2 = np.float64(ru[iu])
-                g3 = np.float64(rv[iu])
-                b = -np.float64(rt[iu])
+                wraw = rw[iu]
+                pos = wraw > z32
+                wi = wraw if pos else z32
+                c_base += one if pos else z32
+                u = np.float32(us[iu])
+                g0 = rx[iu]
+                g1 = ry[iu]
+                g2 = ru[iu]
+                g3 = rv[iu]
+                b = -rt[iu]
                 c0 = g0
                 c1 = g1
-                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
+                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x32, y32, u, v32, z32_pi, f32, inv_f)
                 if kind != 0:
                     r = c0 * tx + c1 * ty + c2 * tz + c3 * wx + c4 * wy + c5 * wz - b
-                    zz = abs(r) * inv_sc
+                    zz = abs(r) * isc
                     if kind == 1:
-                        q = 1.0 - zz * zz
-                        wr = q * q if zz < 1.0 else 0.0
+                        q = one - zz * zz
+                        wr = q * q if zz < one else z32
                     else:
-                        wr = 1.0 if zz <= 1.0 else 1.0 / zz
-                    n_in += 1.0 if (pos and wr > 0.5) else 0.0
+                        wr = one if zz <= one else one / zz
+                    c_in += one if (pos and wr > np.float32(0.5)) else z32
                     wi = wi * wr
-                n_w += 1.0 if wi > 0.0 else 0.0
+                c_w += one if wi > z32 else z32
                 w0 = wi * c0
                 w1 = wi * c1
                 w2 = wi * c2
@@ -229,6 +242,9 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
                     s3 += m
                     m *= u
                     s4 += m
+            n_base += c_base
+            n_in += c_in
+            n_w += c_w
             a = acc[tv, tu]
             a[0] += n00
             a[1] += n01
