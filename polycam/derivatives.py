@@ -322,6 +322,59 @@ def xy_view(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """(x, y) stage of one output view image (f, j, i) from the frames' mean S and
     difference D: a1 = Px Py S, a2 = Dx Py S, a3 = Px Dy S, a4 = Px Py D, each (Nv, Nu)
     (clamped borders). Shared with the motion solver's fused kernels."""
+    if py.shape[0] == 3 and px.shape[0] == 3:
+        _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
+    else:
+        _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
+
+
+@numba.njit(cache=True, inline="always")
+def _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
+    """:func:`xy_view` for 3-tap filters along x and y (fs3, the solver's default), in one
+    pass per (v) row: the 18 neighbouring rows of both frames are combined in registers
+    (separably: x first), each output row is written once."""
+    Ny, Nx, Nv, Nu = L0.shape[1:]
+    half = np.float32(0.5)
+    n = numba.uint64(Nu)
+    j0 = max(j - 1, 0)
+    j2 = min(j + 1, Ny - 1)
+    i0 = max(i - 1, 0)
+    i2 = min(i + 1, Nx - 1)
+    p0, p1, p2 = px[0], px[1], px[2]
+    d0, d1, d2 = dx[0], dx[1], dx[2]
+    q0, q1, q2 = py[0] * half, py[1] * half, py[2] * half
+    e0, e1, e2 = dy[0] * half, dy[1] * half, dy[2] * half
+    r0, r1, r2 = py[0], py[1], py[2]
+    for v in range(Nv):
+        A0, A1, A2 = L0[f, j0, i0, v], L0[f, j0, i, v], L0[f, j0, i2, v]
+        B0, B1, B2 = L0[f, j, i0, v], L0[f, j, i, v], L0[f, j, i2, v]
+        C0, C1, C2 = L0[f, j2, i0, v], L0[f, j2, i, v], L0[f, j2, i2, v]
+        X0, X1, X2 = L1[f, j0, i0, v], L1[f, j0, i, v], L1[f, j0, i2, v]
+        Y0, Y1, Y2 = L1[f, j, i0, v], L1[f, j, i, v], L1[f, j, i2, v]
+        Z0, Z1, Z2 = L1[f, j2, i0, v], L1[f, j2, i, v], L1[f, j2, i2, v]
+        o1, o2, o3, o4 = a1[v], a2[v], a3[v], a4[v]
+        for u in range(n):
+            sa0, sa1, sa2 = A0[u] + X0[u], A1[u] + X1[u], A2[u] + X2[u]
+            sb0, sb1, sb2 = B0[u] + Y0[u], B1[u] + Y1[u], B2[u] + Y2[u]
+            sc0, sc1, sc2 = C0[u] + Z0[u], C1[u] + Z1[u], C2[u] + Z2[u]
+            Pa = p0 * sa0 + p1 * sa1 + p2 * sa2
+            Pb = p0 * sb0 + p1 * sb1 + p2 * sb2
+            Pc = p0 * sc0 + p1 * sc1 + p2 * sc2
+            Da = d0 * sa0 + d1 * sa1 + d2 * sa2
+            Db = d0 * sb0 + d1 * sb1 + d2 * sb2
+            Dc = d0 * sc0 + d1 * sc1 + d2 * sc2
+            Ta = p0 * (X0[u] - A0[u]) + p1 * (X1[u] - A1[u]) + p2 * (X2[u] - A2[u])
+            Tb = p0 * (Y0[u] - B0[u]) + p1 * (Y1[u] - B1[u]) + p2 * (Y2[u] - B2[u])
+            Tc = p0 * (Z0[u] - C0[u]) + p1 * (Z1[u] - C1[u]) + p2 * (Z2[u] - C2[u])
+            o1[u] = q0 * Pa + q1 * Pb + q2 * Pc
+            o2[u] = q0 * Da + q1 * Db + q2 * Dc
+            o3[u] = e0 * Pa + e1 * Pb + e2 * Pc
+            o4[u] = r0 * Ta + r1 * Tb + r2 * Tc
+
+
+@numba.njit(cache=True, inline="always")
+def _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
+    """:func:`xy_view` for any tap counts: one accumulating pass per (x, y) tap."""
     Ny, Nx, Nv, Nu = L0.shape[1:]
     ry = py.shape[0] // 2
     rx = px.shape[0] // 2
@@ -363,17 +416,40 @@ def xy_view(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
 def _filt_v(src, w, out):
     """out[v, u] = sum_t w[t] src[clamp(v + t - r), u] for 2-D (Nv, Nu) arrays."""
     Nv, Nu = src.shape
-    r = w.shape[0] // 2
-    for v in range(Nv):
-        o = out[v]
-        o[:] = 0.0
-        for t in range(w.shape[0]):
-            wt = w[t]
-            if wt == 0.0:
-                continue
-            row = src[min(max(v + t - r, 0), Nv - 1)]
-            for u in range(Nu):
-                o[u] += wt * row[u]
+    T = w.shape[0]
+    r = T // 2
+    n = numba.uint64(Nu)
+    if T == 5:
+        w0, w1, w2, w3, w4 = w[0], w[1], w[2], w[3], w[4]
+        for v in range(Nv):
+            a = src[min(max(v - 2, 0), Nv - 1)]
+            b = src[min(max(v - 1, 0), Nv - 1)]
+            c = src[v]
+            d = src[min(v + 1, Nv - 1)]
+            e = src[min(v + 2, Nv - 1)]
+            o = out[v]
+            for u in range(n):
+                o[u] = w0 * a[u] + w1 * b[u] + w2 * c[u] + w3 * d[u] + w4 * e[u]
+    elif T == 3:
+        w0, w1, w2 = w[0], w[1], w[2]
+        for v in range(Nv):
+            a = src[max(v - 1, 0)]
+            c = src[v]
+            d = src[min(v + 1, Nv - 1)]
+            o = out[v]
+            for u in range(n):
+                o[u] = w0 * a[u] + w1 * c[u] + w2 * d[u]
+    else:
+        for v in range(Nv):
+            o = out[v]
+            o[:] = 0.0
+            for t in range(T):
+                wt = w[t]
+                if wt == 0.0:
+                    continue
+                row = src[min(max(v + t - r, 0), Nv - 1)]
+                for u in range(n):
+                    o[u] += wt * row[u]
 
 
 @numba.njit(cache=True, inline="always")
@@ -383,17 +459,27 @@ def _filt_u(src, w, scale, out):
     T = w.shape[0]
     r = T // 2
     m = max(Nu - 2 * r, 0)
+    mu = numba.uint64(m)
     for v in range(Nv):
         row = src[v]
         o = out[v, r:r + m]
-        o[:] = 0.0
-        for t in range(T):
-            wt = w[t] * scale
-            if wt == 0.0:
-                continue
-            sl = row[t:t + m]
-            for u in range(m):
-                o[u] += wt * sl[u]
+        if T == 5:
+            w0, w1, w2, w3, w4 = w[0] * scale, w[1] * scale, w[2] * scale, w[3] * scale, w[4] * scale
+            for u in range(mu):
+                o[u] = w0 * row[u] + w1 * row[u + 1] + w2 * row[u + 2] + w3 * row[u + 3] + w4 * row[u + 4]
+        elif T == 3:
+            w0, w1, w2 = w[0] * scale, w[1] * scale, w[2] * scale
+            for u in range(mu):
+                o[u] = w0 * row[u] + w1 * row[u + 1] + w2 * row[u + 2]
+        else:
+            o[:] = 0.0
+            for t in range(T):
+                wt = w[t] * scale
+                if wt == 0.0:
+                    continue
+                sl = row[t:t + m]
+                for u in range(mu):
+                    o[u] += wt * sl[u]
         for jb in range(Nu - m):
             j = jb if jb < r else r + m + jb - r
             if j >= Nu:
