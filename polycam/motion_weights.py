@@ -64,7 +64,7 @@ def _second_differences(L, W, has_w, ax, stride, out):
                             + L[f, j + dj, i + di, v + dv, u + du])
 
 
-def _noise_variance(lev: _Level, samples: int = 100_000) -> float:
+def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
     """Sensor-noise variance per sample, from the robust spread of second differences
     across viewpoints (the light field is smooth along x and y; the finest available
     axis is used) on regularly spaced rows, about ``samples`` per frame:
@@ -185,7 +185,7 @@ def _noise_energy_quantile(radius: int) -> float:
 
 
 def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
-                          samples: int = 200_000, noise_var: float = 0.0) -> np.ndarray:
+                          samples: int = 50_000, noise_var: float = 0.0) -> np.ndarray:
     """:func:`discontinuity_weight` of S = (L0 + L1) / 2 (zero where W0 <= 0); the median
     from about ``samples`` values in whole rows. ``noise_var``: sensor-noise variance of S
     per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e)."""
