@@ -119,7 +119,8 @@ from .motion_weights import (_level_discontinuity_weight, _noise_variance, disco
                              robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import _T_sqrt, _views_inner, _warp_into, warp_lightfield, warp_lightfield_reference
+from .warp import (_T_sqrt, _padded, _views_inner, _warp_into, warp_lightfield, warp_lightfield_reference,
+                   _warp_scratch_shape)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -264,12 +265,12 @@ def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarra
 
 
 def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> np.ndarray:
-    """Channels warped together, (F, Nv, Nu, K, Ny, Nx) (:func:`~polycam.warp._views_inner`): L,
+    """Channels warped together, (F, Nv, Nu, M) (:func:`~polycam.warp._views_inner`): L,
     and with a confidence W also W and the "no data" indicator (W <= 0), which must not be
     interpolated into usable samples (any stencil tap on it makes the sample unusable).
     ``name``: into that per-thread work array (:func:`_work_array`)."""
     F, Ny, Nx, Nv, Nu = L.shape
-    out = None if name is None else _work_array(name, (F, Nv, Nu, 1 if W is None else 3, Ny, Nx))
+    out = None if name is None else _work_array(name, (F, Nv, Nu, _padded((1 if W is None else 3) * Ny * Nx)))
     if W is None:
         return _views_inner(L[:, None], out)
     return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1), out)
@@ -351,10 +352,10 @@ class _Solver:
         self.conf0 = None
         if lev.W0 is not None and not opts.symmetric:
             self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
-        K = self.src1.shape[3]
+        K = 1 if lev.W1 is None else 3
         self.out1 = _work_array("out1", (K,) + self.shape)
         self.conf = _work_array("conf", self.shape)
-        self.U = _work_array("U", (Nv, Nu, K, Ny, Nx))
+        self.U = _work_array("U", _warp_scratch_shape(self.src1))
         self.der = [_work_array(n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
         self.base = _work_array("base", self.shape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
@@ -389,11 +390,10 @@ class _Solver:
         if lev.W1 is not None:
             conf *= _warped_confidence(self.out1)
         if opts.symmetric:
-            K0 = self.src0.shape[3]
-            out0 = np.empty((K0,) + self.shape, np.float32)
+            out0 = np.empty((1 if lev.W0 is None else 3,) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
-            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0, 
-                       np.empty(self.U.shape[:2] + (K0,) + self.U.shape[3:], np.float32))
+            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0,
+                       np.empty(_warp_scratch_shape(self.src0), np.float32))
             conf *= ok0
             if lev.W0 is not None:
                 conf *= _warped_confidence(out0)

@@ -260,7 +260,7 @@ def _warp_uv_kernel(srcT, wv, iv, wu, iu, out):
     """out[v, u, m] = Σ_q Σ_r wv[v, u, q] wu[v, u, r] srcT[iv[v, u, q], iu[v, u, r], m]: the
     (u, v) part of the warp (6 x 6 taps), shared by all views. Views (and channels) are
     the innermost axis m of srcT / out (Nv, Nu, M), so each tap is one vectorised
-    multiply-add over all view images."""
+    multiply-add over all view images (M a multiple of 16: no scalar remainder)."""
     Nv, Nu, M = srcT.shape
     for v in numba.prange(Nv):
         for u in range(Nu):
@@ -283,13 +283,15 @@ def _warp_uv_kernel(srcT, wv, iv, wu, iu, out):
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok):
     """Bilinear interpolation across viewpoints of the (u, v)-warped images U
-    (Nv, Nu, K, Ny, Nx) of face ``face`` at each moved ray's focal-plane point in grid
+    (Nv, Nu, M) (M >= K Ny Nx: (K, Ny, Nx) flattened, then padding) of face ``face`` at
+    each moved ray's focal-plane point in grid
     units, fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view
     from its moved origin; slopes (Nv, Nu) per direction), into out[:, face]
     (K, F, Ny, Nx, Nv, Nu); ok[face] (F, Ny, Nx, Nv, Nu) float32 is 1 where the moved ray
     lies inside the grid, else 0 (and out 0). Per row v, U[v] (all views) stays in cache
     while each view's row is written."""
-    Nv, Nu, K, Ny, Nx = U.shape
+    K, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = U.shape
     eps = 1e-6
     bx_max = numba.uint64(max(Nx - 2, 0))
     by_max = numba.uint64(max(Ny - 2, 0))
@@ -300,9 +302,9 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
     cx = np.float64(Nx - 1)
     cy = np.float64(Ny - 1)
     nxy = numba.uint64(Ny * Nx)
-    nk = numba.uint64(K)
+    nm = numba.uint64(M)
     unx = numba.uint64(Nx)
-    Uf = U.reshape((Nv, Nu * K * Ny * Nx))
+    Uf = U.reshape((Nv, Nu * M))
     for jv in numba.prange(Nv):
         Uv = Uf[jv]
         sxr = slope_x[jv]
@@ -328,7 +330,7 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
                         by = min(numba.uint64(fy), by_max)
                         wx = min(fx - bx, 1.0)
                         wy = min(fy - by, 1.0)
-                        o = (iu * nk + numba.uint64(k)) * nxy + by * unx + bx
+                        o = iu * nm + numba.uint64(k) * nxy + by * unx + bx
                         val = ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
                                + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1]))
                         orow[iu] = val if good else 0.0
@@ -337,9 +339,11 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
 
 @numba.njit(parallel=True, cache=True)
 def _views_inner_kernel(a, out):
-    """out[f, v, u, m] = a[f, m, v, u] (m = the flattened (K, Ny, Nx)); per (f, v) the output
-    block (Nu, M) stays in cache while rows of a are read contiguously."""
+    """out[f, v, u, m] = a[f, m, v, u] (m = the flattened (K, Ny, Nx)), zero for m beyond
+    a's (the padding); per (f, v) the output block (Nu, M) stays in cache while rows of a
+    are read contiguously."""
     F, M, Nv, Nu = a.shape
+    Mp = out.shape[3]
     for fv in numba.prange(F * Nv):
         f = fv // Nv
         v = fv - f * Nv
@@ -348,25 +352,39 @@ def _views_inner_kernel(a, out):
             row = a[f, m, v]
             for u in range(Nu):
                 o[u, m] = row[u]
+        for u in range(Nu):
+            o[u, M:Mp] = 0.0
+
+
+def _padded(m: int) -> int:
+    """The warp's view axis length for m = K Ny Nx values: the next multiple of 16 (the
+    (u, v) warp's vector loops then have no scalar remainder: 81 → 96 is ~25 % faster)."""
+    return -(-m // 16) * 16
+
+
+def _warp_scratch_shape(srcT: np.ndarray) -> tuple:
+    """Dims of the (u, v)-warped scratch U for a source from :func:`_views_inner`."""
+    return srcT.shape[1:]
 
 
 def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, K, Ny, Nx) float32 C: the warp's source layout
-    (into ``out`` when given)."""
+    """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, M) float32 C, M = :func:`_padded` (K Ny Nx): the
+    warp's source layout, (K, Ny, Nx) flattened then zeros (into ``out`` when given)."""
     a = np.ascontiguousarray(arrays, dtype=np.float32)
     F, K, Ny, Nx, Nv, Nu = a.shape
     if out is None:
-        out = np.empty((F, Nv, Nu, K, Ny, Nx), np.float32)
-    _views_inner_kernel(a.reshape(F, K * Ny * Nx, Nv, Nu), out.reshape(F, Nv, Nu, K * Ny * Nx))
+        out = np.empty((F, Nv, Nu, _padded(K * Ny * Nx)), np.float32)
+    _views_inner_kernel(a.reshape(F, K * Ny * Nx, Nv, Nu), out)
     return out
 
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
                out: np.ndarray, ok: np.ndarray, U: np.ndarray) -> None:
-    """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, K, Ny, Nx) float32 C
+    """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
-    float32 (1 inside, 0 outside); U (Nv, Nu, K, Ny, Nx) float32 scratch."""
-    F, Nv, Nu, K, Ny, Nx = srcT.shape
+    float32 (1 inside, 0 outside); U (Nv, Nu, M) float32 scratch
+    (:func:`_warp_scratch_shape`)."""
+    K, F, Ny, Nx, Nv, Nu = out.shape
     xs, ys = grid.x.values, grid.y.values
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
@@ -377,7 +395,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
         R = np.ascontiguousarray(G[:3, :3])
         wv, iv, wu, iu, ok_uv, slope_x, slope_y = _uv_stencils(grid, face, R, int(uv_taps))
-        _warp_uv_kernel(srcT[k].reshape(Nv, Nu, K * Ny * Nx), wv, iv, wu, iu, U.reshape(Nv, Nu, K * Ny * Nx))
+        _warp_uv_kernel(srcT[k], wv, iv, wu, iu, U)
         o = np.stack([x, y, np.full_like(x, face.z_pi)], axis=-1) @ R.T + G[:3, 3]     # moved origins
         sz = face.z_pi - o[..., 2]
         # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis
@@ -403,8 +421,8 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     K, F, Ny, Nx, Nv, Nu = arrays.shape
     out = np.empty(arrays.shape, np.float32)
     ok = np.empty(arrays.shape[1:], np.float32)
-    _warp_into(_views_inner(np.moveaxis(arrays, 0, 1)), grid, T_ray, uv_taps, out, ok,
-               np.empty((Nv, Nu, K, Ny, Nx), np.float32))
+    srcT = _views_inner(np.moveaxis(arrays, 0, 1))
+    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, np.empty(_warp_scratch_shape(srcT), np.float32))
     return out, ok > 0
 
 
