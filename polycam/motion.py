@@ -115,8 +115,8 @@ from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
 from .motion_options import MotionOptions
-from .motion_weights import (_level_discontinuity_weight, _noise_variance, discontinuity_weight, min_over_support,
-                             robust_scale, robust_slope, robust_weight, solver_filter_pairs)
+from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
+                             min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _padded, _views_inner, _warp_into, warp_lightfield, warp_lightfield_reference,
@@ -477,7 +477,7 @@ class _Solver:
                      self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
         return self._sums()
 
-    def mad(self, p_rig: np.ndarray, max_samples: int = 50_000) -> float:
+    def mad(self, p_rig: np.ndarray, max_samples: int = _SCALE_SAMPLES) -> float:
         """1.4826 × weighted median of |residual| over base weight > 0 (weights = base), on
         every k-th (v) row of the valid views, at least ``max_samples`` rays (the scale
         needs no more precision)."""
