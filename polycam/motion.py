@@ -374,6 +374,13 @@ class _Solver:
     def _face_params(self, p_rig: np.ndarray) -> np.ndarray:
         return np.stack([Bk @ p_rig for Bk in self.B])
 
+    def _tile(self, final: bool) -> int:
+        """Tile of a pass's sums: the covariance's (u, v) tiles in the final pass of a solve
+        (the scores need per-tile sums), else whole view rows (one tile per view image: the
+        totals are the same, and the ray loop then adds its vector partial sums once per
+        row instead of once per 16 rays, ~2x faster)."""
+        return self.tile if final else max(self.shape[3], self.shape[4])
+
     def _sums(self):
         F = self.shape[0]
         acc = self.acc.reshape(F, -1, self.acc.shape[1] * self.acc.shape[2], _NACC)
@@ -421,7 +428,7 @@ class _Solver:
             self.var = self.var_dr
         _prepare_kernel(L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
                         Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
-                        np.zeros((self.shape[0], 6)), self.tile, self.box, self.h, self.var, final,
+                        np.zeros((self.shape[0], 6)), self._tile(final), self.box, self.h, self.var, final,
                         self.acc, self.st, parallel_chunks(), self.rho if has_rho else _NO_RHO, has_rho,
                         not first_dr)
         if first_dr:
@@ -433,7 +440,7 @@ class _Solver:
                                                rho_max)
             _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
             _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
-                         np.zeros((self.shape[0], 6)), 0, 0.0, self.tile, self.box, self.h, self.var, final,
+                         np.zeros((self.shape[0], 6)), 0, 0.0, self._tile(final), self.box, self.h, self.var, final,
                          self.acc, self.st, parallel_chunks())
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
@@ -473,7 +480,7 @@ class _Solver:
         """Normal sums with IRLS weights of the residuals at p_rig (robust scale self.scale)."""
         Lx, Ly, Lu, Lv, Lt = self.der
         _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
-                     self._face_params(p_rig), self.kind, 1.0 / (self.scale * self.opts.robust_c), self.tile,
+                     self._face_params(p_rig), self.kind, 1.0 / (self.scale * self.opts.robust_c), self._tile(final),
                      self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
         return self._sums()
 
