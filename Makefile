@@ -14,5 +14,9 @@ test: setup
 bench: setup
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; .venv/bin/python $$b || exit 1; done
 
+# numba's on-disk caches (*.nbi / *.nbc in __pycache__) are keyed on each kernel's own
+# source file only: after editing a module whose kernels others inline (e.g.
+# polycam/derivatives.py, polycam/eq5.py), `make clean` so that they are recompiled.
 clean:
 	rm -rf demo-out .pytest_cache
+	find . -path ./.venv -prune -o -name '*.nb[ic]' -print | xargs rm -f
