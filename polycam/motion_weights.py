@@ -33,27 +33,29 @@ __all__ = [
 
 
 @numba.njit(parallel=True, cache=True)
-def _second_differences(L, W, has_w, ax, stride, out):
-    """|L[a-1] − 2 L[a] + L[a+1]| along axis ``ax`` (1..4) of L (F, Ny, Nx, Nv, Nu) on every
-    ``stride``-th (v) row (C order over the interior along ax, whole rows for contiguous
-    access; along u only the interior samples); NaN where the confidence W is not
-    positive (``has_w``). out: (n_rows, n_u)."""
+def _second_differences(L, W, has_w, ax, stride, out, hy=1, oy=0, hx=1, ox=0):
+    """|L[a-h] − 2 L[a] + L[a+h]| along axis ``ax`` (1..4) of L (F, Ny, Nx, Nv, Nu) on
+    every ``stride``-th (v) row (C order over the rows used; whole rows for contiguous
+    access; along u only the interior samples); NaN where the confidence W is not positive
+    (``has_w``). Along y only the views oy, oy + hy, ... are used, along x ox, ox + hx, ...
+    (the cameras' views, :func:`_camera_stride`); along the differenced view axis h is its
+    step and the centres are the used views with both neighbours inside. out: (n_rows, n_u)."""
     F, Ny, Nx, Nv, Nu = L.shape
+    n1, s1, d1 = _axis_rows(Ny, hy, oy, ax == 1)
+    n2, s2, d2 = _axis_rows(Nx, hx, ox, ax == 2)
     n3 = Nv - 2 if ax == 3 else Nv
-    n2 = Nx - 2 if ax == 2 else Nx
-    n1 = Ny - 2 if ax == 1 else Ny
     dv = 1 if ax == 3 else 0
-    di = 1 if ax == 2 else 0
-    dj = 1 if ax == 1 else 0
     du = 1 if ax == 4 else 0
+    dj = hy if d1 else 0
+    di = hx if d2 else 0
     two = np.float32(2.0)
     for k in numba.prange(out.shape[0]):
         q = k * stride
         v = q % n3 + dv
         q //= n3
-        i = q % n2 + di
+        i = s2 + (q % n2) * hx
         q //= n2
-        j = q % n1 + dj
+        j = s1 + (q % n1) * hy
         f = q // n1
         for m in range(out.shape[1]):
             u = m + du
@@ -64,25 +66,61 @@ def _second_differences(L, W, has_w, ax, stride, out):
                             + L[f, j + dj, i + di, v + dv, u + du])
 
 
+@numba.njit(cache=True)
+def _axis_rows(n, h, o, differenced):
+    """(count, first, differenced) of the views o, o + h, ... of an axis of n views; on the
+    differenced axis only those with both neighbours (± h) inside."""
+    if differenced:
+        return max((n - 1 - o) // h - 1, 0), o + h, True
+    return (n - 1 - o) // h + 1, o, False
+
+
+def _camera_stride(L: np.ndarray, ax: int) -> tuple[int, int]:
+    """(h, o): the spacing and offset along view axis ``ax`` (1: y, 2: x) of L
+    (F, Ny, Nx, Nv, Nu) of the views that are not linear interpolations of their
+    neighbours. A grid with viewpoints interpolated between the cameras (design's
+    ``xy_oversample``: one view in h is a camera) has second differences that vanish at
+    the interpolated views: their median per view position is below 1e-4 of the largest.
+    (1, 0) when every interior view is measured (or the axis has fewer than 3 views)."""
+    n = L.shape[ax]
+    if n < 3:
+        return 1, 0
+    sub = L[:, :, :, ::max(1, L.shape[3] // 8)]               # a few (v) rows suffice
+    d2 = np.abs(np.diff(sub, n=2, axis=ax))                   # centres 1 .. n − 2
+    med = np.median(np.moveaxis(d2, ax, 0).reshape(n - 2, -1), axis=1)
+    if not med.max() > 0:
+        return 1, 0
+    live = np.flatnonzero(med > 1e-4 * med.max()) + 1
+    if live.size < 2 or live.size == n - 2:
+        return 1, 0
+    h = int(np.diff(live).min())
+    return (h, int(live[0]) % h) if h > 1 else (1, 0)
+
+
 def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
     """Sensor-noise variance per sample, from the robust spread of second differences
     across viewpoints (the light field is smooth along x and y; the finest available
     axis is used) on regularly spaced rows, about ``samples`` per frame:
-    σ² = (1.4826 · median |Δ²L|)² / 6."""
+    σ² = (1.4826 · median |Δ²L|)² / 6. On a grid with viewpoints interpolated between the
+    cameras, over the cameras' views only (:func:`_camera_stride`)."""
     for ax in (2, 1, 4, 3):                             # x, y, then u, v
         if lev.L0.shape[ax] >= 3:
             break
     else:
         return 0.0
-    shape = list(lev.L0.shape)
-    shape[ax] -= 2
+    (hy, oy), (hx, ox) = _camera_stride(lev.L0, 1), _camera_stride(lev.L0, 2)
+    F, Ny, Nx, Nv, Nu = lev.L0.shape
+    shape = [F, _axis_rows(Ny, hy, oy, ax == 1)[0], _axis_rows(Nx, hx, ox, ax == 2)[0],
+             Nv - 2 if ax == 3 else Nv, Nu - 2 if ax == 4 else Nu]
     n_u = shape[4]
     n_rows = int(np.prod(shape[:4]))
+    if n_rows * n_u == 0:
+        return 0.0
     stride = max(1, n_rows * n_u // samples)
     vals = []
     for L, W in ((lev.L0, lev.W0), (lev.L1, lev.W1)):
         out = np.empty((-(-n_rows // stride), n_u), np.float32)
-        _second_differences(L, L if W is None else W, W is not None, ax, stride, out)
+        _second_differences(L, L if W is None else W, W is not None, ax, stride, out, hy, oy, hx, ox)
         out = out.reshape(-1)
         vals.append(out[np.isfinite(out)])
     v = np.concatenate(vals)

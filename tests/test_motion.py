@@ -19,7 +19,7 @@ from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate
 from polycam.derivatives import plenoptic_derivatives
 from polycam.trajectory import Trajectory
 
-from tolerances import (MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
+from tolerances import (MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL, MOTION_WHITEN_GLS_RTOL,
@@ -635,3 +635,28 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
         assert np.abs(der[k] - ref[k])[both].max() <= MOTION_DEPTH_RHO_RTOL * scale
         assert np.array_equal(der[k][~used], ref[k][~used])
     np.testing.assert_allclose(var_k, var_ref, rtol=MOTION_DEPTH_RHO_RTOL)
+
+
+@pytest.mark.parametrize("oversample", [1, 2, 3])
+def test_noise_variance_on_the_cameras_views(rng, oversample):
+    """The sensor-noise estimate behind the derivative noise (E, eiv, Eq. 6 rule) uses the
+    cameras' views when the grid interpolates viewpoints between them (design's
+    xy_oversample): the second differences across interpolated views vanish and gave ~0."""
+    from polycam.motion_weights import _noise_variance
+    from polycam.pyramid import _Level
+
+    sigma, n_cams = 0.02, 5
+    nx = (n_cams - 1) * oversample + 1
+    grid = make_grid(views=nx, directions=32, spacing=0.02 / oversample)
+    frames = []
+    for _ in range(2):
+        cams = 0.5 + sigma * rng.standard_normal((1, n_cams, n_cams, 32, 32))
+        # linear interpolation between the cameras along y, then x (as the design's sampling)
+        a = np.linspace(0, n_cams - 1, nx)
+        lo = np.minimum(np.floor(a).astype(int), n_cams - 2)
+        w = (a - lo)[:, None, None, None]
+        rows = (1 - w) * cams[0][lo] + w * cams[0][lo + 1]                              # (nx, n_cams, 32, 32)
+        wx = (a - lo)[None, :, None, None]
+        frames.append(((1 - wx) * rows[:, lo] + wx * rows[:, lo + 1])[None].astype(np.float32))
+    var = _noise_variance(_Level(grid, frames[0], frames[1], None, None))
+    assert np.sqrt(var) == pytest.approx(sigma, rel=MOTION_NOISE_SIGMA_REL)
