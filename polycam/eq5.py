@@ -573,7 +573,7 @@ _DEPTH_KEEP = 3.0
 exceeds this many times their expected noise variance (one depth does not explain it)."""
 
 _DEPTH_GATE_MISFIT = 1000.0
-"""The disparity gate (:attr:`MotionOptions.depth_gate`) replaces a ray whose window one depth
+"""Default of :attr:`MotionOptions.depth_gate_misfit`: the disparity gate (:attr:`MotionOptions.depth_gate`) replaces a ray whose window one depth
 does not explain only where the misfit is at least this many times the expected noise of L_x,
 L_y: there the mismatch is the aliasing of the measured derivatives (a bias that noise does not
 average away; noise-free sphere scene at 8-16 m: 1.1e4-6e5x, 5-95%), while a misfit of a few
@@ -602,14 +602,15 @@ def _depth_rho_noise(var: np.ndarray) -> tuple[float, float]:
     return float(var[2] + var[3]) / vxy, 0.5 * _DEPTH_RHO_KAPPA
 
 
-def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0) -> np.ndarray:
+def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0,
+                     gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
     """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
     (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims), their expected
     noise is at most that of the measured pair (:func:`_depth_rho_noise`; ``var`` (4,): noise
     variances of L_x, L_y, L_u, L_v), and either one depth explains the window to within the
     noise (misfit ≤ ``_DEPTH_KEEP`` x the noise) or ``|ρ̂| ≤ rho_max`` (ρ̂ in units of u per
     unit x: the views are nearly parallel there, :attr:`MotionOptions.depth_gate`) with a
-    misfit of at least ``_DEPTH_GATE_MISFIT`` x the noise (aliasing, not signal); returns (4,)
+    misfit of at least ``gate_misfit`` x the noise (aliasing, not signal); returns (4,)
     ``var`` updated for the replaced rays (ρ̂² var_u + L_u² var(ρ̂) there, a ray-count mix).
     The numpy reference of :func:`depth_rho`."""
     Lx, Ly, Lu, Lv, _ = der
@@ -639,7 +640,7 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     e_rho = np.where(suu > 0, g2 * np.float32(b) / np.maximum(suu, np.float32(1e-30)), np.float32(0.0))
     quiet = rho * rho * np.float32(a) + e_rho <= 1.0
     fits = res <= _DEPTH_KEEP * vxy * n
-    gated = (np.abs(rho) <= rho_max) & (res >= _DEPTH_GATE_MISFIT * vxy * n)
+    gated = (np.abs(rho) <= rho_max) & (res >= gate_misfit * vxy * n)
     use = valid & quiet & (fits | gated)
     Lx[use] = rho[use] * gu[use]
     Ly[use] = rho[use] * gv[use]
@@ -840,12 +841,12 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
 
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
-              rho_max: float = 0.0) -> np.ndarray:
+              rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
     der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
-    L_u, L_v); ``rho_max``: as :func:`depth_regularise`. Returns (4,) the variances for the
+    L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`. Returns (4,) the variances for the
     replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
@@ -861,7 +862,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
             out[sl] = np.nan                            # views outside the box (the kernel does the rest)
         vxy = float(var[0] + var[1])
         na, nb = _depth_rho_noise(var)
-        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, _DEPTH_KEEP * vxy, _DEPTH_GATE_MISFIT * vxy,
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, _DEPTH_KEEP * vxy, float(gate_misfit) * vxy,
                           na, nb, float(rho_max), out, stats, parts)
     else:
         out[...] = np.nan
