@@ -501,6 +501,8 @@ def main() -> None:
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--depth-regressors", action="store_true",
                     help="also the accuracy rows of MotionOptions(depth_regressors=True) (Eq. 6 regressors)")
+    ap.add_argument("--distances", type=float, nargs="+", default=None,
+                    help="scene distances [m] of the accuracy table (default 4 6 8 12 16 24; --quick 4 8 16)")
     ap.add_argument("--plot", metavar="PNG", default=None,
                     help="write the accuracy figure (paper Fig. 5c, measured) to this file")
     args = ap.parse_args()
@@ -508,9 +510,10 @@ def main() -> None:
         speed(args.repeat, 128)
     if not args.skip_accuracy:
         if args.quick:
-            accuracy([4.0, 8.0, 16.0], 1, 2, 64, plot=args.plot, depth_regressors=args.depth_regressors)
+            accuracy(args.distances or [4.0, 8.0, 16.0], 1, 2, 64, plot=args.plot,
+                     depth_regressors=args.depth_regressors)
         else:
-            accuracy([4.0, 6.0, 8.0, 12.0, 16.0, 24.0], 3, 3, 64, plot=args.plot,
+            accuracy(args.distances or [4.0, 6.0, 8.0, 12.0, 16.0, 24.0], 3, 3, 64, plot=args.plot,
                      depth_regressors=args.depth_regressors)
 
 

@@ -539,7 +539,12 @@ def main() -> None:
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
                     help="also the table for depth_regressors=True, eiv=True, smooth_noise=True")
+    ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
+                    help="the main table with MotionOptions(depth_regressors=True / False) (else the defaults)")
     args = ap.parse_args()
+    main_opts = MotionOptions() if args.depth_regressors is None else \
+        MotionOptions(depth_regressors=args.depth_regressors == "on")
+    main_name = "default options" if args.depth_regressors is None else f"depth_regressors {args.depth_regressors}"
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
     ss = 2 if args.quick else 3
@@ -560,8 +565,8 @@ def main() -> None:
         if args.raw_bound_only:
             continue
         if not (args.variants_only or args.probe_only):
-            noise_table(f"{label}, D = {args.distance:g} m, default options", grid, L0, L1, M, sigmas, draws,
-                        MotionOptions(), not args.no_predict)
+            noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
+                        main_opts, not args.no_predict)
             if args.high_noise:
                 noise_table(f"{label}, D = {args.distance:g} m, depth_regressors, eiv, smooth_noise", grid, L0, L1, M,
                             sigmas, draws, HIGH_NOISE, not args.no_predict)

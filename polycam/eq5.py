@@ -588,14 +588,47 @@ _DEPTH_KEEP = 3.0
 """Depth-regularised regressors: keep the measured L_x, L_y where the window's residual energy
 exceeds this many times their expected noise variance (one depth does not explain it)."""
 
+_DEPTH_GATE_MISFIT = 1000.0
+"""Default of :attr:`MotionOptions.depth_gate_misfit`: the disparity gate (:attr:`MotionOptions.depth_gate`) replaces a ray whose window one depth
+does not explain only where the misfit is at least this many times the expected noise of L_x,
+L_y: there the mismatch is the aliasing of the measured derivatives (a bias that noise does not
+average away; noise-free sphere scene at 8-16 m: 1.1e4-6e5x, 5-95%), while a misfit of a few
+dozen to a few hundred times the noise is signal that the measured derivatives carry beyond one
+depth (the noisy one-face 5 x 5 room of tests/test_design.py: 28-310x; replacing it there
+makes the translation columns nearly collinear with the rotation's, condition 11 → 60, and
+the scatter 2.3x). docs/motion.md."""
 
-def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0) -> np.ndarray:
+_DEPTH_RHO_KAPPA = 0.0856
+"""Variance of ρ̂'s pooled noise, in units of var(L_x) / Σ_window (L_u² + L_v²): Σ (w ⋆ k)² /
+Σ k² over the four axes for the window w (fs3 across x and y, fs5 ∗ fs5 along u and v) and
+the filter k of L_x (fs3 derivative along x, prefilters elsewhere), i.e. the noise of L_x
+correlated over the filter supports and L_u locally constant (measured on the room test:
+0.10 median)."""
+
+
+def _depth_rho_noise(var: np.ndarray) -> tuple[float, float]:
+    """(a, b) of the noise test of the Eq. 6 regressors: a ray's ρ̂ L_u, ρ̂ L_v replaces the
+    measured L_x, L_y only where ``ρ̂² a + (L_u² + L_v²) b / S_uu ≤ 1`` (S_uu the window's
+    Σ L_u² + L_v²), i.e. where their expected noise ``ρ̂² (var_u + var_v) + (L_u² + L_v²)
+    var(ρ̂)`` (var(ρ̂) = κ (var_x + var_y) / (2 S_uu)) is at most that of the measured pair,
+    var_x + var_y. Both 0 without noise."""
+    vxy = float(var[0] + var[1])
+    if not vxy > 0:
+        return 0.0, 0.0
+    return float(var[2] + var[3]) / vxy, 0.5 * _DEPTH_RHO_KAPPA
+
+
+def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0,
+                     gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
     """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
-    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims) and either one
-    depth explains the window to within the noise (``var`` (4,): noise variances of L_x, L_y,
-    L_u, L_v) or ``|ρ̂| ≤ rho_max`` (ρ̂ in units of u per unit x: the views are nearly
-    parallel there, :attr:`MotionOptions.depth_gate`); returns (4,) ``var`` updated for the
-    replaced rays (ρ̂² var_u there, a ray-count mix). The numpy reference of :func:`depth_rho`."""
+    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims), their expected
+    noise is at most that of the measured pair (:func:`_depth_rho_noise`; ``var`` (4,): noise
+    variances of L_x, L_y, L_u, L_v), and either one depth explains the window to within the
+    noise (misfit ≤ ``_DEPTH_KEEP`` x the noise) or ``|ρ̂| ≤ rho_max`` (ρ̂ in units of u per
+    unit x: the views are nearly parallel there, :attr:`MotionOptions.depth_gate`) with a
+    misfit of at least ``gate_misfit`` x the noise (aliasing, not signal); returns (4,)
+    ``var`` updated for the replaced rays (ρ̂² var_u + L_u² var(ρ̂) there, a ray-count mix).
+    The numpy reference of :func:`depth_rho`."""
     Lx, Ly, Lu, Lv, _ = der
     m = valid.astype(np.float32)
     t5 = FILTERS["fs5"].prefilter.astype(np.float32)
@@ -617,7 +650,14 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     rho = np.where(suu > 0, sxu / np.maximum(suu, np.float32(1e-30)), np.float32(0.0)).astype(np.float32)
     n = win(np.ones_like(m))
     res = sxx - rho * sxu
-    use = valid & ((res <= _DEPTH_KEEP * (var[0] + var[1]) * n) | (np.abs(rho) <= rho_max))
+    vxy = var[0] + var[1]
+    a, b = _depth_rho_noise(var)
+    g2 = gu * gu + gv * gv
+    e_rho = np.where(suu > 0, g2 * np.float32(b) / np.maximum(suu, np.float32(1e-30)), np.float32(0.0))
+    quiet = rho * rho * np.float32(a) + e_rho <= 1.0
+    fits = res <= _DEPTH_KEEP * vxy * n
+    gated = (np.abs(rho) <= rho_max) & (res >= gate_misfit * vxy * n)
+    use = valid & quiet & (fits | gated)
     Lx[use] = rho[use] * gu[use]
     Ly[use] = rho[use] * gv[use]
     out = np.asarray(var, float).copy()
@@ -625,8 +665,9 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     if nv and use.any():
         frac = float(use.sum()) / nv
         r2 = float(np.mean(rho[use].astype(np.float64) ** 2))
-        out[0] = (1.0 - frac) * var[0] + frac * r2 * var[2]
-        out[1] = (1.0 - frac) * var[1] + frac * r2 * var[3]
+        er = 0.5 * float(np.mean(e_rho[use].astype(np.float64))) * vxy      # per component
+        out[0] = (1.0 - frac) * var[0] + frac * (r2 * var[2] + er)
+        out[1] = (1.0 - frac) * var[1] + frac * (r2 * var[3] + er)
     return out
 
 
@@ -700,15 +741,18 @@ def _window_uv(A, B, C, t9, box):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho_max, rho, stats, parts):
+def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, thr_gate, na, nb, rho_max, rho, stats, parts):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho (F, Ny, Nx, Nv, Nu) float32,
     NaN where the measured L_x, L_y are kept (inside the box: base <= 0, or the window is not
     explained by one depth; the caller fills the views outside the box). The window sums
     are separable: fs3 across x (per view row, rolling over y), fs3 across y, then t9 =
     fs5 ∗ fs5 along v and u with zeros outside the box (= :func:`depth_regularise`'s two fs5
     passes with "nearest" borders on every ray at least 2 samples inside the (u, v) border).
-    Work units: columns (face, x) of view images, each cut into ``parts`` runs of y;
-    stats (units, 3): valid rays, used rays, Σ ρ̂² over the used ones."""
+    Work units: columns (face, x) of view images, each cut into ``parts`` runs of y. A ray
+    is replaced where ``ρ̂² na + (L_u² + L_v²) nb / S_uu ≤ 1`` (:func:`_depth_rho_noise`) and
+    its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
+    and the misfit at least ``thr_gate`` x the weight. stats (units, 4): valid rays, used
+    rays, Σ ρ̂² and Σ (L_u² + L_v²) nb / S_uu over the used ones."""
     F, Ny, Nx, Nv, Nu = Lx.shape
     nx = box[3] - box[2]
     ny = box[1] - box[0]
@@ -756,6 +800,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho_max, rho, stat
             n_valid = 0.0
             n_use = 0.0
             r2 = 0.0
+            er = 0.0
             for v in range(box[4], box[5]):
                 suu = C[0, v]
                 sxu = C[1, v]
@@ -763,18 +808,27 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, rho_max, rho, stat
                 sn = C[3, v]
                 o = out[v]
                 b = bw[v]
+                gu = Lu[fc, j, i, v]
+                gv = Lv[fc, j, i, v]
                 for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
                     ok = b[u] > 0.0
-                    q = sxu[u] / max(suu[u], np.float32(1e-30)) if suu[u] > 0.0 else np.float32(0.0)
+                    has = suu[u] > 0.0
+                    inv = np.float32(1.0) / max(suu[u], np.float32(1e-30))
+                    q = sxu[u] * inv if has else np.float32(0.0)
+                    e = (gu[u] * gu[u] + gv[u] * gv[u]) * np.float32(nb) * inv if has else np.float32(0.0)
                     res = np.float64(sxx[u] - q * sxu[u])
-                    use = ok and (res <= thr * np.float64(sn[u]) or abs(q) <= rho_max)
+                    nw = np.float64(sn[u])
+                    quiet = q * q * np.float32(na) + e <= np.float32(1.0)
+                    use = ok and quiet and (res <= thr * nw or (abs(q) <= rho_max and res >= thr_gate * nw))
                     o[u] = q if use else np.float32(np.nan)
                     n_valid += 1.0 if ok else 0.0
                     n_use += 1.0 if use else 0.0
                     r2 += np.float64(q) * np.float64(q) if use else 0.0
+                    er += np.float64(e) if use else 0.0
             st[0] += n_valid
             st[1] += n_use
             st[2] += r2
+            st[3] += er
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
@@ -803,12 +857,12 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
 
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
-              rho_max: float = 0.0) -> np.ndarray:
+              rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
     der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
-    L_u, L_v); ``rho_max``: as :func:`depth_regularise`. Returns (4,) the variances for the
+    L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`. Returns (4,) the variances for the
     replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
@@ -817,21 +871,24 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     F, Ny, Nx = Lx.shape[:3]
     # about two units per thread (each unit recomputes the products of two extra view rows)
     parts = max(1, min(int(box[1] - box[0]), -(-2 * numba.get_num_threads() // max(1, F * int(box[3] - box[2])))))
-    stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 3))
+    stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 4))
     box = np.asarray(box, np.int64)
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
         for sl in (np.s_[:, :box[0]], np.s_[:, box[1]:], np.s_[:, :, :box[2]], np.s_[:, :, box[3]:]):
             out[sl] = np.nan                            # views outside the box (the kernel does the rest)
-        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, float(_DEPTH_KEEP * (var[0] + var[1])),
-                          float(rho_max), out, stats, parts)
+        vxy = float(var[0] + var[1])
+        na, nb = _depth_rho_noise(var)
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, _DEPTH_KEEP * vxy, float(gate_misfit) * vxy,
+                          na, nb, float(rho_max), out, stats, parts)
     else:
         out[...] = np.nan
         stats[:] = 0.0
-    n_valid, n_use, r2 = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0)
+    n_valid, n_use, r2, er = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0, 0.0)
     res = np.asarray(var, float).copy()
     if n_valid and n_use:
         frac = n_use / n_valid
         r2 = r2 / n_use
-        res[0] = (1.0 - frac) * var[0] + frac * r2 * var[2]
-        res[1] = (1.0 - frac) * var[1] + frac * r2 * var[3]
+        er = 0.5 * er / n_use * float(var[0] + var[1])                       # per component
+        res[0] = (1.0 - frac) * var[0] + frac * (r2 * var[2] + er)
+        res[1] = (1.0 - frac) * var[1] + frac * (r2 * var[3] + er)
     return res

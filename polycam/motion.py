@@ -437,7 +437,7 @@ class _Solver:
             g = self.lev.grid
             rho_max = opts.depth_gate * abs(g.u.step) / max(abs(g.x.step), 1e-300)
             self.var = self.var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho,
-                                               rho_max)
+                                               rho_max, opts.depth_gate_misfit)
             _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
             _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                          np.zeros((self.shape[0], 6)), 0, 0.0, self._tile(final), self.box, self.h, self.var, final,

@@ -54,20 +54,30 @@ class MotionOptions:
     ``L_x = ρ L_u``), ρ̂ = Σ (L_x L_u + L_y L_v) / Σ (L_u² + L_v²) pooled over a window (fs5
     twice in (u, v), fs3 once across the views), except where one ρ does not explain the
     window (its residual energy above 3x the expected noise of L_x, L_y: occlusions, and
-    noise-free data, where that noise is ~0): less noise in the regressors of the
+    noise-free data, where that noise is ~0; but see ``depth_gate``) and where ρ̂ L_u, ρ̂ L_v
+    would be noisier than the measured pair (ρ̂² var_u + L_u² var(ρ̂) above var_x, e.g. a ray
+    whose edge dominates its window): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
     levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+25 ms CPU time per
     estimate on 1.33 M rays (docs/motion.md)."""
     depth_gate: float = 0.25
-    """``depth_regressors``: also replace wherever the window's disparity is at most this many
-    (u, v) samples per view step, whatever the noise. There the views are nearly parallel, the
-    measured L_x, L_y are tiny and carry the aliasing of the directions (a view's samples
-    shift by a fraction of a sample), while ρ̂ L_u does not: on the sphere scene (0.04-0.15
-    samples per view at 4-16 m) the noise-free translation error drops 4x at 8-16 m
-    (benchmarks/bench_motion.py); in the room of the demo (median 0.45) it changes nothing,
-    but a noisy near room seen by one face of views 1 cm apart (nearly all rays under the
-    gate) gets 2.3x the translation scatter (docs/motion.md). 0: only where one depth
-    explains the window to within the noise."""
+    """``depth_regressors``: also replace where the window's disparity is at most this many
+    (u, v) samples per view step and its misfit is far above the noise (at least 1000x the
+    expected noise of L_x, L_y, ``depth_gate_misfit``: aliasing, not signal).
+    There the views are nearly parallel, the measured L_x, L_y are tiny and carry the
+    aliasing of the directions (a view's samples shift by a fraction of a sample), while
+    ρ̂ L_u does not: on the sphere scene (0.04-0.15 samples per view at 4-16 m) the
+    noise-free translation error drops 4x at 8-16 m (benchmarks/bench_motion.py). A misfit
+    of a few dozen to a few hundred times the noise is signal the measured derivatives carry
+    beyond one depth: replacing it there (session 4, without the misfit floor) gave a noisy
+    near room seen by one face of views 1 cm apart 2.3x the translation scatter (docs/motion.md).
+    0: only where one depth explains the window to within the noise."""
+    depth_gate_misfit: float = 1000.0
+    """``depth_gate``: the least window misfit, in units of the expected noise of L_x, L_y,
+    at which the gate replaces (noise-free data: always). 1000 keeps the measured regressors on
+    the noisy one-face room (misfit 28-310x the noise) and replaces on the noise-free spheres
+    (1e4-6e5x), but not on low-noise distant data (8-bit frames, 1 grey level: 3-160x), where
+    the session-4 gate without this floor (0) gave less translation error (docs/motion.md)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
@@ -107,5 +117,7 @@ class MotionOptions:
             raise ValueError(f"whiten must be auto, on or off, got {self.whiten!r}")
         if not self.depth_gate >= 0.0:
             raise ValueError(f"depth_gate must be >= 0, got {self.depth_gate}")
+        if not self.depth_gate_misfit >= 0.0:
+            raise ValueError(f"depth_gate_misfit must be >= 0, got {self.depth_gate_misfit}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")

@@ -593,12 +593,51 @@ def test_depth_regressors_reduce_positional_noise(scene):
     assert var_after[0] < var[0] and var_after[1] < var[1]
 
 
+@pytest.mark.parametrize("kernel", [False, True], ids=["numpy", "kernel"])
+def test_depth_regressors_only_where_less_noisy(kernel):
+    """A ray's ρ̂ L_u, ρ̂ L_v replace the measured L_x, L_y only where their expected noise,
+    ρ̂² (var_u + var_v) + (L_u² + L_v²) var(ρ̂), is below that of the measured pair: on an
+    exactly Lambertian window (L_x = ρ L_u, one depth) all rays are replaced when L_u is
+    quiet, none when ρ̂² var_u exceeds var_x, and a ray whose |L_u| dominates its window
+    (there ρ̂'s pooled noise is that ray's own L_x noise, amplified) keeps its measured L_x
+    while its neighbours are replaced."""
+    from polycam.eq5 import depth_regularise, depth_rho
+
+    rng = np.random.default_rng(11)
+    shape = (1, 3, 3, 24, 24)
+    box = np.array([1, 2, 1, 2, 2, 22, 2, 22], np.int64)
+    valid = np.zeros(shape, bool)
+    valid[:, 1:2, 1:2, 2:22, 2:22] = True
+    Lu, Lv = (rng.normal(size=shape).astype(np.float32) for _ in range(2))
+    Lu[0, :, :, 12, 12] = 40.0                             # one ray with a strong edge
+    rho = 2.0
+    base = np.ones(shape, np.float32)
+
+    def used(var):
+        # L_x = ρ L_u + 0.1: within the noise of var_x = 1e-2, and ρ̂ L_u differs from it
+        der = [(rho * Lu + 0.1).astype(np.float32), rho * Lv, Lu, Lv, np.zeros(shape, np.float32)]
+        if kernel:
+            out = np.empty(shape, np.float32)
+            depth_rho(der, base, box, np.asarray(var, float), out)
+            return np.isfinite(out)
+        before = der[0].copy()
+        depth_regularise(der, valid, np.asarray(var, float))
+        return valid & (der[0] != before)
+
+    quiet = used([1e-2, 1e-2, 1e-4, 1e-4])                 # ρ̂² var_u / var_x = 0.04
+    assert not quiet[0, 1, 1, 12, 12]                      # the edge ray keeps L_x
+    assert quiet[0, 1, 1, 12, 13] and quiet[0, 1, 1, 11, 12]
+    assert quiet.sum() >= valid.sum() - 3
+    assert not used([1e-2, 1e-2, 5e-3, 5e-3]).any()        # ρ̂² var_u / var_x = 2
+
+
 @pytest.mark.parametrize("gate", [0.0, 0.5])
 def test_depth_rho_kernel_matches_numpy(scene, gate):
     """The Eq. 6 kernel (depth_rho, used by the solver) gives the ρ̂ and the keep / replace
     decisions of the numpy reference depth_regularise, with holes in the base weight, and
     the same noise variances of the replaced regressors; with the disparity gate
-    (``rho_max``, here ``gate`` x the median |L_x| / |L_u|) more rays are replaced."""
+    (``rho_max``, here ``gate`` x the median |L_x| / |L_u|) more rays are replaced where the
+    misfit is far above the noise (here: var 1000x smaller than without the gate)."""
     from polycam.eq5 import _apply_rho, depth_regularise, depth_rho
 
     grid = make_grid(("+z", "-x"), views=7, directions=32, spacing=0.01)
@@ -613,7 +652,7 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     valid = np.zeros(grid.shape, bool)
     valid[:, 1:Ny - 1, 1:Nx - 1, 2:Nv - 2, 2:Nu - 2] = True
     valid &= base > 0
-    var = np.array([0.5 * np.mean(a[valid].astype(np.float64) ** 2) for a in der[:4]]) * 0.3
+    var = np.array([0.5 * np.mean(a[valid].astype(np.float64) ** 2) for a in der[:4]]) * (0.3 if gate == 0 else 3e-4)
     rho_max = gate * float(np.median(np.abs(der[0][valid])) / np.median(np.abs(der[2][valid])))
     ref = [a.copy() for a in der]
     var_ref = depth_regularise(ref, valid, var, rho_max)
