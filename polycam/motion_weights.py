@@ -91,9 +91,13 @@ def _camera_stride(L: np.ndarray, ax: int) -> tuple[int, int]:
     if not med.max() > 0:
         return 1, 0
     live = np.flatnonzero(med > 1e-4 * med.max()) + 1
-    if live.size < 2 or live.size == n - 2:
+    if live.size == 0 or live.size == n - 2:
         return 1, 0
-    h = int(np.diff(live).min())
+    if live.size >= 2:
+        h = int(np.diff(live).min())
+    else:                        # one camera centre: h − 1 interpolated views up to the end
+        a = int(live[0])
+        h = min(n - 1 - a, a)
     return (h, int(live[0]) % h) if h > 1 else (1, 0)
 
 
