@@ -49,7 +49,7 @@ class MotionOptions:
     noise is not read as discontinuities (:func:`~polycam.motion.discontinuity_weight`). Helps with ``eiv``
     at 16-32 grey levels; off because at 1-3 grey levels it lets more model error in
     (bench_motion.py's 8-bit rows: translation error 3.8% → 4.4% at 3 grey levels)."""
-    depth_regressors: bool = False
+    depth_regressors: bool = True
     """Replace the positional derivatives by ``ρ̂ L_u, ρ̂ L_v`` (paper Eq. 6, Lambertian:
     ``L_x = ρ L_u``), ρ̂ = Σ (L_x L_u + L_y L_v) / Σ (L_u² + L_v²) pooled over a window (fs5
     twice in (u, v), fs3 once across the views), except where one ρ does not explain the
@@ -58,8 +58,11 @@ class MotionOptions:
     would be noisier than the measured pair (ρ̂² var_u + L_u² var(ρ̂) above var_x, e.g. a ray
     whose edge dominates its window): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
-    levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+25 ms CPU time per
-    estimate on 1.33 M rays (docs/motion.md)."""
+    levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+15 ms wall per
+    estimate on 1.33 M rays (docs/motion.md). On by default since session 5 (at least as
+    accurate as the measured regressors in every benchmark and test, 4x less translation
+    error on the paper's Fig. 5c scene at 8-16 m); ``False``: Eq. 5 with the measured
+    L_x, L_y everywhere."""
     depth_gate: float = 0.25
     """``depth_regressors``: also replace where the window's disparity is at most this many
     (u, v) samples per view step and its misfit is far above the noise (at least 1000x the
