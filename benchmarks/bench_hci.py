@@ -47,7 +47,7 @@ from polycam.lightfield import Axis  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data" / "hci-antinous"
-BASELINE = MotionOptions(filters="central", levels=1, iterations=1, irls_steps=0, robust="none",
+BASELINE = MotionOptions(filters="central", levels=1, iterations=1, irls_steps=0, robust="none", depth_regressors=False,
                          smooth_c=0.0, uv_taps=2)
 
 

@@ -46,7 +46,7 @@ from polycam.geometry import R_from_r, T_from_Rt, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, solve_ray_motion  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
 
-BASELINE = MotionOptions(filters="central", levels=1, iterations=1, irls_steps=0, robust="none",
+BASELINE = MotionOptions(filters="central", levels=1, iterations=1, irls_steps=0, robust="none", depth_regressors=False,
                          smooth_c=0.0, uv_taps=2, symmetric=False)
 NAMES = ("t_x", "t_y", "t_z", "w_x", "w_y", "w_z")
 

@@ -365,8 +365,8 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     return rows
 
 
-HIGH_NOISE = MotionOptions(depth_regressors=True, eiv=True, smooth_noise=True)
-"""The noise options measured best together: depth-regularised positional regressors (Eq. 6),
+HIGH_NOISE = MotionOptions(eiv=True, smooth_noise=True)
+"""The noise options measured best together (with the default Eq. 6 depth-regularised positional regressors):
 errors-in-variables steps, noise-aware discontinuity weight (whitening: see docs/motion.md)."""
 
 VARIANTS = {
@@ -378,8 +378,7 @@ VARIANTS = {
     "eiv, smooth_noise, whiten=on (floor 0.3)": MotionOptions(eiv=True, smooth_noise=True, whiten="on"),
     "eiv, smooth_noise, whiten=on, floor 0.1": MotionOptions(eiv=True, smooth_noise=True, whiten="on",
                                                              whiten_floor=0.1),
-    "depth_regressors=False (the default before session 4)": MotionOptions(depth_regressors=False),
-    "depth_regressors, eiv, smooth_noise": HIGH_NOISE,
+    "depth_regressors=False (the default before session 5)": MotionOptions(depth_regressors=False),
     "whiten=on, floor 0 (exact GLS)": MotionOptions(whiten="on", whiten_floor=0.0),
     "smooth_c=0": MotionOptions(smooth_c=0.0),
     "robust=none": MotionOptions(robust="none", irls_steps=0),
