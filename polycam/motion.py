@@ -54,6 +54,16 @@ weights do not tighten as the warp converges. On the paper's sphere scene the tw
 bias of the translation from several percent to a few tenths of a percent
 (benchmarks/bench_motion.py). The weights: :mod:`polycam.motion_weights`.
 
+Positional regressors (paper Eq. 6)
+-----------------------------------
+For a Lambertian scene ``L_x = ρ L_u`` and ``L_y = ρ L_v``, ρ (u per unit x) fixed by the
+depth of the scene point the ray sees: at the finest level the measured ``L_x, L_y`` (differences
+across a few views: noisy, and aliased where the views are nearly parallel) are replaced
+by ``ρ̂ L_u, ρ̂ L_v`` with ρ̂ pooled over a window, where one depth explains the window and
+that is less noisy, or where the views are nearly parallel and the misfit is aliasing
+(``MotionOptions.depth_regressors``, default on since session 5; the rule:
+:func:`polycam.eq5.depth_rho`; measured: docs/motion.md).
+
 Diagnostics
 -----------
 Each pair yields a :class:`PairResult` with the 6x6 covariance of the rig
@@ -68,14 +78,15 @@ viewpoints); the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as ``covariance_i
 
 Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 9 x 9 views 1 cm apart, 64 x 64 directions, 3 x 3 supersampling, |t| = 1.5 cm,
-|ω| = 0.2°): median relative error per component 0.01–0.35% (t) and
-0.02–0.12% (ω) at 4–8 m; 3–5% (t) and 0.4–0.6% (ω) at 12–16 m, where the
-directions are aliased and the translation's signal is weak (the paper sees
-the same growth); against 18–49% / 17–33% for one-shot central-difference
-least squares. With 8-bit frames and 3 grey levels of noise at 8 m: 0.7% / 0.3%.
+|ω| = 0.2°; default options, i.e. with the Eq. 6 regressors): median relative error per
+component 0.01–0.06% (t) and 0.02–0.12% (ω) at 4–8 m; 0.7–2% (t) and 0.4–0.6% (ω) at
+12–16 m, where the directions are aliased and the translation's signal is weak (the
+paper sees the same growth); against 18–49% / 17–33% for one-shot central-difference
+least squares. With 8-bit frames and 3 grey levels of noise at 12 m: 0.9% / 0.3%.
 Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
 figures and history in docs/motion.md): the full default estimate (8 solves over 3 levels)
-takes ~240 ms CPU time with one thread (370 ms before the session-3 kernel work).
+takes ~110 ms wall on 2 threads, ~180 ms CPU time with one thread (370 ms before the
+session-3 kernel work, 240 ms before session 5's).
 Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, then a branch-free blend across views),
 one fused kernel (derivatives, base weights, normal sums per view image in cache, valid
