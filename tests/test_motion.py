@@ -368,6 +368,33 @@ def test_fused_normal_sums_match_coefficient_matrix(scene, rng):
         assert np.allclose(p, p_ref, rtol=MOTION_SOLVE_RTOL, atol=MOTION_SOLVE_RTOL * np.abs(p_ref).max())
 
 
+def test_row_wide_passes_give_the_tiled_totals(scene):
+    """The passes whose per-tile sums are not used accumulate whole view rows
+    (``_Solver._tile``): their totals (N, rhs, Σ w b², Σ w) and counts equal those of the
+    final, tiled pass."""
+    from polycam.derivatives import FILTERS
+    from polycam.motion import _Solver
+    from polycam.pyramid import _pyramid
+
+    grid = make_grid(("+z", "-x"), directions=40)
+    M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
+    opts = MotionOptions()
+    filters = {k: FILTERS[opts.filters[k]] for k in "xyuv"}
+    lev = _pyramid(scene.render(grid, np.eye(4)), scene.render(grid, M), None, None, grid, opts,
+                   {k: fp.radius for k, fp in filters.items()})[0]
+    solver = _Solver(lev, opts, filters, 0)
+    solver.var = solver.derivative_noise()
+    solver.prepare(np.eye(4), final=False)
+    solver.scale = solver.mad(np.zeros(6))
+    p = np.array([0.001, 0.0, -0.002, 0.001, 0.0005, 0.0])
+    assert solver._tile(False) > solver._tile(True)
+    (N0, r0, b0, w0, _), st0 = solver.reweighted(p, final=False)
+    (N1, r1, b1, w1, _), st1 = solver.reweighted(p, final=True)
+    for a, b in ((N0, N1), (r0, r1), (b0, b1), (w0, w1)):
+        np.testing.assert_allclose(a, b, rtol=MOTION_NORMAL_SUMS_RTOL, atol=MOTION_NORMAL_SUMS_RTOL * np.abs(b).max())
+    np.testing.assert_array_equal(st0[..., :3], st1[..., :3])
+
+
 def test_pair_report_csv(scene, tmp_path):
     import csv
 
