@@ -60,9 +60,11 @@ For a Lambertian scene ``L_x = ρ L_u`` and ``L_y = ρ L_v``, ρ (u per unit x) 
 depth of the scene point the ray sees: at the finest level the measured ``L_x, L_y`` (differences
 across a few views: noisy, and aliased where the views are nearly parallel) are replaced
 by ``ρ̂ L_u, ρ̂ L_v`` with ρ̂ pooled over a window, where one depth explains the window and
-that is less noisy, or where the views are nearly parallel and the misfit is aliasing
-(``MotionOptions.depth_regressors``, default on since session 5; the rule:
-:func:`polycam.eq5.depth_rho`; measured: docs/motion.md).
+that is less noisy, or where the views are nearly parallel (the disparity gate: the
+measured ones are aliased there), unless the gate costs information (it raises the normal
+matrix's condition number more than ``depth_gate_cond`` times; then it acts only where the
+misfit is far above the noise) (``MotionOptions.depth_regressors``, default on since
+session 5; the rule: :func:`polycam.eq5.depth_rho`; measured: docs/motion.md).
 
 Diagnostics
 -----------
@@ -82,7 +84,8 @@ Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 component 0.01–0.06% (t) and 0.02–0.12% (ω) at 4–8 m; 0.7–2% (t) and 0.4–0.6% (ω) at
 12–16 m, where the directions are aliased and the translation's signal is weak (the
 paper sees the same growth); against 18–49% / 17–33% for one-shot central-difference
-least squares. With 8-bit frames and 3 grey levels of noise at 12 m: 0.9% / 0.3%.
+least squares. With 8-bit frames at 12 m: 0.3% / 0.2% (t / ω) quantised only, 1.2% / 0.3% with 3 grey
+levels of noise.
 Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
 figures and history in docs/motion.md): the full default estimate (8 solves over 3 levels)
 takes ~110 ms wall on 2 threads, ~180 ms CPU time with one thread (370 ms before the
@@ -376,6 +379,7 @@ class _Solver:
         self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors; NaN: kept)
         self.var_dr: np.ndarray | None = None
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
+        self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
         self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
@@ -437,22 +441,42 @@ class _Solver:
         has_rho = dr and not first_dr
         if has_rho:
             self.var = self.var_dr
-        _prepare_kernel(L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
-                        Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
-                        np.zeros((self.shape[0], 6)), self._tile(final), self.box, self.h, self.var, final,
-                        self.acc, self.st, parallel_chunks(), self.rho if has_rho else _NO_RHO, has_rho,
-                        not first_dr)
+        g = self.lev.grid
+        rho_max = opts.depth_gate * abs(g.u.step) / max(abs(g.x.step), 1e-300)
+        # the gate's misfit floor, decided at the level's first ρ̂: none unless the gate costs
+        # conditioning (then opts.depth_gate_misfit)
+        if self.gate_misfit is not None:
+            floors = (self.gate_misfit,)
+        elif rho_max > 0 and opts.depth_gate_misfit > 0:
+            floors = (0.0, opts.depth_gate_misfit)
+        else:
+            floors = (opts.depth_gate_misfit,)
+        check = first_dr and len(floors) > 1
+        derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
+                       Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
+                       np.zeros((self.shape[0], 6)), self._tile(final), self.box, self.h)
+        _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
+                        self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
+            cond_measured = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"] if check else 0.0
             self.rho = _work_array("rho", self.shape)
-            g = self.lev.grid
-            rho_max = opts.depth_gate * abs(g.u.step) / max(abs(g.x.step), 1e-300)
-            self.var = self.var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho,
-                                               rho_max, opts.depth_gate_misfit)
-            _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
-            _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
-                         np.zeros((self.shape[0], 6)), 0, 0.0, self._tile(final), self.box, self.h, self.var, final,
-                         self.acc, self.st, parallel_chunks())
+            for n, floor in enumerate(floors):
+                if n:                                     # back to the measured regressors
+                    _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
+                                    _NO_RHO, False, False)
+                self.var = self.var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var),
+                                                   self.rho, rho_max, floor)
+                _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
+                _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
+                             np.zeros((self.shape[0], 6)), 0, 0.0, self._tile(final), self.box, self.h, self.var,
+                             final, self.acc, self.st, parallel_chunks())
+                self.gate_misfit = floor
+                if n + 1 < len(floors):
+                    cond = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"]
+                    log.debug("depth regressors: condition %.3g with the gate, %.3g measured", cond, cond_measured)
+                    if cond <= opts.depth_gate_cond * cond_measured:
+                        break
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums

@@ -76,11 +76,16 @@ class MotionOptions:
     near room seen by one face of views 1 cm apart 2.3x the translation scatter (docs/motion.md).
     0: only where one depth explains the window to within the noise."""
     depth_gate_misfit: float = 1000.0
-    """``depth_gate``: the least window misfit, in units of the expected noise of L_x, L_y,
-    at which the gate replaces (noise-free data: always). 1000 keeps the measured regressors on
-    the noisy one-face room (misfit 28-310x the noise) and replaces on the noise-free spheres
-    (1e4-6e5x), but not on low-noise distant data (8-bit frames, 1 grey level: 3-160x), where
-    the session-4 gate without this floor (0) gave less translation error (docs/motion.md)."""
+    """``depth_gate``: where the gate would raise the condition number by more than
+    ``depth_gate_cond``, it replaces only windows whose misfit is at least this many times
+    the expected noise of L_x, L_y (noise-free data: always). 1000 keeps the measured
+    regressors on the noisy one-face room (misfit 28-310x the noise) and replaces on the
+    noise-free spheres (1e4-6e5x). inf: never replace there."""
+    depth_gate_cond: float = 2.0
+    """``depth_gate``: the gate acts wherever it holds unless, at the first ρ̂ of the finest
+    level, the Jacobi-scaled condition number of the normal matrix with it exceeds this
+    factor times that of the measured regressors (information lost: the noisy one-face room,
+    10 → 60; the spheres at 12 m, 1.3 → 1.3); then ``depth_gate_misfit`` applies."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
@@ -122,5 +127,7 @@ class MotionOptions:
             raise ValueError(f"depth_gate must be >= 0, got {self.depth_gate}")
         if not self.depth_gate_misfit >= 0.0:
             raise ValueError(f"depth_gate_misfit must be >= 0, got {self.depth_gate_misfit}")
+        if not self.depth_gate_cond >= 1.0:
+            raise ValueError(f"depth_gate_cond must be >= 1, got {self.depth_gate_cond}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
