@@ -501,6 +501,9 @@ def test_bad_options():
         MotionOptions(robust="cauchy")
     with pytest.raises(ValueError, match="whiten"):
         MotionOptions(whiten="yes")
+    for bad in (dict(depth_gate=-1.0), dict(depth_gate_misfit=-1.0), dict(depth_gate_cond=0.5)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            MotionOptions(**bad)
     grid = make_grid(("+z",))
     L = np.zeros(grid.shape, np.float32)
     with pytest.raises(InputError, match="filter"):
