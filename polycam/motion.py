@@ -452,14 +452,17 @@ class _Solver:
         else:
             floors = (opts.depth_gate_misfit,)
         check = first_dr and len(floors) > 1
+        tile = self.tile if check else self._tile(final)     # the check's covariance needs the tiles
         derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
                        Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
-                       np.zeros((self.shape[0], 6)), self._tile(final), self.box, self.h)
+                       np.zeros((self.shape[0], 6)), tile, self.box, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                         self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
-            cond_measured = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"] if check else 0.0
+            if check:
+                cond_measured = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"]
+                p_measured, sigma_measured = self._increment_and_sigma()
             self.rho = _work_array("rho", self.shape)
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
@@ -469,13 +472,19 @@ class _Solver:
                                                    self.rho, rho_max, floor)
                 _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
-                             np.zeros((self.shape[0], 6)), 0, 0.0, self._tile(final), self.box, self.h, self.var,
-                             final, self.acc, self.st, parallel_chunks())
+                             np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
+                             self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
                 self.gate_misfit = floor
                 if n + 1 < len(floors):
                     cond = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"]
-                    log.debug("depth regressors: condition %.3g with the gate, %.3g measured", cond, cond_measured)
-                    if cond <= opts.depth_gate_cond * cond_measured:
+                    p_gate = self._increment_and_sigma()[0]
+                    z = np.array([np.linalg.norm(p_gate[:3] - p_measured[:3]),
+                                  np.linalg.norm(p_gate[3:] - p_measured[3:])]) / np.maximum(sigma_measured, 1e-300)
+                    log.debug("depth regressors: condition %.3g with the gate, %.3g measured; the estimates "
+                              "differ by %.3g, %.3g sigma (t, w)", cond, cond_measured, z[0], z[1])
+                    # the gate loses information (conditioning) and the measured regressors show
+                    # no bias the gate would remove (the two agree within the noise): fall back
+                    if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
@@ -618,6 +627,26 @@ class _Solver:
 
     # --------------------------------------------------------------- solve
 
+    def _misfit(self, p, N, rhs, sbb, tiles) -> tuple[float, np.ndarray]:
+        """Σ w r² and the per-tile scores Σ w c r (G, 6) of the increment p (6,): residuals are
+        linear in p, so both follow from the sums (N, rhs, Σ w b², per-tile sums)."""
+        chi2 = max(sbb - 2.0 * float(p @ rhs) + float(p @ N @ p), 0.0)
+        scores = []
+        for k, Bk in enumerate(self.B):
+            Nt = _unpack_sym(tiles[k, :, :21])
+            scores.append((Nt @ (Bk @ p) - tiles[k, :, 21:27]) @ Bk)
+        return chi2, np.concatenate(scores)
+
+    def _increment_and_sigma(self) -> tuple[np.ndarray, np.ndarray]:
+        """The unit-weight increment (6,) of the current sums (tiled: ``self.tile``) and its
+        (t, ω) standard deviations (2,) from the cluster-robust covariance."""
+        (N, rhs, sbb, sw, tiles), _ = self._sums()
+        sol = _solve_normal(N, rhs, self.opts.rcond)
+        chi2, scores = self._misfit(sol["p"], N, rhs, sbb, tiles)
+        sol.update(N=N, E=np.zeros((6, 6)), sw=sw, chi2=chi2, scores=scores)
+        C = _increment_covariance(sol)[0]
+        return sol["p"], np.sqrt([max(np.trace(C[:3, :3]), 0.0), max(np.trace(C[3:, 3:]), 0.0)])
+
     def solve(self, M: np.ndarray) -> dict:
         """Warp by M, then the weighted (IRLS) solve of the increment; returns a dict of the
         pieces (solution, normal matrix, noise energy, scores, counts)."""
@@ -649,14 +678,9 @@ class _Solver:
             # noisy derivatives N alone under-steps (badly so where t and ω couple)
             sol["p"] = _corrected_pinv(N, E, sol) @ rhs
         p = sol["p"]
-        # residuals are linear in p: Σ w r² and the per-tile scores Σ w c r follow from the sums
-        chi2 = max(sbb - 2.0 * float(p @ rhs) + float(p @ N @ p), 0.0)
-        scores = []
-        for k, Bk in enumerate(self.B):
-            Nt = _unpack_sym(tiles[k, :, :21])
-            scores.append((Nt @ (Bk @ p) - tiles[k, :, 21:27]) @ Bk)
+        chi2, scores = self._misfit(p, N, rhs, sbb, tiles)
         tot = stats.sum(axis=0)
-        sol.update(N=N, E=E, sw=sw, chi2=chi2, scores=np.concatenate(scores), num=int(tot[0]),
+        sol.update(N=N, E=E, sw=sw, chi2=chi2, scores=scores, num=int(tot[0]),
                    base_n=int(tot[1]), inliers=int(tot[2]) if steps else None,
                    texture=math.sqrt(tot[3] / sw) if sw > 0 else 0.0)
         return sol

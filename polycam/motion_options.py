@@ -85,7 +85,13 @@ class MotionOptions:
     """``depth_gate``: the gate acts wherever it holds unless, at the first ρ̂ of the finest
     level, the Jacobi-scaled condition number of the normal matrix with it exceeds this
     factor times that of the measured regressors (information lost: the noisy one-face room,
-    10 → 60; the spheres at 12 m, 1.3 → 1.3); then ``depth_gate_misfit`` applies."""
+    10 → 60; the spheres at 12 m, 1.3 → 1.3) *and* the two increments agree to within
+    ``depth_gate_z`` of their standard deviations (no aliasing bias in the measured
+    regressors for the gate to remove); then ``depth_gate_misfit`` applies."""
+    depth_gate_z: float = 3.0
+    """``depth_gate_cond``: the disagreement, in standard deviations of the measured
+    regressors' estimate (cluster-robust, t and ω separately), above which the gate is kept
+    although it costs conditioning (measured: the noisy room ≤ 2, one aliased face 12-17)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
@@ -129,5 +135,7 @@ class MotionOptions:
             raise ValueError(f"depth_gate_misfit must be >= 0, got {self.depth_gate_misfit}")
         if not self.depth_gate_cond >= 1.0:
             raise ValueError(f"depth_gate_cond must be >= 1, got {self.depth_gate_cond}")
+        if not self.depth_gate_z > 0.0:
+            raise ValueError(f"depth_gate_z must be > 0, got {self.depth_gate_z}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
