@@ -501,7 +501,7 @@ def test_bad_options():
         MotionOptions(robust="cauchy")
     with pytest.raises(ValueError, match="whiten"):
         MotionOptions(whiten="yes")
-    for bad in (dict(depth_gate=-1.0), dict(depth_gate_misfit=-1.0), dict(depth_gate_cond=0.5)):
+    for bad in (dict(depth_gate=-1.0), dict(depth_gate_misfit=-1.0), dict(depth_gate_cond=0.5), dict(depth_gate_z=0.0)):
         with pytest.raises(ValueError, match=next(iter(bad))):
             MotionOptions(**bad)
     grid = make_grid(("+z",))
