@@ -76,11 +76,11 @@ class MotionOptions:
     near room seen by one face of views 1 cm apart 2.3x the translation scatter (docs/motion.md).
     0: only where one depth explains the window to within the noise."""
     depth_gate_misfit: float = 1000.0
-    """``depth_gate``: where the gate would raise the condition number by more than
-    ``depth_gate_cond``, it replaces only windows whose misfit is at least this many times
-    the expected noise of L_x, L_y (noise-free data: always). 1000 keeps the measured
-    regressors on the noisy one-face room (misfit 28-310x the noise) and replaces on the
-    noise-free spheres (1e4-6e5x). inf: never replace there."""
+    """``depth_gate``: where the gate falls back (``depth_gate_cond``, ``depth_gate_z``), it
+    replaces only windows whose misfit is at least this many times the expected noise of
+    L_x, L_y (noise-free data: always). 1000 keeps the measured regressors on the noisy
+    one-face room (misfit 28-310x the noise) and replaces on the noise-free spheres
+    (1e4-6e5x). inf: never replace there."""
     depth_gate_cond: float = 2.0
     """``depth_gate``: the gate acts wherever it holds unless, at the first ρ̂ of the finest
     level, the Jacobi-scaled condition number of the normal matrix with it exceeds this
