@@ -461,8 +461,7 @@ class _Solver:
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
             if check:
-                cond_measured = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"]
-                p_measured, sigma_measured = self._increment_and_sigma()
+                p_measured, sigma_measured, cond_measured = self._increment_and_sigma()
             self.rho = _work_array("rho", self.shape)
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
@@ -476,8 +475,7 @@ class _Solver:
                              self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
                 self.gate_misfit = floor
                 if n + 1 < len(floors):
-                    cond = _solve_normal(self._sums()[0][0], np.zeros(6), opts.rcond)["cond"]
-                    p_gate = self._increment_and_sigma()[0]
+                    p_gate, _, cond = self._increment_and_sigma()
                     z = np.array([np.linalg.norm(p_gate[:3] - p_measured[:3]),
                                   np.linalg.norm(p_gate[3:] - p_measured[3:])]) / np.maximum(sigma_measured, 1e-300)
                     log.debug("depth regressors: condition %.3g with the gate, %.3g measured; the estimates "
@@ -637,15 +635,16 @@ class _Solver:
             scores.append((Nt @ (Bk @ p) - tiles[k, :, 21:27]) @ Bk)
         return chi2, np.concatenate(scores)
 
-    def _increment_and_sigma(self) -> tuple[np.ndarray, np.ndarray]:
-        """The unit-weight increment (6,) of the current sums (tiled: ``self.tile``) and its
-        (t, ω) standard deviations (2,) from the cluster-robust covariance."""
+    def _increment_and_sigma(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """The unit-weight increment (6,) of the current sums (tiled: ``self.tile``), its
+        (t, ω) standard deviations (2,) from the cluster-robust covariance, and the normal
+        matrix's condition number."""
         (N, rhs, sbb, sw, tiles), _ = self._sums()
         sol = _solve_normal(N, rhs, self.opts.rcond)
         chi2, scores = self._misfit(sol["p"], N, rhs, sbb, tiles)
         sol.update(N=N, E=np.zeros((6, 6)), sw=sw, chi2=chi2, scores=scores)
         C = _increment_covariance(sol)[0]
-        return sol["p"], np.sqrt([max(np.trace(C[:3, :3]), 0.0), max(np.trace(C[3:, 3:]), 0.0)])
+        return sol["p"], np.sqrt([max(np.trace(C[:3, :3]), 0.0), max(np.trace(C[3:, 3:]), 0.0)]), sol["cond"]
 
     def solve(self, M: np.ndarray) -> dict:
         """Warp by M, then the weighted (IRLS) solve of the increment; returns a dict of the
