@@ -59,6 +59,19 @@ def _lagrange(a, n, w):
 
 
 @numba.njit(cache=True, inline="always")
+def _cubic(a, w):
+    """4-point Lagrange weights for samples at -1, 0, 1, 2 and fraction a ∈ [0, 1] (the
+    closed form of ``_lagrange(a, 4, w)``)."""
+    b = a - 1.0
+    c = a - 2.0
+    d = a + 1.0
+    w[0] = -a * b * c * (1.0 / 6.0)
+    w[1] = d * b * c * 0.5
+    w[2] = -d * a * c * 0.5
+    w[3] = d * a * b * (1.0 / 6.0)
+
+
+@numba.njit(cache=True, inline="always")
 def _face_direction(R, u, v, f):
     """``R (u, v, f)``: a face sample's direction (u, v, f) moved by the rotation R (3, 3)."""
     return (R[0, 0] * u + R[0, 1] * v + R[0, 2] * f,
@@ -337,6 +350,129 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
                         okrow[iu] = 1.0 if good else 0.0
 
 
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky, e_max,
+                           conf, out, ok):
+    """Fill the rays :func:`_warp_xy_kernel` left empty because their moved focal-plane point
+    lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
+    the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
+    ``x_e + d`` along u is the ray from ``x_e`` along ``u + ρ d`` (ρ = f / Z, u per unit x),
+    so the value is the (u, v)-warped images U (Nv, Nu, M) at the clamped viewpoint, read at
+    the direction shifted by ``(e_x kx ρ, e_y ky ρ)`` samples (e in view steps beyond the edge,
+    kx = step_x / step_u, ky = step_y / step_v), 4-point Lagrange in (u, v) (rays whose
+    nodes leave the directions stay empty), bilinear across views.
+    ``rho`` (Nv, Nu): the disparity per direction of face ``face`` (NaN: unknown, the ray
+    stays empty). Other arguments as :func:`_warp_xy_kernel`; ``ok`` gets 1 where filled."""
+    K, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = U.shape
+    nxy = Ny * Nx
+    Uf = U.reshape(Nv * Nu * M)
+    for jv in numba.prange(Nv):
+        wu = np.empty(4)
+        wv = np.empty(4)
+        vw = np.empty(4)
+        vidx = np.empty(4, np.int64)
+        for jy in range(Ny):
+            for ix in range(Nx):
+                okrow = ok[face, jy, ix, jv]
+                for iu in range(Nu):
+                    r = rho[jv, iu]
+                    if okrow[iu] > 0.0 or not ok_uv[jv, iu] or not r == r:
+                        continue
+                    fx = ax_[jy, ix] + bx_[jy, ix] * slope_x[jv, iu]
+                    fy = ay_[jy, ix] + by_[jy, ix] * slope_y[jv, iu]
+                    cx = min(max(fx, 0.0), Nx - 1.0)
+                    cy = min(max(fy, 0.0), Ny - 1.0)
+                    ex = fx - cx
+                    ey = fy - cy
+                    if abs(ex) > e_max or abs(ey) > e_max:
+                        continue
+                    # 4-point Lagrange along an axis that extrapolates (linear interpolation of a
+                    # sub-sample shift errs by a large fraction of it on sharp images), nodes
+                    # inside the grid; the axis that does not keeps its own sample
+                    tu = 1
+                    ou = np.int64(iu)
+                    wu[0] = 1.0
+                    if ex != 0.0 and Nu > 1:
+                        su = iu + ex * kx * r
+                        bu = math.floor(su)
+                        if Nu < 4 or bu < 1 or bu > Nu - 3:
+                            continue
+                        tu = 4
+                        ou = np.int64(bu) - 1
+                        _cubic(su - bu, wu)
+                    tv = 1
+                    ov = np.int64(jv)
+                    wv[0] = 1.0
+                    if ey != 0.0 and Nv > 1:
+                        sv = jv + ey * ky * r
+                        bv = math.floor(sv)
+                        if Nv < 4 or bv < 1 or bv > Nv - 3:
+                            continue
+                        tv = 4
+                        ov = np.int64(bv) - 1
+                        _cubic(sv - bv, wv)
+                    good = True
+                    for q in range(tv):
+                        for t in range(tu):
+                            good = good and ok_uv[ov + q, ou + t]
+                    if not good:
+                        continue
+                    # the views' bilinear stencil at the clamped point, zero weights dropped
+                    bx = min(int(cx), max(Nx - 2, 0))
+                    by = min(int(cy), max(Ny - 2, 0))
+                    wx = cx - bx if Nx > 1 else 0.0
+                    wy = cy - by if Ny > 1 else 0.0
+                    nv = 0
+                    for dy in range(2):
+                        for dx in range(2):
+                            w = (wy if dy else 1.0 - wy) * (wx if dx else 1.0 - wx)
+                            if w != 0.0:
+                                vidx[nv] = min(by + dy, Ny - 1) * Nx + min(bx + dx, Nx - 1)
+                                vw[nv] = w
+                                nv += 1
+                    for k in range(K):
+                        val = 0.0
+                        for q in range(tv):
+                            for t in range(tu):
+                                o = ((ov + q) * Nu + ou + t) * M + k * nxy
+                                acc = 0.0
+                                for n in range(nv):
+                                    acc += vw[n] * Uf[o + vidx[n]]
+                                val += wv[q] * wu[t] * acc
+                        out[k, face, jy, ix, jv, iu] = val
+                    okrow[iu] = conf
+
+
+@numba.njit(parallel=True, cache=True)
+def _view_mean_kernel(rho, out):
+    F, Ny, Nx, Nv, Nu = rho.shape
+    for fv in numba.prange(F * Nv):
+        f = fv // Nv
+        v = fv - f * Nv
+        o = out[f, v]
+        n = np.zeros(Nu)
+        o[:] = 0.0
+        for j in range(Ny):
+            for i in range(Nx):
+                row = rho[f, j, i, v]
+                for u in range(Nu):
+                    if row[u] == row[u]:
+                        o[u] += row[u]
+                        n[u] += 1.0
+        for u in range(Nu):
+            o[u] = o[u] / n[u] if n[u] > 0 else np.nan
+
+
+def _view_mean(rho: np.ndarray) -> np.ndarray:
+    """(F, Nv, Nu) float64: the mean over the views of rho (F, Ny, Nx, Nv, Nu), ignoring NaN
+    (NaN where every view's is)."""
+    F, Ny, Nx, Nv, Nu = rho.shape
+    out = np.empty((F, Nv, Nu))
+    _view_mean_kernel(rho, out)
+    return out
+
+
 @numba.njit(parallel=True, cache=True)
 def _views_inner_kernel(a, out):
     """out[f, v, u, m] = a[f, m, v, u] (m = the flattened (K, Ny, Nx)), zero for m beyond
@@ -379,11 +515,14 @@ def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
 
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
-               out: np.ndarray, ok: np.ndarray, U: np.ndarray) -> None:
+               out: np.ndarray, ok: np.ndarray, U: np.ndarray, rho: np.ndarray | None = None,
+               extrapolate_views: float = 0.0, extrapolate_conf: float = 1.0) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 (1 inside, 0 outside); U (Nv, Nu, M) float32 scratch
-    (:func:`_warp_scratch_shape`)."""
+    (:func:`_warp_scratch_shape`). With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per
+    direction, u per unit x; NaN unknown) and ``extrapolate_views`` > 0, rays up to that many
+    view steps outside the viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`)."""
     K, F, Ny, Nx, Nv, Nu = out.shape
     xs, ys = grid.x.values, grid.y.values
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
@@ -404,10 +543,16 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, out, ok)
+        if rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1):
+            ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
+            kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
+            _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
+                                   float(extrapolate_views), float(extrapolate_conf), out, ok)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
-                    uv_taps: int = 6) -> tuple[np.ndarray, np.ndarray]:
+                    uv_taps: int = 6, rho: np.ndarray | None = None,
+                    extrapolate_views: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Resample light fields at the grid rays moved by the rigid transform ``T_ray`` (rig frame).
 
     ``arrays``: (K, F, Ny, Nx, Nv, Nu) stacked fields (e.g. L and W) sharing the
@@ -416,13 +561,18 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     is linear in (x, y) and ``uv_taps``-point Lagrange (2, 4 or 6) in (u, v). The
     moved direction, hence the (u, v) stencil, does not depend on the viewpoint, so
     every view image is first resampled in (u, v), then views are blended.
+    ``rho`` (F, Nv, Nu): the disparity ρ = f / Z per direction (u per unit of x; NaN:
+    unknown); with it, rays that leave the viewpoints by at most ``extrapolate_views``
+    view steps are extrapolated by paper Eq. 6 from the nearest edge viewpoint(s)
+    (``L(x_e + d, u) = L(x_e, u + ρ d)``) and count as inside.
     """
     arrays = np.asarray(arrays, dtype=np.float32)
     K, F, Ny, Nx, Nv, Nu = arrays.shape
     out = np.empty(arrays.shape, np.float32)
     ok = np.empty(arrays.shape[1:], np.float32)
     srcT = _views_inner(np.moveaxis(arrays, 0, 1))
-    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, np.empty(_warp_scratch_shape(srcT), np.float32))
+    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, np.empty(_warp_scratch_shape(srcT), np.float32),
+               None if rho is None else np.asarray(rho, np.float64), extrapolate_views)
     return out, ok > 0
 
 
