@@ -133,8 +133,8 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _padded, _views_inner, _warp_into, warp_lightfield, warp_lightfield_reference,
-                   _warp_scratch_shape)
+from .warp import (_T_sqrt, _padded, _view_mean, _views_inner, _warp_into, warp_lightfield,
+                   warp_lightfield_reference, _warp_scratch_shape)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -379,6 +379,8 @@ class _Solver:
         self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors; NaN: kept)
         self.var_dr: np.ndarray | None = None
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
+        self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
+        self.extrapolate: bool | None = None    # extrapolate_views decided (at the level's first ρ̂)
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
@@ -407,7 +409,8 @@ class _Solver:
         lev, opts = self.lev, self.opts
         H = _T_sqrt(M) if opts.symmetric else np.eye(4)
         H1 = T_inverse(H) if opts.symmetric else T_inverse(M)
-        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf, self.U)
+        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf, self.U,
+                   None if opts.symmetric else self.rho_bar, opts.extrapolate_views)
         conf = self.conf
         if lev.W1 is not None:
             conf *= _warped_confidence(self.out1)
@@ -460,6 +463,11 @@ class _Solver:
                         self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
+            if opts.extrapolate_views > 0 and self.extrapolate is None:
+                snr = self._positional_snr(self._var_measured(var))
+                self.extrapolate = snr >= opts.extrapolate_snr
+                log.debug("extrapolation: positional derivatives' signal / noise %.3g: %s", snr,
+                          "on" if self.extrapolate else "off")
             if check:
                 p_measured, sigma_measured, cond_measured = self._increment_and_sigma()
             self.rho = _work_array("rho", self.shape)
@@ -484,9 +492,26 @@ class _Solver:
                     # no bias the gate would remove (the two agree within the noise): fall back
                     if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
+        if first_dr and self.extrapolate:
+            self.rho_bar = _view_mean(self.rho)
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
+
+    def _positional_snr(self, var: np.ndarray) -> float:
+        """Signal / noise power of the measured positional derivatives: (mean of L_x² + L_y²
+        over the valid rays of the box, every 4th u) / (var_x + var_y) − 1 (var (4,): their
+        noise variances; inf without noise)."""
+        y0, y1, x0, x1, v0, v1, u0, u1 = (int(b) for b in self.box)
+        sl = np.s_[:, y0:y1, x0:x1, v0:v1, u0:u1:4]
+        ok = self.base[sl] > 0
+        n = int(ok.sum())
+        noise = float(var[0] + var[1])
+        if n == 0:
+            return 0.0
+        e = float(np.sum(np.where(ok, self.der[0][sl].astype(np.float64) ** 2 + self.der[1][sl].astype(np.float64) ** 2,
+                                  0.0))) / n
+        return e / noise - 1.0 if noise > 0 else math.inf
 
     def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
         """Largest first-order displacement of a ray of this level's grid between the warps of

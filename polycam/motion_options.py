@@ -92,6 +92,17 @@ class MotionOptions:
     """``depth_gate_cond``: the disagreement, in standard deviations of the measured
     regressors' estimate (cluster-robust, t and ω separately), above which the gate is kept
     although it costs conditioning (measured: the noisy room ≤ 2, one aliased face 12-17)."""
+    extrapolate_views: float = 2.0
+    """Rays whose warped position leaves the viewpoints by at most this many view steps are
+    filled from the nearest edge viewpoint(s) by Eq. 6 (the direction shifted by the
+    disparity: ``L(x_e + d, u) = L(x_e, u + ρ d)``, ρ averaged over the views per direction
+    from the ``depth_regressors`` estimate; finest level, from its second warp on; not with
+    ``symmetric``) instead of being dropped. 0: dropped. Only where the measured positional
+    derivatives are far above their noise (``extrapolate_snr``)."""
+    extrapolate_snr: float = 30.0
+    """``extrapolate_views``: used only where the signal / noise power of the measured L_x, L_y
+    (at the finest level's first ρ̂) is at least this. With noisier ρ̂ the extrapolated rays
+    pull the translation towards zero (docs/motion.md)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once

@@ -23,7 +23,7 @@ from tolerances import (MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL, MOTION_COMB
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL, MOTION_WHITEN_GLS_RTOL,
-                        MOTION_WHITEN_VS_PLAIN)
+                        MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL)
 
 ROOM_RADIUS = 6.0
 
@@ -331,6 +331,52 @@ def test_warp_by_true_motion_predicts_frame_two(scene):
     # the identity warp is exact
     same, ok_id = warp_lightfield(L0[None], grid, np.eye(4))
     assert ok_id.all() and np.allclose(same[0], L0, atol=1e-6)
+
+
+def _plane_lightfield(grid: LightFieldGrid, Z: float, shift_x: float = 0.0) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) light field of a textured plane Z [m] in front of the face plane:
+    L(x, y, u, v) = τ(x + shift_x + Z u / f, y + Z v / f) (paper Eq. 6 holds with ρ = f / Z)."""
+    f = grid.faces[0].f
+    y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
+    s, t = x + shift_x + Z * u / f, y + Z * v / f
+    return (0.5 + 0.2 * np.sin(3.0 * s + 1.0) * np.cos(2.0 * t + 0.5))[None].astype(np.float32)
+
+
+def test_warp_extrapolates_beyond_the_views_by_eq6():
+    grid = make_grid(("+z",), views=5, directions=32, spacing=0.015)
+    Z, tx = 2.0, 0.02                                  # a 1.33-view translation along x
+    L = _plane_lightfield(grid, Z)
+    truth = _plane_lightfield(grid, Z, shift_x=tx)     # L at the moved rays (x + tx, u)
+    M = T_from_rt(np.array([0.0, 0.0, 0.0, tx, 0.0, 0.0]))
+    plain, ok_plain = warp_lightfield(L[None], grid, M)
+    rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / Z)
+    ext, ok_ext = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=2.0)
+    assert np.array_equal(ext[0][ok_plain], plain[0][ok_plain])         # inside: unchanged
+    new = ok_ext & ~ok_plain
+    assert new.any() and not ok_plain[:, :, -1].any() and ok_ext[:, :, -1, 2:-2, 2:-2].all()
+    assert np.max(np.abs(ext[0] - truth)[new]) < MOTION_EXTRAPOLATION_ATOL
+    # unknown disparity, or beyond extrapolate_views: left out
+    rho[:, : grid.v.count // 2] = np.nan
+    part, ok_part = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=2.0)
+    assert not (ok_part & ~ok_plain)[..., : grid.v.count // 2, :].any() and (ok_part & ~ok_plain).any()
+    _, ok_short = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=0.2)
+    assert not ok_short[:, :, -1].any()
+
+
+def test_solver_extrapolates_only_while_the_positional_derivatives_are_clean(scene):
+    grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])      # 1.6 views
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    on = estimate_motion(L0, L1, grid)
+    off = estimate_motion(L0, L1, grid, options=MotionOptions(extrapolate_views=0.0))
+    assert on and off
+    assert on.num_rays > 1.1 * off.num_rays
+    assert np.all(rel_errors(on.T_prev_next, rt) < MOTION_COMBINED_REL)
+    noise = np.random.default_rng(5)
+    a = L0 + noise.normal(0.0, 0.05, L0.shape).astype(np.float32)
+    b = L1 + noise.normal(0.0, 0.05, L1.shape).astype(np.float32)
+    assert estimate_motion(a, b, grid).num_rays == \
+        estimate_motion(a, b, grid, options=MotionOptions(extrapolate_views=0.0)).num_rays
 
 
 def test_coefficients_predict_temporal_difference(scene):
