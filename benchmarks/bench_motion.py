@@ -14,7 +14,10 @@ motions) and the median relative error of t and ω for
 - ``polycam``: the default :class:`polycam.motion.MotionOptions`.
 
 A second table repeats one motion at the middle distance with both frames quantised
-to 8 bits after adding Gaussian noise of 0, 1 and 3 grey levels.
+to 8 bits after adding Gaussian noise of 0, 1 and 3 grey levels. ``--supersample k``
+renders the accuracy table with k x k rays per sample (a finer approximation of a pixel's
+area integral; the silhouettes' staircase of k x k point samples is model error the
+translation sees at large D: docs/motion.md).
 
 Speed: one face of 9 x 9 views x 128 x 128 directions (1.33 M rays): derivatives of a
 frame pair + one linear solve of Eq. 5, ours (numba kernels) against a numpy / scipy
@@ -506,6 +509,8 @@ def main() -> None:
                          "L_x, L_y; the default uses Eq. 6's where less noisy)")
     ap.add_argument("--distances", type=float, nargs="+", default=None,
                     help="scene distances [m] of the accuracy table (default 4 6 8 12 16 24; --quick 4 8 16)")
+    ap.add_argument("--supersample", type=int, default=None,
+                    help="k x k rays the renderer averages per sample in the accuracy table (default 3; --quick 2)")
     ap.add_argument("--plot", metavar="PNG", default=None,
                     help="write the accuracy figure (paper Fig. 5c, measured) to this file")
     args = ap.parse_args()
@@ -513,10 +518,10 @@ def main() -> None:
         speed(args.repeat, 128)
     if not args.skip_accuracy:
         if args.quick:
-            accuracy(args.distances or [4.0, 8.0, 16.0], 1, 2, 64, plot=args.plot,
+            accuracy(args.distances or [4.0, 8.0, 16.0], 1, args.supersample or 2, 64, plot=args.plot,
                      measured_regressors=args.measured_regressors)
         else:
-            accuracy(args.distances or [4.0, 6.0, 8.0, 12.0, 16.0, 24.0], 3, 3, 64, plot=args.plot,
+            accuracy(args.distances or [4.0, 6.0, 8.0, 12.0, 16.0, 24.0], 3, args.supersample or 3, 64, plot=args.plot,
                      measured_regressors=args.measured_regressors)
 
 

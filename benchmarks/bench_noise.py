@@ -30,6 +30,10 @@ the defaults include ``depth_regressors=True``; the variants other than the expl
 linearised estimator at the true motion (:func:`linear_probe`): which part of the gap to the
 bound an estimator with noise-free regressors (oracle) would still have on the rays the warp
 keeps, with plain or whitened least squares, against the measured and the Eq. 6 regressors.
+``--oracle-depth`` (a diagnostic) gives the solver the scene's true disparity in place of its
+estimate ρ̂ (:class:`OracleDepth`): the same rays get Eq. 6 regressors, ``ρ L_u, ρ L_v`` with
+the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
+``--supersample`` sets the rays the renderer averages per sample (k x k; default 3).
 
 The bound (derivation)
 ----------------------
@@ -83,6 +87,7 @@ normal equations give without robust weights, warps or bias).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import sys
@@ -102,6 +107,8 @@ from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
+from polycam.synth.raycast import trace_outer  # noqa: E402
+from polycam.synth.render import lightfield_face_rays  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_motion import params, random_motion  # noqa: E402  (the same motions and (t, ω) order)
@@ -163,6 +170,51 @@ def _ray_to_rig(p_true: np.ndarray) -> np.ndarray:
         e[j] = h
         J[:, j] = (f(p_true + e) - f(p_true - e)) / (2 * h)
     return J
+
+
+def true_disparity(scene, grid) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) float32: the true ρ of Eq. 6 (``L_x = ρ L_u``, u per unit of x) of
+    each sample's centre ray at the identity pose: ``ρ = f / Z = |(u, v, f)| / distance``,
+    Z the depth along the face's z axis, distance along the unit ray (0 for the sky)."""
+    F, Ny, Nx, Nv, Nu = grid.shape
+    out = np.empty(grid.shape, np.float32)
+    for k in range(F):
+        o, d = lightfield_face_rays(grid, k, 1)
+        dist = trace_outer(scene, o, d, np.eye(4)).distance.reshape(Ny, Nx, Nv, Nu)
+        norm = np.linalg.norm(d[:, 0], axis=-1).reshape(Nv, Nu)
+        out[k] = np.where(np.isfinite(dist), norm / dist, 0.0)
+    return out
+
+
+class OracleDepth:
+    """Context manager (a diagnostic, ``--oracle-depth``): while active, the solver's Eq. 6
+    regressors use the true disparity ``rho_true`` (from :func:`true_disparity`) instead of
+    its estimate ρ̂, on the rays where the solver replaces the measured ``L_x, L_y`` (its keep /
+    replace decisions and noise bookkeeping are unchanged, so ``eiv=True`` over-corrects
+    here). It wraps ``polycam.motion.depth_rho`` at the finest level (the grid's shape)."""
+
+    def __init__(self, rho_true: np.ndarray):
+        self.rho_true = rho_true
+
+    def __enter__(self):
+        import polycam.motion as pm
+
+        self._pm, self._orig = pm, pm.depth_rho
+        rho_true, orig = self.rho_true, self._orig
+
+        def depth_rho(der, base, box, var, out, rho_max=0.0, gate_misfit=0.0):
+            res = orig(der, base, box, var, out, rho_max, gate_misfit)
+            if out.shape == rho_true.shape:
+                use = np.isfinite(out)
+                out[use] = rho_true[use]
+            return res
+
+        pm.depth_rho = depth_rho
+        return self
+
+    def __exit__(self, *exc):
+        self._pm.depth_rho = self._orig
+        return False
 
 
 def linear_model_bounds(L0: np.ndarray, L1: np.ndarray, grid, M: np.ndarray,
@@ -289,14 +341,17 @@ def rms_norm(e: np.ndarray) -> float:
 
 
 def setup(faces: str, D: float, supersample: int, directions: int, blur: float = 0.0,
-          motion_scale: float = 1.0):
+          motion_scale: float = 1.0, oracle: bool = False):
     """(grid, L0, L1, M): the noise-free frame pair of the set-up. ``blur``: std [samples] of a
     Gaussian optics blur along u and v of every view (0: the renderer's pixel averaging only);
-    ``motion_scale``: multiplies the motion (|t| = 1.5 cm, |ω| = 0.2° at 1)."""
+    ``motion_scale``: multiplies the motion (|t| = 1.5 cm, |ω| = 0.2° at 1); ``oracle``: also
+    return the true disparity (:func:`true_disparity`) as a fifth item."""
     grid = default_lightfield_grid(faces, directions=directions)
-    ren = LightFieldRenderer(spheres_scene(D, seed=0), grid, supersample)
+    scene = spheres_scene(D, seed=0)
+    ren = LightFieldRenderer(scene, grid, supersample)
     M = random_motion(np.random.default_rng(8000), 0.015 * motion_scale, math.radians(0.2) * motion_scale)
-    return grid, optics(ren.render(np.eye(4)), blur), optics(ren.render(M), blur), M
+    out = grid, optics(ren.render(np.eye(4)), blur), optics(ren.render(M), blur), M
+    return out + (true_disparity(scene, grid),) if oracle else out
 
 
 def optics(L: np.ndarray, blur: float) -> np.ndarray:
@@ -538,6 +593,11 @@ def main() -> None:
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
                     help="also the table for depth_regressors=True, eiv=True, smooth_noise=True")
+    ap.add_argument("--oracle-depth", action="store_true",
+                    help="diagnostic: the main table with the true disparity in the Eq. 6 regressors instead of "
+                         "the solver's estimate")
+    ap.add_argument("--supersample", type=int, default=None,
+                    help="k x k rays averaged per sample by the renderer (default 3; --quick 2)")
     ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
                     help="the main table with MotionOptions(depth_regressors=True / False) (else the defaults)")
     args = ap.parse_args()
@@ -546,9 +606,12 @@ def main() -> None:
     main_name = "default options" if args.depth_regressors is None else f"depth_regressors {args.depth_regressors}"
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
-    ss = 2 if args.quick else 3
+    ss = args.supersample or (2 if args.quick else 3)
+    if args.oracle_depth:
+        main_name += ", true disparity in the Eq. 6 regressors (--oracle-depth)"
     for faces in args.faces:
-        grid, L0, L1, M = setup(faces, args.distance, ss, 64, args.blur, args.motion_scale)
+        grid, L0, L1, M, *rho = setup(faces, args.distance, ss, 64, args.blur, args.motion_scale,
+                                      args.oracle_depth)
         label = "six faces" if faces == "all" else f"one face {faces}"
         if args.raw_bound or args.raw_bound_only:
             crb_f, _ = linear_model_bounds(L0, L1, grid, M, MotionOptions().filters)
@@ -564,8 +627,9 @@ def main() -> None:
         if args.raw_bound_only:
             continue
         if not (args.variants_only or args.probe_only):
-            noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
-                        main_opts, not args.no_predict)
+            with OracleDepth(rho[0]) if rho else contextlib.nullcontext():
+                noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
+                            main_opts, not args.no_predict)
             if args.high_noise:
                 noise_table(f"{label}, D = {args.distance:g} m, depth_regressors, eiv, smooth_noise", grid, L0, L1, M,
                             sigmas, draws, HIGH_NOISE, not args.no_predict)
