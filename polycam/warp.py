@@ -22,6 +22,13 @@ interpolation along (u, v) removes most of that (0.05% on a scene without
 occlusions), 6-point also the ~1% left at 8-16 m where the directions are
 nearly aliased.
 
+Rays moved beyond the viewpoints (a motion of 1.5 view steps takes 31% of a 9 x 9
+array's rays out) can be extrapolated by paper Eq. 6 when the scene's disparity ρ = f / Z
+is known per direction: from the nearest edge view at the direction shifted by ρ times
+the overshoot (:func:`_extrapolate_xy_kernel`, cubic in (u, v): the shift is a small
+fraction of a sample, which linear interpolation gets wrong by a large part of itself
+on sharp images).
+
 The fast path (:func:`warp_lightfield`) is views-innermost: the (u, v) part of the
 stencil depends only on the direction, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, followed by a branch-free blend across
