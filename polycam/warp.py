@@ -377,8 +377,6 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
     for jv in numba.prange(Nv):
         wu = np.empty(4)
         wv = np.empty(4)
-        vw = np.empty(4)
-        vidx = np.empty(4, np.int64)
         for jy in range(Ny):
             for ix in range(Nx):
                 okrow = ok[face, jy, ix, jv]
@@ -425,28 +423,28 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
                             good = good and ok_uv[ov + q, ou + t]
                     if not good:
                         continue
-                    # the views' bilinear stencil at the clamped point, zero weights dropped
+                    # the views' bilinear stencil at the clamped point (zero weights included)
                     bx = min(int(cx), max(Nx - 2, 0))
                     by = min(int(cy), max(Ny - 2, 0))
                     wx = cx - bx if Nx > 1 else 0.0
                     wy = cy - by if Ny > 1 else 0.0
-                    nv = 0
-                    for dy in range(2):
-                        for dx in range(2):
-                            w = (wy if dy else 1.0 - wy) * (wx if dx else 1.0 - wx)
-                            if w != 0.0:
-                                vidx[nv] = min(by + dy, Ny - 1) * Nx + min(bx + dx, Nx - 1)
-                                vw[nv] = w
-                                nv += 1
+                    bx1 = min(bx + 1, Nx - 1)
+                    by1 = min(by + 1, Ny - 1)
+                    v00 = by * Nx + bx
+                    v01 = by * Nx + bx1
+                    v10 = by1 * Nx + bx
+                    v11 = by1 * Nx + bx1
+                    w00 = (1.0 - wy) * (1.0 - wx)
+                    w01 = (1.0 - wy) * wx
+                    w10 = wy * (1.0 - wx)
+                    w11 = wy * wx
                     for k in range(K):
                         val = 0.0
                         for q in range(tv):
                             for t in range(tu):
                                 o = ((ov + q) * Nu + ou + t) * M + k * nxy
-                                acc = 0.0
-                                for n in range(nv):
-                                    acc += vw[n] * Uf[o + vidx[n]]
-                                val += wv[q] * wu[t] * acc
+                                val += wv[q] * wu[t] * (w00 * Uf[o + v00] + w01 * Uf[o + v01]
+                                                        + w10 * Uf[o + v10] + w11 * Uf[o + v11])
                         out[k, face, jy, ix, jv, iu] = val
                     okrow[iu] = conf
 
