@@ -856,6 +856,29 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
                 gy[u] = q[u] * gv[u] if ok else gy[u]
 
 
+@numba.njit(parallel=True, cache=True)
+def _fill_rho(rho, real, base, rho_bar, box):
+    """ρ̂ ← rho_bar[f, v, u] (F, Nv, Nu) where rho_bar is a number, base > 0 and real <= 0
+    (rays whose filter support holds extrapolated samples; inside box (8,), as
+    :func:`depth_rho`)."""
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    F = rho.shape[0]
+    for idx in numba.prange(F * ny * nx):
+        fc = idx // (ny * nx)
+        rem = idx - fc * ny * nx
+        j = box[0] + rem // nx
+        i = box[2] + rem - (rem // nx) * nx
+        for v in range(box[4], box[5]):
+            q = rho[fc, j, i, v]
+            r = real[fc, j, i, v]
+            b = base[fc, j, i, v]
+            rb = rho_bar[fc, v]
+            for u in range(box[6], box[7]):
+                if r[u] <= 0.0 and b[u] > 0.0 and rb[u] == rb[u]:
+                    q[u] = rb[u]
+
+
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32

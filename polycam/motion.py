@@ -40,10 +40,10 @@ coarse to fine over a pyramid in (u, v) (and (x, y) with ``pyramid_xy`` where th
 are enough viewpoints; :mod:`polycam.pyramid`). A motion of a view step or more takes
 many rays out of the viewpoints' range (1.5 steps on 9 x 9 views: 31% of the samples;
 the solver then loses 36% of its rays, whose filter supports need them); at the
-finest level, once ρ̂ below exists and while the positional derivatives are clean
-(``extrapolate_snr``), those up to ``extrapolate_views`` steps out are extrapolated by
-Eq. 6 from the edge views instead (``L(x_e + d, u) = L(x_e, u + ρ d)``, ρ averaged over
-the views per direction; docs/motion.md).
+finest level, once ρ̂ below exists, those up to ``extrapolate_views`` steps out are
+extrapolated by Eq. 6 from the edge views instead (``L(x_e + d, u) = L(x_e, u + ρ d)``,
+ρ averaged over the views per direction; ρ̂ itself is then taken from the rays whose
+filter support holds captured samples only; docs/motion.md).
 
 Robust weighting
 ----------------
@@ -129,7 +129,7 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, depth_rho, _face_B, _pass_kernel,
+from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, _fill_rho, depth_rho, _face_B, _pass_kernel,
                   _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
@@ -386,7 +386,7 @@ class _Solver:
         self.var_dr: np.ndarray | None = None
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
-        self.extrapolate: bool | None = None    # extrapolate_views decided (at the level's first ρ̂)
+        self.marks: np.ndarray | None = None    # 1 at the samples the last warp extrapolated
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
@@ -415,8 +415,12 @@ class _Solver:
         lev, opts = self.lev, self.opts
         H = _T_sqrt(M) if opts.symmetric else np.eye(4)
         H1 = T_inverse(H) if opts.symmetric else T_inverse(M)
+        marks = None
+        if self.rho_bar is not None and not opts.symmetric:
+            marks = self.marks = _work_array("marks", self.shape) if self.marks is None else self.marks
+            marks.fill(0.0)
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf, self.U,
-                   None if opts.symmetric else self.rho_bar, opts.extrapolate_views)
+                   None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks)
         conf = self.conf
         if lev.W1 is not None:
             conf *= _warped_confidence(self.out1)
@@ -469,20 +473,17 @@ class _Solver:
                         self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
-            if opts.extrapolate_views > 0 and self.extrapolate is None:
-                snr = self._positional_snr(self._var_measured(var))
-                self.extrapolate = snr >= opts.extrapolate_snr
-                log.debug("extrapolation: positional derivatives' signal / noise %.3g: %s", snr,
-                          "on" if self.extrapolate else "off")
             if check:
                 p_measured, sigma_measured, cond_measured = self._increment_and_sigma()
             self.rho = _work_array("rho", self.shape)
+            # ρ̂ from the captured samples only: a window holding extrapolated samples (made
+            # with an earlier ρ̂) would pull the new ρ̂ back towards it
+            real = None if marks is None else min_over_support(1.0 - marks, self.pairs)
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, False, False)
-                self.var = self.var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var),
-                                                   self.rho, rho_max, floor)
+                self.var = self.var_dr = self._depth_rho(var, rho_max, floor, real)
                 _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                              np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
@@ -498,26 +499,25 @@ class _Solver:
                     # no bias the gate would remove (the two agree within the noise): fall back
                     if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
-        if first_dr and self.extrapolate:
+        if first_dr and opts.extrapolate_views > 0 and marks is None:
             self.rho_bar = _view_mean(self.rho)
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
 
-    def _positional_snr(self, var: np.ndarray) -> float:
-        """Signal / noise power of the measured positional derivatives: (mean of L_x² + L_y²
-        over the valid rays of the box, every 4th u) / (var_x + var_y) − 1 (var (4,): their
-        noise variances; inf without noise)."""
-        y0, y1, x0, x1, v0, v1, u0, u1 = (int(b) for b in self.box)
-        sl = np.s_[:, y0:y1, x0:x1, v0:v1, u0:u1:4]
-        ok = self.base[sl] > 0
-        n = int(ok.sum())
-        noise = float(var[0] + var[1])
-        if n == 0:
-            return 0.0
-        e = float(np.sum(np.where(ok, self.der[0][sl].astype(np.float64) ** 2 + self.der[1][sl].astype(np.float64) ** 2,
-                                  0.0))) / n
-        return e / noise - 1.0 if noise > 0 else math.inf
+    def _depth_rho(self, var: np.ndarray, rho_max: float, floor: float, real: np.ndarray | None) -> np.ndarray:
+        """:func:`polycam.eq5.depth_rho` into ``self.rho`` from the measured regressors; with
+        ``real`` (F, Ny, Nx, Nv, Nu: > 0 where a ray's filter support holds no extrapolated
+        sample) only those rays enter ρ̂'s windows, ``rho_bar`` becomes their view mean and the
+        other valid rays get it (their measured L_x, L_y mix the extrapolated copies' noise).
+        Returns the regressors' noise variances (4,)."""
+        base = self.base if real is None else np.where(real > 0, self.base, np.float32(0.0))
+        var_dr = depth_rho(self.der, base, self.box, self._var_measured(var), self.rho,
+                           rho_max, floor)
+        if real is not None:
+            self.rho_bar = _view_mean(self.rho)
+            _fill_rho(self.rho, real, self.base, self.rho_bar, self.box)
+        return var_dr
 
     def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
         """Largest first-order displacement of a ray of this level's grid between the warps of

@@ -8,6 +8,8 @@ docs/motion.md and the docstring of :mod:`polycam.motion`.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 __all__ = ["MotionOptions"]
@@ -97,12 +99,9 @@ class MotionOptions:
     filled from the nearest edge viewpoint(s) by Eq. 6 (the direction shifted by the
     disparity: ``L(x_e + d, u) = L(x_e, u + ρ d)``, ρ averaged over the views per direction
     from the ``depth_regressors`` estimate; finest level, from its second warp on; not with
-    ``symmetric``) instead of being dropped. 0: dropped. Only where the measured positional
-    derivatives are far above their noise (``extrapolate_snr``)."""
-    extrapolate_snr: float = 30.0
-    """``extrapolate_views``: used only where the signal / noise power of the measured L_x, L_y
-    (at the finest level's first ρ̂) is at least this. With noisier ρ̂ the extrapolated rays
-    pull the translation towards zero (docs/motion.md)."""
+    ``symmetric``) instead of being dropped; ρ̂ is then computed from the rays whose filter
+    support holds no extrapolated sample, and the others get the view average. 0: dropped
+    (also without ``depth_regressors``)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
@@ -148,5 +147,7 @@ class MotionOptions:
             raise ValueError(f"depth_gate_cond must be >= 1, got {self.depth_gate_cond}")
         if not self.depth_gate_z > 0.0:
             raise ValueError(f"depth_gate_z must be > 0, got {self.depth_gate_z}")
+        if not 0.0 <= self.extrapolate_views < math.inf:
+            raise ValueError(f"extrapolate_views must be >= 0 and finite, got {self.extrapolate_views}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")

@@ -23,7 +23,7 @@ from tolerances import (MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL, MOTION_COMB
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL, MOTION_WHITEN_GLS_RTOL,
-                        MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL)
+                        MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
 
 ROOM_RADIUS = 6.0
 
@@ -363,7 +363,7 @@ def test_warp_extrapolates_beyond_the_views_by_eq6():
     assert not ok_short[:, :, -1].any()
 
 
-def test_solver_extrapolates_only_while_the_positional_derivatives_are_clean(scene):
+def test_solver_extrapolates_beyond_the_views(scene):
     grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
     rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])      # 1.6 views
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
@@ -372,11 +372,19 @@ def test_solver_extrapolates_only_while_the_positional_derivatives_are_clean(sce
     assert on and off
     assert on.num_rays > 1.1 * off.num_rays
     assert np.all(rel_errors(on.T_prev_next, rt) < MOTION_COMBINED_REL)
-    noise = np.random.default_rng(5)
-    a = L0 + noise.normal(0.0, 0.05, L0.shape).astype(np.float32)
-    b = L1 + noise.normal(0.0, 0.05, L1.shape).astype(np.float32)
-    assert estimate_motion(a, b, grid).num_rays == \
-        estimate_motion(a, b, grid, options=MotionOptions(extrapolate_views=0.0)).num_rays
+    # under noise: the extrapolated rays stay in, and the translation is not pulled towards
+    # zero (mean of t̂·t / |t|² over seeded draws; the pull this guards against, ρ̂ computed
+    # from extrapolated samples, is measured by benchmarks/bench_noise.py on the sphere scene)
+    ratios = []
+    for seed in range(4):
+        noise = np.random.default_rng(seed)
+        a = L0 + noise.normal(0.0, 0.01, L0.shape).astype(np.float32)
+        b = L1 + noise.normal(0.0, 0.01, L1.shape).astype(np.float32)
+        noisy = estimate_motion(a, b, grid)
+        assert noisy.num_rays > 1.1 * off.num_rays
+        t_est = rt_from_T(noisy.T_prev_next)[3:]
+        ratios.append(t_est @ rt[3:] / (rt[3:] @ rt[3:]))
+    assert abs(np.mean(ratios) - 1.0) < MOTION_NOISE_EXTRAPOLATION_REL
 
 
 def test_coefficients_predict_temporal_difference(scene):
@@ -547,7 +555,8 @@ def test_bad_options():
         MotionOptions(robust="cauchy")
     with pytest.raises(ValueError, match="whiten"):
         MotionOptions(whiten="yes")
-    for bad in (dict(depth_gate=-1.0), dict(depth_gate_misfit=-1.0), dict(depth_gate_cond=0.5), dict(depth_gate_z=0.0)):
+    for bad in (dict(depth_gate=-1.0), dict(depth_gate_misfit=-1.0), dict(depth_gate_cond=0.5), dict(depth_gate_z=0.0),
+                dict(extrapolate_views=-1.0), dict(extrapolate_views=float("nan"))):
         with pytest.raises(ValueError, match=next(iter(bad))):
             MotionOptions(**bad)
     grid = make_grid(("+z",))

@@ -25,6 +25,7 @@ MOTION_PURE_LEAK = 0.05       # leakage into the other components, as a fraction
 MOTION_COMBINED_REL = 0.02    # relative error per component of a combined motion, six faces
 MOTION_COMBINED_REL_ONE_FACE = 0.06  # the same with one to three faces (t / ω coupling, narrow baseline)
 MOTION_EXTRAPOLATION_ATOL = 5e-4  # Eq. 6 extrapolation of a textured plane's light field beyond the views (values 0.3-0.7; measured 5e-5, wrong-sign disparity 2e-2)
+MOTION_NOISE_EXTRAPOLATION_REL = 0.03  # |mean t-hat.t/|t|^2 - 1| over 4 draws, 6 faces 16x16 dirs, 1.6-view motion, noise 0.01 (measured 0.0075)
 MOTION_SPHERES_REL = 0.05     # relative error per component with occluding spheres
 MOTION_COV_RATIO_MIN = 0.4    # empirical std / predicted std under noise (10 seeds; measured 0.54-1.3)
 MOTION_COV_RATIO_MAX = 2.0
