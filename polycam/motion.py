@@ -139,7 +139,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _padded, _view_mean, _views_inner, _warp_into, warp_lightfield,
+from .warp import (_T_sqrt, _padded, _unmarked, _view_mean, _views_inner, _warp_into, warp_lightfield,
                    warp_lightfield_reference, _warp_scratch_shape)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
@@ -478,7 +478,7 @@ class _Solver:
             self.rho = _work_array("rho", self.shape)
             # ρ̂ from the captured samples only: a window holding extrapolated samples (made
             # with an earlier ρ̂) would pull the new ρ̂ back towards it
-            real = None if marks is None else min_over_support(1.0 - marks, self.pairs)
+            real = None if marks is None else _unmarked(marks, self.base, self.radius["y"], self.radius["x"])
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
@@ -507,12 +507,11 @@ class _Solver:
 
     def _depth_rho(self, var: np.ndarray, rho_max: float, floor: float, real: np.ndarray | None) -> np.ndarray:
         """:func:`polycam.eq5.depth_rho` into ``self.rho`` from the measured regressors; with
-        ``real`` (F, Ny, Nx, Nv, Nu: > 0 where a ray's filter support holds no extrapolated
-        sample) only those rays enter ρ̂'s windows, ``rho_bar`` becomes their view mean and the
+        ``real`` (F, Ny, Nx, Nv, Nu: the base weights, 0 where an extrapolated sample lies
+        within the (x, y) support of a ray's filters) only those rays enter ρ̂'s windows, ``rho_bar`` becomes their view mean and the
         other valid rays get it (their measured L_x, L_y mix the extrapolated copies' noise).
         Returns the regressors' noise variances (4,)."""
-        base = self.base if real is None else np.where(real > 0, self.base, np.float32(0.0))
-        var_dr = depth_rho(self.der, base, self.box, self._var_measured(var), self.rho,
+        var_dr = depth_rho(self.der, self.base if real is None else real, self.box, self._var_measured(var), self.rho,
                            rho_max, floor)
         if real is not None:
             self.rho_bar = _view_mean(self.rho)

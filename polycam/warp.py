@@ -79,6 +79,22 @@ def _cubic(a, w):
 
 
 @numba.njit(cache=True, inline="always")
+def _shift_stencil(i, d, n, w):
+    """Taps along a direction axis of n samples that read sample i shifted by d samples into
+    w (4,): (count, first index); count 1 (no shift, or a single sample: w[0] = 1), 4 (cubic),
+    0 (the nodes leave the axis)."""
+    if d == 0.0 or n == 1:
+        w[0] = 1.0
+        return 1, np.int64(i)
+    s = i + d
+    b = math.floor(s)
+    if n < 4 or b < 1 or b > n - 3:
+        return 0, np.int64(i)
+    _cubic(s - b, w)
+    return 4, np.int64(b) - 1
+
+
+@numba.njit(cache=True, inline="always")
 def _face_direction(R, u, v, f):
     """``R (u, v, f)``: a face sample's direction (u, v, f) moved by the rotation R (3, 3)."""
     return (R[0, 0] * u + R[0, 1] * v + R[0, 2] * f,
@@ -396,28 +412,10 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
                     # 4-point Lagrange along an axis that extrapolates (linear interpolation of a
                     # sub-sample shift errs by a large fraction of it on sharp images), nodes
                     # inside the grid; the axis that does not keeps its own sample
-                    tu = 1
-                    ou = np.int64(iu)
-                    wu[0] = 1.0
-                    if ex != 0.0 and Nu > 1:
-                        su = iu + ex * kx * r
-                        bu = math.floor(su)
-                        if Nu < 4 or bu < 1 or bu > Nu - 3:
-                            continue
-                        tu = 4
-                        ou = np.int64(bu) - 1
-                        _cubic(su - bu, wu)
-                    tv = 1
-                    ov = np.int64(jv)
-                    wv[0] = 1.0
-                    if ey != 0.0 and Nv > 1:
-                        sv = jv + ey * ky * r
-                        bv = math.floor(sv)
-                        if Nv < 4 or bv < 1 or bv > Nv - 3:
-                            continue
-                        tv = 4
-                        ov = np.int64(bv) - 1
-                        _cubic(sv - bv, wv)
+                    tu, ou = _shift_stencil(iu, ex * kx * r, Nu, wu)
+                    tv, ov = _shift_stencil(jv, ey * ky * r, Nv, wv)
+                    if tu == 0 or tv == 0:
+                        continue
                     good = True
                     for q in range(tv):
                         for t in range(tu):
@@ -450,6 +448,37 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
                     okrow[iu] = conf
                     if has_marks:
                         marks[face, jy, ix, jv, iu] = 1.0
+
+
+@numba.njit(parallel=True, cache=True)
+def _unmarked_kernel(marks, base, ry, rx, out):
+    F, Ny, Nx, Nv, Nu = marks.shape
+    for idx in numba.prange(F * Ny * Nx):
+        f = idx // (Ny * Nx)
+        j = (idx // Nx) % Ny
+        i = idx % Nx
+        o = out[f, j, i]
+        b = base[f, j, i]
+        for v in range(Nv):
+            for u in range(Nu):
+                o[v, u] = b[v, u] if b[v, u] > 0.0 else 0.0
+        for jj in range(max(j - ry, 0), min(j + ry + 1, Ny)):
+            for ii in range(max(i - rx, 0), min(i + rx + 1, Nx)):
+                m = marks[f, jj, ii]
+                for v in range(Nv):
+                    for u in range(Nu):
+                        if m[v, u] > 0.0:
+                            o[v, u] = 0.0
+
+
+def _unmarked(marks: np.ndarray, base: np.ndarray, ry: int, rx: int) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) float32: ``base`` (same dims) where it is > 0 and no sample of
+    ``marks`` (> 0: marked) lies within ``ry``, ``rx`` views at the same direction, else 0
+    (the (x, y) part of a ray's filter support; the marked samples of :func:`_warp_into`
+    change slowly with the direction, so the (u, v) part is left out)."""
+    out = np.empty(marks.shape, np.float32)
+    _unmarked_kernel(marks, base, int(ry), int(rx), out)
+    return out
 
 
 @numba.njit(parallel=True, cache=True)
