@@ -375,7 +375,7 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky, e_max,
-                           conf, out, ok, marks, has_marks):
+                           out, ok, marks, has_marks):
     """Fill the rays :func:`_warp_xy_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
@@ -385,8 +385,8 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
     kx = step_x / step_u, ky = step_y / step_v), 4-point Lagrange in (u, v) (rays whose
     nodes leave the directions stay empty), bilinear across views.
     ``rho`` (Nv, Nu): the disparity per direction of face ``face`` (NaN: unknown, the ray
-    stays empty). Other arguments as :func:`_warp_xy_kernel`; ``ok`` gets ``conf`` where
-    filled, and with ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
+    stays empty). Other arguments as :func:`_warp_xy_kernel`; ``ok`` gets 1 where filled,
+    and with ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
     K, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = U.shape
     nxy = Ny * Nx
@@ -445,7 +445,7 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
                                 val += wv[q] * wu[t] * (w00 * Uf[o + v00] + w01 * Uf[o + v01]
                                                         + w10 * Uf[o + v10] + w11 * Uf[o + v11])
                         out[k, face, jy, ix, jv, iu] = val
-                    okrow[iu] = conf
+                    okrow[iu] = 1.0
                     if has_marks:
                         marks[face, jy, ix, jv, iu] = 1.0
 
@@ -556,7 +556,7 @@ _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.float32)
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
                out: np.ndarray, ok: np.ndarray, U: np.ndarray, rho: np.ndarray | None = None,
-               extrapolate_views: float = 0.0, extrapolate_conf: float = 1.0,
+               extrapolate_views: float = 0.0,
                marks: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
@@ -590,7 +590,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
             _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
-                                   float(extrapolate_views), float(extrapolate_conf), out, ok,
+                                   float(extrapolate_views), out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None)
 
 
