@@ -288,6 +288,15 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     st[3] += tex
 
 
+@numba.njit(cache=True, inline="always")
+def _box_view(idx, box, ny, nx):
+    """(face, y, x) of the view with flat index idx over the faces x the box's (ny, nx) views
+    (box (8,): [y0, y1, x0, x1, ...])."""
+    fc = idx // (ny * nx)
+    rem = idx - fc * ny * nx
+    return fc, box[0] + rem // nx, box[2] + rem - (rem // nx) * nx
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
                  box, h, var, final, acc, st, chunks):
@@ -306,10 +315,7 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, 
         S = np.empty(5)
         ones = np.ones((Nv if not has_base else 1, Nu if not has_base else 1), np.float32)
         for idx in range(c * n // chunks, (c + 1) * n // chunks):
-            fc = idx // (ny * nx)
-            rem = idx - fc * ny * nx
-            j = box[0] + rem // nx
-            i = box[2] + rem - (rem // nx) * nx
+            fc, j, i = _box_view(idx, box, ny, nx)
             a = acc[idx]
             a[:, :, :] = 0.0
             s = st[idx]
@@ -345,10 +351,7 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
         poly = np.empty((3, 6))
         S = np.empty(5)
         for idx in range(c * n // chunks, (c + 1) * n // chunks):
-            fc = idx // (ny * nx)
-            rem = idx - fc * ny * nx
-            j = box[0] + rem // nx
-            i = box[2] + rem - (rem // nx) * nx
+            fc, j, i = _box_view(idx, box, ny, nx)
             xy_view(L0, L1, fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
             uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4],
                     Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i])
@@ -839,10 +842,7 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
     nx = box[3] - box[2]
     F = Lx.shape[0]
     for idx in numba.prange(F * ny * nx):
-        fc = idx // (ny * nx)
-        rem = idx - fc * ny * nx
-        j = box[0] + rem // nx
-        i = box[2] + rem - (rem // nx) * nx
+        fc, j, i = _box_view(idx, box, ny, nx)
         for v in range(box[4], box[5]):
             q = rho[fc, j, i, v]
             b = base[fc, j, i, v]
@@ -865,10 +865,7 @@ def _fill_rho(rho, real, base, rho_bar, box):
     nx = box[3] - box[2]
     F = rho.shape[0]
     for idx in numba.prange(F * ny * nx):
-        fc = idx // (ny * nx)
-        rem = idx - fc * ny * nx
-        j = box[0] + rem // nx
-        i = box[2] + rem - (rem // nx) * nx
+        fc, j, i = _box_view(idx, box, ny, nx)
         for v in range(box[4], box[5]):
             q = rho[fc, j, i, v]
             r = real[fc, j, i, v]
