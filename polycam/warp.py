@@ -373,24 +373,55 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
                         okrow[iu] = 1.0 if good else 0.0
 
 
+def _perimeter(Ny: int, Nx: int) -> np.ndarray:
+    """(Ny Nx,) int64: each view's slot among the views on the array's edge (row 0 or
+    Ny - 1, column 0 or Nx - 1), in view order; -1 inside. Eq. 6 extrapolation reads only
+    these (:func:`_extrapolate_xy_kernel`)."""
+    jy, ix = np.divmod(np.arange(Ny * Nx), Nx)
+    edge = (jy == 0) | (jy == Ny - 1) | (ix == 0) | (ix == Nx - 1)
+    slot = np.full(Ny * Nx, -1, np.int64)
+    slot[edge] = np.arange(int(edge.sum()))
+    return slot
+
+
+@numba.njit(parallel=True, cache=True)
+def _edge_views_kernel(U, slot, K, nxy, E):
+    """E[v, k, slot[view], u] = U[v, u, k nxy + view] for the edge views (slot >= 0): the
+    (u, v)-warped images of the edge views, directions innermost (and per v the edge views'
+    rows side by side: with v outermost rows 64 KiB apart compete for the same L1 sets)."""
+    Nv, Nu, _ = U.shape
+    for v in numba.prange(Nv):
+        for k in range(K):
+            for view in range(nxy):
+                p = slot[view]
+                if p < 0:
+                    continue
+                row = E[v, k, p]
+                for u in range(Nu):
+                    row[u] = U[v, u, k * nxy + view]
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky, e_max,
-                           out, ok, marks, has_marks):
+def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
+                           e_max, out, ok, marks, has_marks):
     """Fill the rays :func:`_warp_xy_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
     ``x_e + d`` along u is the ray from ``x_e`` along ``u + ρ d`` (ρ = f / Z, u per unit x),
-    so the value is the (u, v)-warped images U (Nv, Nu, M) at the clamped viewpoint, read at
-    the direction shifted by ``(e_x kx ρ, e_y ky ρ)`` samples (e in view steps beyond the edge,
-    kx = step_x / step_u, ky = step_y / step_v), 4-point Lagrange in (u, v) (rays whose
-    nodes leave the directions stay empty), bilinear across views.
-    ``rho`` (Nv, Nu): the disparity per direction of face ``face`` (NaN: unknown, the ray
-    stays empty). Other arguments as :func:`_warp_xy_kernel`; ``ok`` gets 1 where filled,
-    and with ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
+    so the value is the edge view's (u, v)-warped image read at the direction shifted by
+    ``(e_x kx ρ, e_y ky ρ)`` samples (e in view steps beyond the edge, kx = step_x / step_u,
+    ky = step_y / step_v), 4-point Lagrange along the axis (or axes) that extrapolate (rays
+    whose nodes leave the directions stay empty), linear along the array's edge between
+    the two nearest edge views (one view at a corner).
+    ``E`` (Nv, K, P, Nu): the edge views' (u, v)-warped images (:func:`_edge_views_kernel`),
+    ``slot`` (Ny Nx,) each view's index in E (:func:`_perimeter`). ``rho`` (Nv, Nu): the
+    disparity per direction of face ``face`` (NaN: unknown, the ray stays empty). Other
+    arguments as :func:`_warp_xy_kernel`; ``ok`` gets 1 where filled, and with
+    ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
     K, _, Ny, Nx = out.shape[:4]
-    Nv, Nu, M = U.shape
-    nxy = Ny * Nx
-    Uf = U.reshape(Nv * Nu * M)
+    Nv, _, P, Nu = E.shape
+    Ef = E.reshape(E.size)
+    KPN = K * P * Nu
     for jv in numba.prange(Nv):
         wu = np.empty(4)
         wv = np.empty(4)
@@ -407,7 +438,7 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
                     cy = min(max(fy, 0.0), Ny - 1.0)
                     ex = fx - cx
                     ey = fy - cy
-                    if abs(ex) > e_max or abs(ey) > e_max:
+                    if abs(ex) > e_max or abs(ey) > e_max or (ex == 0.0 and ey == 0.0):
                         continue
                     # 4-point Lagrange along an axis that extrapolates (linear interpolation of a
                     # sub-sample shift errs by a large fraction of it on sharp images), nodes
@@ -422,28 +453,29 @@ def _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face,
                             good = good and ok_uv[ov + q, ou + t]
                     if not good:
                         continue
-                    # the views' bilinear stencil at the clamped point (zero weights included)
-                    bx = min(int(cx), max(Nx - 2, 0))
-                    by = min(int(cy), max(Ny - 2, 0))
-                    wx = cx - bx if Nx > 1 else 0.0
-                    wy = cy - by if Ny > 1 else 0.0
-                    bx1 = min(bx + 1, Nx - 1)
-                    by1 = min(by + 1, Ny - 1)
-                    v00 = by * Nx + bx
-                    v01 = by * Nx + bx1
-                    v10 = by1 * Nx + bx
-                    v11 = by1 * Nx + bx1
-                    w00 = (1.0 - wy) * (1.0 - wx)
-                    w01 = (1.0 - wy) * wx
-                    w10 = wy * (1.0 - wx)
-                    w11 = wy * wx
+                    # the two edge views the clamped point lies between (one at a corner:
+                    # ex, ey both nonzero put it on a view)
+                    if ex != 0.0:
+                        b0 = min(int(cy), max(Ny - 2, 0))
+                        w1 = cy - b0 if Ny > 1 else 0.0
+                        p0 = slot[b0 * Nx + int(cx)]
+                        p1 = slot[min(b0 + 1, Ny - 1) * Nx + int(cx)]
+                    else:
+                        b0 = min(int(cx), max(Nx - 2, 0))
+                        w1 = cx - b0 if Nx > 1 else 0.0
+                        p0 = slot[int(cy) * Nx + b0]
+                        p1 = slot[int(cy) * Nx + min(b0 + 1, Nx - 1)]
+                    w0 = 1.0 - w1
+                    # flat indices (array views per sample would cost reference counting)
                     for k in range(K):
+                        o0 = ((ov * K + k) * P + p0) * Nu + ou
+                        o1 = ((ov * K + k) * P + p1) * Nu + ou
                         val = 0.0
                         for q in range(tv):
+                            acc = 0.0
                             for t in range(tu):
-                                o = ((ov + q) * Nu + ou + t) * M + k * nxy
-                                val += wv[q] * wu[t] * (w00 * Uf[o + v00] + w01 * Uf[o + v01]
-                                                        + w10 * Uf[o + v10] + w11 * Uf[o + v11])
+                                acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
+                            val += wv[q] * acc
                         out[k, face, jy, ix, jv, iu] = val
                     okrow[iu] = 1.0
                     if has_marks:
@@ -571,6 +603,10 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
     y, x = np.meshgrid(ys, xs, indexing="ij")
+    extrapolate = rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1)
+    if extrapolate:
+        slot = _perimeter(Ny, Nx)
+        E = np.empty((Nv, K, int(slot.max()) + 1, Nu), np.float32)
     for k, face in enumerate(grid.faces):
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
@@ -586,10 +622,11 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, out, ok)
-        if rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1):
+        if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
-            _extrapolate_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
+            _edge_views_kernel(U, slot, K, Ny * Nx, E)
+            _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
                                    float(extrapolate_views), out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None)
 
