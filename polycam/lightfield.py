@@ -10,6 +10,7 @@ See docs/conventions.md.
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 
@@ -89,10 +90,12 @@ class Axis:
     max: float
     count: int
 
-    @property
+    @functools.cached_property
     def values(self) -> np.ndarray:
-        """(count,) sample coordinates."""
-        return np.linspace(self.min, self.max, self.count)
+        """(count,) sample coordinates (read-only: computed once, shared by every caller)."""
+        v = np.linspace(self.min, self.max, self.count)
+        v.flags.writeable = False
+        return v
 
     @property
     def step(self) -> float:
