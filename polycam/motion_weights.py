@@ -85,7 +85,7 @@ def _camera_stride(L: np.ndarray, ax: int) -> tuple[int, int]:
     n = L.shape[ax]
     if n < 3:
         return 1, 0
-    sub = L[:, :, :, ::max(1, L.shape[3] // 8)]               # a few (v) rows suffice
+    sub = L[:, :, :, ::max(1, L.shape[3] // 8), ::max(1, L.shape[4] // 32)]   # a few (v, u) samples suffice
     d2 = np.abs(np.diff(sub, n=2, axis=ax))                   # centres 1 .. n − 2
     med = np.median(np.moveaxis(d2, ax, 0).reshape(n - 2, -1), axis=1)
     if not med.max() > 0:
