@@ -387,6 +387,35 @@ def test_solver_extrapolates_beyond_the_views(scene):
     assert abs(np.mean(ratios) - 1.0) < MOTION_NOISE_EXTRAPOLATION_REL
 
 
+def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
+    # spy on the solves: (level, warp change of the increment in that level's samples)
+    import polycam.motion as pm
+    seen = []
+    solve = pm._Solver.solve
+
+    def spy(self, M):
+        sol = solve(self, M)
+        p = sol["p"]
+        seen.append((self.level, self.warp_change(np.eye(4), T_from_rt(np.concatenate([p[3:], p[:3]])))))
+        return sol
+
+    monkeypatch.setattr(pm._Solver, "solve", spy)
+    grid = make_grid(ALL, views=9, directions=32, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])      # 1.6 views
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt)), grid)
+    assert res and np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL)
+    opts = MotionOptions()
+    coarse = sorted({lev for lev, _ in seen if lev > 0})
+    assert coarse, seen
+    for level in coarse:
+        changes = [c for lev, c in seen if lev == level]
+        # every solve but the last moved the warp by at least the threshold; the last is
+        # below it, or the level ran out of iterations
+        assert all(c >= pm._COARSE_SETTLED for c in changes[:-1]), changes
+        assert changes[-1] < pm._COARSE_SETTLED or len(changes) == opts.iterations, changes
+    assert any(lev == 0 for lev, _ in seen)
+
+
 def test_coefficients_predict_temporal_difference(scene):
     """Row · (t, ω) of the ray motion G = M⁻¹ ≈ −L_t (paper Eq. 5) for a tiny motion."""
     grid = make_grid(("+z", "+y"), directions=24)
