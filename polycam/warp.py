@@ -236,7 +236,7 @@ def _lagrange_stencil(fi, n, taps, den, w, idx, jv, ju):
         idx[jv, ju, q] = idx[jv, ju, 0]
 
 
-@numba.njit(cache=True)
+@numba.njit(parallel=True, cache=True)
 def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy):
     """:func:`_uv_stencils` into given arrays (us (Nu,), vs (Nv,) the sample values)."""
     Nv = vs.shape[0]
@@ -251,7 +251,7 @@ def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy):
             for m in range(T):
                 if m != q:
                     dens[k, q] *= q - m
-    for jv in range(Nv):
+    for jv in numba.prange(Nv):
         v = vs[jv]
         for ju in range(Nu):
             u = us[ju]
