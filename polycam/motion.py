@@ -95,10 +95,10 @@ paper sees the same growth); against 18–49% / 17–33% for one-shot central-di
 least squares. With 8-bit frames at 12 m: 0.3% / 0.2% (t / ω) quantised only, 1.2% / 0.3% with 3 grey
 levels of noise.
 Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
-figures and history in docs/motion.md): the full default estimate (8 solves over 3 levels)
-takes ~145 ms wall on 2 threads (~110 ms without the extrapolation beyond the views,
-``extrapolate_views=0``; one thread ~180 ms CPU time without it, 370 ms before the
-session-3 kernel work, 240 ms before session 5's).
+figures and history in docs/motion.md): the full default estimate (6 solves over 3 levels)
+takes ~128 ms wall on 2 threads (~97 ms without the extrapolation beyond the views,
+``extrapolate_views=0``; one thread 370 ms CPU time before the session-3 kernel work,
+240 ms before session 5's).
 Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, then a branch-free blend across views),
 one fused kernel (derivatives, base weights, normal sums per view image in cache, valid
