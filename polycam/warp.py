@@ -387,8 +387,8 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 @numba.njit(parallel=True, cache=True)
 def _edge_views_kernel(U, slot, K, nxy, E):
     """E[v, k, slot[view], u] = U[v, u, k nxy + view] for the edge views (slot >= 0): the
-    (u, v)-warped images of the edge views, directions innermost (and per v the edge views'
-    rows side by side: with v outermost rows 64 KiB apart compete for the same L1 sets)."""
+    (u, v)-warped images of the edge views, directions innermost (a tap's neighbour along u
+    is the next float, not the next (u, v) row of all views)."""
     Nv, Nu, _ = U.shape
     for v in numba.prange(Nv):
         for k in range(K):
@@ -466,7 +466,6 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                         p0 = slot[int(cy) * Nx + b0]
                         p1 = slot[int(cy) * Nx + min(b0 + 1, Nx - 1)]
                     w0 = 1.0 - w1
-                    # flat indices (array views per sample would cost reference counting)
                     for k in range(K):
                         o0 = ((ov * K + k) * P + p0) * Nu + ou
                         o1 = ((ov * K + k) * P + p1) * Nu + ou
