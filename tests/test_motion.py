@@ -409,10 +409,9 @@ def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
     assert coarse, seen
     for level in coarse:
         changes = [c for lev, c in seen if lev == level]
-        # every solve but the last moved the warp by at least the threshold; the last is
-        # below it, or the level ran out of iterations
-        assert all(c >= pm._COARSE_SETTLED for c in changes[:-1]), changes
-        assert changes[-1] < pm._COARSE_SETTLED or len(changes) == opts.iterations, changes
+        # two steps, then no further step once one moved the warp by less than the threshold
+        assert len(changes) >= min(2, opts.iterations), changes
+        assert all(c >= pm._COARSE_SETTLED for c in changes[1:-1]), changes
     assert any(lev == 0 for lev, _ in seen)
 
 
