@@ -95,8 +95,8 @@ paper sees the same growth); against 18–49% / 17–33% for one-shot central-di
 least squares. With 8-bit frames at 12 m: 0.3% / 0.2% (t / ω) quantised only, 1.2% / 0.3% with 3 grey
 levels of noise.
 Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
-figures and history in docs/motion.md): the full default estimate (6 solves over 3 levels)
-takes ~128 ms wall on 2 threads (~97 ms without the extrapolation beyond the views,
+figures and history in docs/motion.md): the full default estimate (7 solves over 3 levels)
+takes ~130 ms wall on 2 threads (~97 ms without the extrapolation beyond the views,
 ``extrapolate_views=0``; one thread 370 ms CPU time before the session-3 kernel work,
 240 ms before session 5's).
 Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
@@ -311,7 +311,9 @@ many samples (of any axis) since it was computed (:meth:`_Solver.warp_change`). 
 preparation 0.437 / 0.582 mm; computed at a level's first two preparations and reused
 after 0.443 / 0.598, but on tests/test_motion.py's one-face pair (large motion, one level)
 the covariance then under-predicts the scatter by 2.4x; at the first only 0.560 / 1.526.
-Between solves the warp typically moves rays by 0.2-1 samples, so ρ̂ is mostly fresh."""
+Between solves the warp typically moves rays by 0.2-1 samples, so ρ̂ is mostly fresh.
+Session 7, with the extrapolation: 0.15 (ρ̂ reused at the finest level's last warp, which
+moved 0.1 samples; ~11 ms faster) doubled the six-face noise-free bias of t."""
 
 _DR_LEVELS = 1
 """depth_regressors applies at this many of the finest pyramid levels: at the coarse levels
