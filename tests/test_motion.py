@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import polycam.motion as pm
 from polycam.errors import InputError
 from polycam.geometry import T_from_rt, T_inverse, rt_from_T
 from polycam.lightfield import Axis, LightFieldGrid
@@ -389,7 +390,6 @@ def test_solver_extrapolates_beyond_the_views(scene):
 
 def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
     # spy on the solves: (level, warp change of the increment in that level's samples)
-    import polycam.motion as pm
     seen = []
     solve = pm._Solver.solve
 
