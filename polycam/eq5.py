@@ -871,9 +871,9 @@ def _fill_rho(rho, real, base, rho_bar, box):
             r = real[fc, j, i, v]
             b = base[fc, j, i, v]
             rb = rho_bar[fc, v]
-            for u in range(box[6], box[7]):
-                if r[u] <= 0.0 and b[u] > 0.0 and rb[u] == rb[u]:
-                    q[u] = rb[u]
+            for u in range(numba.uint64(box[6]), numba.uint64(box[7])):     # branch-free: vectorises
+                fill = (r[u] <= 0.0) & (b[u] > 0.0) & (rb[u] == rb[u])
+                q[u] = np.float32(rb[u]) if fill else q[u]
 
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
