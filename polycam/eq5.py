@@ -461,26 +461,31 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
             ow[m] = wb if pos else 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _weighted_median(a, w):
     """Weighted median of a >= 0 (the smallest a_k with Σ_{a_i <= a_k} w_i >= Σ w / 2) over
-    w > 0: a histogram finds the bin, a sort of that bin's values the sample."""
+    w > 0: a histogram finds the bin, a sort of that bin's values the sample (exact for any
+    monotone binning; the loops are branch-free so that they vectorise)."""
+    n = numba.uint64(a.shape[0])
     tot = 0.0
     mean = 0.0
-    for k in range(a.shape[0]):
-        if w[k] > 0.0:
-            tot += w[k]
-            mean += w[k] * a[k]
+    for k in range(n):
+        wk = np.float64(w[k]) if w[k] > 0.0 else 0.0
+        tot += wk
+        mean += wk * a[k]
     if not tot > 0.0:
         return 0.0
     hi = 4.0 * mean / tot
     if not hi > 0.0:
         return 0.0
     nb = 4096
-    hist = np.zeros(nb + 1)
-    for k in range(a.shape[0]):
-        if w[k] > 0.0:
-            hist[min(int(a[k] / hi * nb), nb)] += w[k]
+    scale = nb / hi
+    bins = np.empty(a.shape[0], np.int32)           # nb + 1: w <= 0, out of every bin
+    for k in range(n):
+        bins[k] = np.int32(min(a[k] * scale, np.float64(nb))) if w[k] > 0.0 else np.int32(nb + 1)
+    hist = np.zeros(nb + 2)
+    for k in range(n):
+        hist[bins[k]] += w[k] if w[k] > 0.0 else 0.0
     half = 0.5 * tot
     cum = 0.0
     bi = 0
@@ -488,14 +493,13 @@ def _weighted_median(a, w):
         cum += hist[bi]
         bi += 1
     cnt = 0
-    for k in range(a.shape[0]):
-        if w[k] > 0.0 and min(int(a[k] / hi * nb), nb) == bi:
-            cnt += 1
+    for k in range(n):
+        cnt += 1 if bins[k] == bi else 0
     vals = np.empty(cnt)
     ws = np.empty(cnt)
     cnt = 0
-    for k in range(a.shape[0]):
-        if w[k] > 0.0 and min(int(a[k] / hi * nb), nb) == bi:
+    for k in range(n):
+        if bins[k] == bi:
             vals[cnt] = a[k]
             ws[cnt] = w[k]
             cnt += 1
