@@ -112,7 +112,9 @@ def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
             break
     else:
         return 0.0
-    (hy, oy), (hx, ox) = _camera_stride(lev.L0, 1), _camera_stride(lev.L0, 2)
+    if "camera_stride" not in lev.views:          # the same at every level with these views
+        lev.views["camera_stride"] = (_camera_stride(lev.L0, 1), _camera_stride(lev.L0, 2))
+    (hy, oy), (hx, ox) = lev.views["camera_stride"]
     F, Ny, Nx, Nv, Nu = lev.L0.shape
     shape = [F, _axis_rows(Ny, hy, oy, ax == 1)[0], _axis_rows(Nx, hx, ox, ax == 2)[0],
              Nv - 2 if ax == 3 else Nv, Nu - 2 if ax == 4 else Nu]

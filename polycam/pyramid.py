@@ -11,7 +11,7 @@ their confidences).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
@@ -78,6 +78,9 @@ class _Level:
     L1: np.ndarray
     W0: np.ndarray | None
     W1: np.ndarray | None
+    views: dict = field(default_factory=dict)
+    """Facts about the viewpoints (e.g. the cameras' stride), shared by the levels that keep
+    the finest level's (x, y) sampling."""
 
 
 def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict) -> list[_Level]:
@@ -105,5 +108,7 @@ def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_ra
         def ds(a, axes=tuple(sorted(axes))):
             return None if a is None else _downsample(a, axes)
 
-        levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1)))
+        same_views = 1 not in axes and 2 not in axes
+        levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1),
+                             prev.views if same_views else {}))
     return levels
