@@ -415,6 +415,16 @@ def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
     assert any(lev == 0 for lev, _ in seen)
 
 
+@pytest.mark.parametrize("n", [1, 2, 7, 50_000, 50_001])
+def test_median_matches_numpy(rng, n):
+    from polycam.motion_weights import _median
+    for a in (np.abs(rng.standard_cauchy(n)).astype(np.float32), rng.integers(0, 4, n).astype(np.float32),
+              rng.standard_normal(n), np.full(n, 0.25, np.float32)):
+        assert _median(a) == float(np.median(a))
+    rows = rng.standard_normal((n, 3)).astype(np.float32)[::2]        # strided rows, as the solver passes
+    assert _median(rows) == float(np.median(rows))
+
+
 def test_coefficients_predict_temporal_difference(scene):
     """Row · (t, ω) of the ray motion G = M⁻¹ ≈ −L_t (paper Eq. 5) for a tiny motion."""
     grid = make_grid(("+z", "+y"), directions=24)
