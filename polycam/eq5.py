@@ -461,6 +461,40 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
             ow[m] = wb if pos else 0.0
 
 
+@numba.njit(cache=True)
+def _bin_select(a, w, has_w, bins, hist, target):
+    """The smallest a_k whose cumulative weight Σ_{a_i <= a_k} w_i reaches ``target``, given
+    each value's histogram bin ``bins`` (n,) (monotone in the value; bins at or beyond
+    hist.size hold values left out) and the bins' summed weights ``hist``: the bin is found
+    from hist, then that bin's values are sorted. Weights w (n,) with ``has_w``, else 1 each
+    (then target k + 1 gives the k-th smallest, 0-based). 0 if the bin is empty."""
+    nb = hist.shape[0]
+    cum = 0.0
+    b = 0
+    while b < nb - 1 and cum + hist[b] < target:
+        cum += hist[b]
+        b += 1
+    cnt = 0
+    for k in range(a.shape[0]):
+        cnt += 1 if bins[k] == b else 0
+    vals = np.empty(cnt, a.dtype)
+    ws = np.empty(cnt)
+    cnt = 0
+    for k in range(a.shape[0]):
+        if bins[k] == b:
+            vals[cnt] = a[k]
+            ws[cnt] = w[k] if has_w else 1.0
+            cnt += 1
+    if cnt == 0:
+        return np.zeros(1, a.dtype)[0]             # in a's precision, as the values
+    order = np.argsort(vals)
+    for o in order:
+        cum += ws[o]
+        if cum >= target:
+            return vals[o]
+    return vals[order[cnt - 1]]
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _weighted_median(a, w):
     """Weighted median of a >= 0 (the smallest a_k with Σ_{a_i <= a_k} w_i >= Σ w / 2) over
@@ -486,31 +520,7 @@ def _weighted_median(a, w):
     hist = np.zeros(nb + 2)
     for k in range(n):
         hist[bins[k]] += w[k] if w[k] > 0.0 else 0.0
-    half = 0.5 * tot
-    cum = 0.0
-    bi = 0
-    while bi < nb and cum + hist[bi] < half:
-        cum += hist[bi]
-        bi += 1
-    cnt = 0
-    for k in range(n):
-        cnt += 1 if bins[k] == bi else 0
-    vals = np.empty(cnt)
-    ws = np.empty(cnt)
-    cnt = 0
-    for k in range(n):
-        if bins[k] == bi:
-            vals[cnt] = a[k]
-            ws[cnt] = w[k]
-            cnt += 1
-    if cnt == 0:
-        return 0.0
-    order = np.argsort(vals)
-    for o in order:
-        cum += ws[o]
-        if cum >= half:
-            return vals[o]
-    return vals[order[cnt - 1]]
+    return _bin_select(a, w, True, bins, hist[:nb + 1], 0.5 * tot)
 
 
 def ray_motion_coefficients(der: Derivatives, grid: LightFieldGrid, k: int) -> np.ndarray:

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from .derivatives import FILTERS, min_filter_axis
+from .eq5 import _bin_select
 from .lightfield import LightFieldGrid
 from .motion_options import MotionOptions
 from .pyramid import _Level
@@ -76,25 +77,6 @@ def _axis_rows(n, h, o, differenced):
 
 
 @numba.njit(cache=True)
-def _kth_smallest(a, bins, hist, lo, k):
-    """The k-th smallest (0-based) of a (n,), given each value's histogram bin (monotone in
-    the value) and the bins' counts: the bin holding it, then a sort of that bin."""
-    cum = 0
-    b = 0
-    while cum + hist[b] <= k:
-        cum += hist[b]
-        b += 1
-    vals = np.empty(hist[b], a.dtype)
-    m = 0
-    for i in range(a.shape[0]):
-        if bins[i] == b:
-            vals[m] = a[i]
-            m += 1
-    vals.sort()
-    return vals[k - cum]
-
-
-@numba.njit(cache=True)
 def _median_kernel(a):
     n = a.shape[0]
     lo = a[0]
@@ -107,21 +89,23 @@ def _median_kernel(a):
     nb = 4096
     scale = (nb - 1) / (np.float64(hi) - np.float64(lo))
     bins = np.empty(n, np.int32)
-    hist = np.zeros(nb, np.int64)
+    hist = np.zeros(nb)
     for i in range(n):
         bins[i] = np.int32((np.float64(a[i]) - lo) * scale)
     for i in range(n):
-        hist[bins[i]] += 1
-    m1 = _kth_smallest(a, bins, hist, lo, (n - 1) // 2)
+        hist[bins[i]] += 1.0
+    # the middle order statistics (0-based (n - 1) // 2 and n // 2): cumulative counts k + 1
+    m1 = _bin_select(a, a, False, bins, hist, (n - 1) // 2 + 1.0)
     if n % 2:
         return m1
-    m2 = _kth_smallest(a, bins, hist, lo, n // 2)
+    m2 = _bin_select(a, a, False, bins, hist, n // 2 + 1.0)
     return (m1 + m2) / 2       # in a's precision, as numpy's median
 
 
 def _median(a: np.ndarray) -> float:
-    """``np.median`` of finite values a (any dims; the same result to the last bit, ~4x
-    faster on 50 000 float32 values: a histogram finds the middle values' bins)."""
+    """``np.median`` of finite values a (any dims; the same result to the last bit, ~7x
+    faster on 50 000 float32 values: a histogram finds the middle values' bins,
+    :func:`~polycam.eq5._bin_select` the values)."""
     a = np.ascontiguousarray(a).reshape(-1)
     if a.size == 0:
         return math.nan
