@@ -461,13 +461,19 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
             ow[m] = wb if pos else 0.0
 
 
+_BIN_SORT_MAX = 2048
+"""At most this many values of the selected bin are sorted; a fuller bin (heavy tails: most
+values in the lowest bins) is re-binned over its own range first."""
+
+
 @numba.njit(cache=True)
 def _bin_select(a, w, has_w, bins, hist, target):
     """The smallest a_k whose cumulative weight Σ_{a_i <= a_k} w_i reaches ``target``, given
     each value's histogram bin ``bins`` (n,) (monotone in the value; bins at or beyond
     hist.size hold values left out) and the bins' summed weights ``hist``: the bin is found
-    from hist, then that bin's values are sorted. Weights w (n,) with ``has_w``, else 1 each
-    (then target k + 1 gives the k-th smallest, 0-based). 0 if the bin is empty."""
+    from hist, then that bin's values are sorted (re-binned over their own range while more
+    than ``_BIN_SORT_MAX``). Weights w (n,) with ``has_w``, else 1 each (then target k + 1
+    gives the k-th smallest, 0-based). 0 if the bin is empty."""
     nb = hist.shape[0]
     cum = 0.0
     b = 0
@@ -487,6 +493,35 @@ def _bin_select(a, w, has_w, bins, hist, target):
             cnt += 1
     if cnt == 0:
         return np.zeros(1, a.dtype)[0]             # in a's precision, as the values
+    while cnt > _BIN_SORT_MAX:
+        lo = vals[0]
+        hi = vals[0]
+        for k in range(cnt):
+            lo = min(lo, vals[k])
+            hi = max(hi, vals[k])
+        if not hi > lo:
+            return lo                              # the bin holds one value, repeated
+        scale = (nb - 1) / (np.float64(hi) - np.float64(lo))
+        sub = np.empty(cnt, np.int32)
+        subhist = np.zeros(nb)
+        for k in range(cnt):
+            sub[k] = np.int32((np.float64(vals[k]) - lo) * scale)
+            subhist[sub[k]] += ws[k]
+        b = 0
+        while b < nb - 1 and cum + subhist[b] < target:
+            cum += subhist[b]
+            b += 1
+        m = 0
+        for k in range(cnt):
+            if sub[k] == b:
+                vals[m] = vals[k]
+                ws[m] = ws[k]
+                m += 1
+        if m == cnt:                               # no progress (cannot happen: hi > lo)
+            break
+        cnt = m
+    vals = vals[:cnt]
+    ws = ws[:cnt]
     order = np.argsort(vals)
     for o in order:
         cum += ws[o]
