@@ -447,12 +447,6 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                     tv, ov = _shift_stencil(jv, ey * ky * r, Nv, wv)
                     if tu == 0 or tv == 0:
                         continue
-                    good = True
-                    for q in range(tv):
-                        for t in range(tu):
-                            good = good and ok_uv[ov + q, ou + t]
-                    if not good:
-                        continue
                     # the two edge views the clamped point lies between (one at a corner:
                     # ex, ey both nonzero put it on a view)
                     if ex != 0.0:
@@ -466,16 +460,52 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                         p0 = slot[int(cy) * Nx + b0]
                         p1 = slot[int(cy) * Nx + min(b0 + 1, Nx - 1)]
                     w0 = 1.0 - w1
-                    for k in range(K):
-                        o0 = ((ov * K + k) * P + p0) * Nu + ou
-                        o1 = ((ov * K + k) * P + p1) * Nu + ou
-                        val = 0.0
-                        for q in range(tv):
-                            acc = 0.0
-                            for t in range(tu):
-                                acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
-                            val += wv[q] * acc
-                        out[k, face, jy, ix, jv, iu] = val
+                    if tv == 1:                          # along u only (the common case) or no shift
+                        okr = ok_uv[ov]
+                        if tu == 4:
+                            if not (okr[ou] and okr[ou + 1] and okr[ou + 2] and okr[ou + 3]):
+                                continue
+                        elif not okr[ou]:
+                            continue
+                        for k in range(K):
+                            o0 = ((ov * K + k) * P + p0) * Nu + ou
+                            o1 = ((ov * K + k) * P + p1) * Nu + ou
+                            if tu == 4:
+                                val = (wu[0] * (w0 * Ef[o0] + w1 * Ef[o1])
+                                       + wu[1] * (w0 * Ef[o0 + 1] + w1 * Ef[o1 + 1])
+                                       + wu[2] * (w0 * Ef[o0 + 2] + w1 * Ef[o1 + 2])
+                                       + wu[3] * (w0 * Ef[o0 + 3] + w1 * Ef[o1 + 3]))
+                            else:
+                                val = w0 * Ef[o0] + w1 * Ef[o1]
+                            out[k, face, jy, ix, jv, iu] = val
+                    elif tu == 1:                        # along v only
+                        if not (ok_uv[ov, ou] and ok_uv[ov + 1, ou] and ok_uv[ov + 2, ou] and ok_uv[ov + 3, ou]):
+                            continue
+                        for k in range(K):
+                            o0 = ((ov * K + k) * P + p0) * Nu + ou
+                            o1 = ((ov * K + k) * P + p1) * Nu + ou
+                            out[k, face, jy, ix, jv, iu] = (
+                                wv[0] * (w0 * Ef[o0] + w1 * Ef[o1])
+                                + wv[1] * (w0 * Ef[o0 + KPN] + w1 * Ef[o1 + KPN])
+                                + wv[2] * (w0 * Ef[o0 + 2 * KPN] + w1 * Ef[o1 + 2 * KPN])
+                                + wv[3] * (w0 * Ef[o0 + 3 * KPN] + w1 * Ef[o1 + 3 * KPN]))
+                    else:                                # both axes (a corner's diagonal)
+                        good = True
+                        for q in range(4):
+                            for t in range(4):
+                                good = good and ok_uv[ov + q, ou + t]
+                        if not good:
+                            continue
+                        for k in range(K):
+                            o0 = ((ov * K + k) * P + p0) * Nu + ou
+                            o1 = ((ov * K + k) * P + p1) * Nu + ou
+                            val = 0.0
+                            for q in range(4):
+                                acc = 0.0
+                                for t in range(4):
+                                    acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
+                                val += wv[q] * acc
+                            out[k, face, jy, ix, jv, iu] = val
                     okrow[iu] = 1.0
                     if has_marks:
                         marks[face, jy, ix, jv, iu] = 1.0

@@ -334,34 +334,37 @@ def test_warp_by_true_motion_predicts_frame_two(scene):
     assert ok_id.all() and np.allclose(same[0], L0, atol=1e-6)
 
 
-def _plane_lightfield(grid: LightFieldGrid, Z: float, shift_x: float = 0.0) -> np.ndarray:
+def _plane_lightfield(grid: LightFieldGrid, Z: float, shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) light field of a textured plane Z [m] in front of the face plane:
-    L(x, y, u, v) = τ(x + shift_x + Z u / f, y + Z v / f) (paper Eq. 6 holds with ρ = f / Z)."""
+    L(x, y, u, v) = τ(x + shift_x + Z u / f, y + shift_y + Z v / f) (paper Eq. 6 holds with
+    ρ = f / Z)."""
     f = grid.faces[0].f
     y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
-    s, t = x + shift_x + Z * u / f, y + Z * v / f
+    s, t = x + shift_x + Z * u / f, y + shift_y + Z * v / f
     return (0.5 + 0.2 * np.sin(3.0 * s + 1.0) * np.cos(2.0 * t + 0.5))[None].astype(np.float32)
 
 
-def test_warp_extrapolates_beyond_the_views_by_eq6():
+@pytest.mark.parametrize("tx, ty", [(0.02, 0.0), (0.0, -0.02), (0.02, 0.02)])   # along u, v, a corner's both
+def test_warp_extrapolates_beyond_the_views_by_eq6(tx, ty):
     grid = make_grid(("+z",), views=5, directions=32, spacing=0.015)
-    Z, tx = 2.0, 0.02                                  # a 1.33-view translation along x
+    Z = 2.0                                            # 1.33-view translations
     L = _plane_lightfield(grid, Z)
-    truth = _plane_lightfield(grid, Z, shift_x=tx)     # L at the moved rays (x + tx, u)
-    M = T_from_rt(np.array([0.0, 0.0, 0.0, tx, 0.0, 0.0]))
+    truth = _plane_lightfield(grid, Z, shift_x=tx, shift_y=ty)     # L at the moved rays (x + tx, y + ty, u, v)
+    M = T_from_rt(np.array([0.0, 0.0, 0.0, tx, ty, 0.0]))
     plain, ok_plain = warp_lightfield(L[None], grid, M)
     rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / Z)
     ext, ok_ext = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=2.0)
     assert np.array_equal(ext[0][ok_plain], plain[0][ok_plain])         # inside: unchanged
     new = ok_ext & ~ok_plain
-    assert new.any() and not ok_plain[:, :, -1].any() and ok_ext[:, :, -1, 2:-2, 2:-2].all()
+    edge = (slice(None), -1 if ty > 0 else 0 if ty < 0 else slice(None), -1 if tx > 0 else slice(None))
+    assert new.any() and not ok_plain[edge].any() and ok_ext[edge][..., 2:-2, 2:-2].all()
     assert np.max(np.abs(ext[0] - truth)[new]) < MOTION_EXTRAPOLATION_ATOL
     # unknown disparity, or beyond extrapolate_views: left out
     rho[:, : grid.v.count // 2] = np.nan
     part, ok_part = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=2.0)
     assert not (ok_part & ~ok_plain)[..., : grid.v.count // 2, :].any() and (ok_part & ~ok_plain).any()
     _, ok_short = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=0.2)
-    assert not ok_short[:, :, -1].any()
+    assert not ok_short[edge].any()
 
 
 def test_solver_extrapolates_beyond_the_views(scene):
