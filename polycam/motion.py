@@ -143,7 +143,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _padded, _unmarked, _view_mean, _views_inner, _warp_into, warp_lightfield,
-                   warp_lightfield_reference, _warp_scratch_shape)
+                   warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -380,7 +380,6 @@ class _Solver:
         K = 1 if lev.W1 is None else 3
         self.out1 = _work_array("out1", (K,) + self.shape)
         self.conf = _work_array("conf", self.shape)
-        self.U = _work_array("U", _warp_scratch_shape(self.src1))
         self.der = [_work_array(n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
         self.base = _work_array("base", self.shape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
@@ -424,7 +423,7 @@ class _Solver:
         if self.rho_bar is not None and not opts.symmetric:
             marks = self.marks = _work_array("marks", self.shape) if self.marks is None else self.marks
             marks.fill(0.0)
-        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf, self.U,
+        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks)
         conf = self.conf
         if lev.W1 is not None:
@@ -432,8 +431,7 @@ class _Solver:
         if opts.symmetric:
             out0 = np.empty((1 if lev.W0 is None else 3,) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
-            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0,
-                       np.empty(_warp_scratch_shape(self.src0), np.float32))
+            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0)
             conf *= ok0
             if lev.W0 is not None:
                 conf *= _warped_confidence(out0)

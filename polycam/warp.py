@@ -291,43 +291,40 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
     return wv, iv, wu, iu, ok, sx, sy
 
 
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _warp_uv_kernel(srcT, wv, iv, wu, iu, out):
-    """out[v, u, m] = Σ_q Σ_r wv[v, u, q] wu[v, u, r] srcT[iv[v, u, q], iu[v, u, r], m]: the
-    (u, v) part of the warp (6 x 6 taps), shared by all views. Views (and channels) are
-    the innermost axis m of srcT / out (Nv, Nu, M), so each tap is one vectorised
-    multiply-add over all view images (M a multiple of 16: no scalar remainder)."""
-    Nv, Nu, M = srcT.shape
-    for v in numba.prange(Nv):
-        for u in range(Nu):
-            o = out[v, u]
-            o[:] = 0.0
-            for q in range(6):
-                wq = wv[v, u, q]
-                if wq == 0.0:
+@numba.njit(cache=True, inline="always")
+def _uv_row(srcT, wv, iv, wu, iu, jv, Ur):
+    """Ur[u, m] = Σ_q Σ_r wv[jv, u, q] wu[jv, u, r] srcT[iv[jv, u, q], iu[jv, u, r], m]: row jv
+    of the (u, v) part of the warp (6 x 6 taps), shared by all views. Views (and channels)
+    are the innermost axis m of srcT (Nv, Nu, M) and Ur (Nu, M), so each tap is one
+    vectorised multiply-add over all view images (M a multiple of 16: no scalar remainder)."""
+    Nu, M = Ur.shape
+    for u in range(Nu):
+        o = Ur[u]
+        o[:] = 0.0
+        for q in range(6):
+            wq = wv[jv, u, q]
+            if wq == 0.0:
+                continue
+            row = srcT[iv[jv, u, q]]
+            for r in range(6):
+                w = np.float32(wq * wu[jv, u, r])
+                if w == 0.0:
                     continue
-                row = srcT[iv[v, u, q]]
-                for r in range(6):
-                    w = np.float32(wq * wu[v, u, r])
-                    if w == 0.0:
-                        continue
-                    s = row[iu[v, u, r]]
-                    for m in range(M):
-                        o[m] += w * s[m]
+                s = row[iu[jv, u, r]]
+                for m in range(M):
+                    o[m] += w * s[m]
 
 
-@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok):
-    """Bilinear interpolation across viewpoints of the (u, v)-warped images U
-    (Nv, Nu, M) (M >= K Ny Nx: (K, Ny, Nx) flattened, then padding) of face ``face`` at
-    each moved ray's focal-plane point in grid
-    units, fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view
-    from its moved origin; slopes (Nv, Nu) per direction), into out[:, face]
-    (K, F, Ny, Nx, Nv, Nu); ok[face] (F, Ny, Nx, Nv, Nu) float32 is 1 where the moved ray
-    lies inside the grid, else 0 (and out 0). Per row v, U[v] (all views) stays in cache
-    while each view's row is written."""
+@numba.njit(cache=True, inline="always")
+def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, ok):
+    """Row jv of every view of ``out`` (K, F, Ny, Nx, Nv, Nu): bilinear interpolation across
+    viewpoints of the row's (u, v)-warped images Uv (Nu M,) ((Nu, M) flattened, M >= K Ny Nx:
+    (K, Ny, Nx) flattened, then padding) at each moved ray's focal-plane point in grid units,
+    fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view from its
+    moved origin; slopes (Nv, Nu) per direction); ok[face] (F, Ny, Nx, Nv, Nu) float32 is 1
+    where the moved ray lies inside the grid, else 0 (and out 0)."""
     K, _, Ny, Nx = out.shape[:4]
-    Nv, Nu, M = U.shape
+    Nu = out.shape[5]
     eps = 1e-6
     bx_max = numba.uint64(max(Nx - 2, 0))
     by_max = numba.uint64(max(Ny - 2, 0))
@@ -340,37 +337,65 @@ def _warp_xy_kernel(U, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, o
     nxy = numba.uint64(Ny * Nx)
     nm = numba.uint64(M)
     unx = numba.uint64(Nx)
-    Uf = U.reshape((Nv, Nu * M))
-    for jv in numba.prange(Nv):
-        Uv = Uf[jv]
-        sxr = slope_x[jv]
-        syr = slope_y[jv]
-        okr = ok_uv[jv]
-        for jy in range(Ny):
-            for ix in range(Nx):
-                a_x = ax_[jy, ix]
-                b_x = bx_[jy, ix]
-                a_y = ay_[jy, ix]
-                b_y = by_[jy, ix]
-                okrow = ok[face, jy, ix, jv]
+    sxr = slope_x[jv]
+    syr = slope_y[jv]
+    okr = ok_uv[jv]
+    for jy in range(Ny):
+        for ix in range(Nx):
+            a_x = ax_[jy, ix]
+            b_x = bx_[jy, ix]
+            a_y = ay_[jy, ix]
+            b_y = by_[jy, ix]
+            okrow = ok[face, jy, ix, jv]
+            for k in range(K):
+                orow = out[k, face, jy, ix, jv]
+                # branch-free with unsigned indices, so that the loop vectorises (gathers)
+                for iu in range(numba.uint64(Nu)):
+                    fx = a_x + b_x * sxr[iu]
+                    fy = a_y + b_y * syr[iu]
+                    good = okr[iu] & (fx > -eps) & (fx < hi_x) & (fy > -eps) & (fy < hi_y)
+                    fx = min(max(fx, 0.0), cx)
+                    fy = min(max(fy, 0.0), cy)
+                    bx = min(numba.uint64(fx), bx_max)
+                    by = min(numba.uint64(fy), by_max)
+                    wx = min(fx - bx, 1.0)
+                    wy = min(fy - by, 1.0)
+                    o = iu * nm + numba.uint64(k) * nxy + by * unx + bx
+                    val = ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
+                           + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1]))
+                    orow[iu] = val if good else 0.0
+                    okrow[iu] = 1.0 if good else 0.0
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _warp_rows_kernel(srcT, wv, iv, wu, iu, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok,
+                      slot, E, edges):
+    """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
+    time: the row's (u, v)-warped images of all views (:func:`_uv_row`, from srcT (Nv, Nu, M),
+    views innermost) stay in a per-thread scratch (Nu, M) while :func:`_xy_row` blends them
+    across viewpoints (no (Nv, Nu, M) intermediate: 1.2 frames less memory, and read from
+    cache). With ``edges`` the edge views' rows are copied to E (Nv, K, P, Nu), directions
+    innermost, at their ``slot`` (Ny Nx,) (:func:`_perimeter`), for
+    :func:`_extrapolate_xy_kernel`."""
+    K, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = srcT.shape
+    nxy = Ny * Nx
+    chunks = min(Nv, 32)
+    for c in numba.prange(chunks):
+        Ur = np.empty((Nu, M), np.float32)
+        Uv = Ur.reshape(Nu * M)
+        for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
+            _uv_row(srcT, wv, iv, wu, iu, jv, Ur)
+            if edges:
                 for k in range(K):
-                    orow = out[k, face, jy, ix, jv]
-                    # branch-free with unsigned indices, so that the loop vectorises (gathers)
-                    for iu in range(numba.uint64(Nu)):
-                        fx = a_x + b_x * sxr[iu]
-                        fy = a_y + b_y * syr[iu]
-                        good = okr[iu] & (fx > -eps) & (fx < hi_x) & (fy > -eps) & (fy < hi_y)
-                        fx = min(max(fx, 0.0), cx)
-                        fy = min(max(fy, 0.0), cy)
-                        bx = min(numba.uint64(fx), bx_max)
-                        by = min(numba.uint64(fy), by_max)
-                        wx = min(fx - bx, 1.0)
-                        wy = min(fy - by, 1.0)
-                        o = iu * nm + numba.uint64(k) * nxy + by * unx + bx
-                        val = ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
-                               + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1]))
-                        orow[iu] = val if good else 0.0
-                        okrow[iu] = 1.0 if good else 0.0
+                    for view in range(nxy):
+                        p = slot[view]
+                        if p < 0:
+                            continue
+                        row = E[jv, k, p]
+                        for u in range(Nu):
+                            row[u] = Ur[u, k * nxy + view]
+            _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, ok)
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
@@ -384,27 +409,10 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
     return slot
 
 
-@numba.njit(parallel=True, cache=True)
-def _edge_views_kernel(U, slot, K, nxy, E):
-    """E[v, k, slot[view], u] = U[v, u, k nxy + view] for the edge views (slot >= 0): the
-    (u, v)-warped images of the edge views, directions innermost (a tap's neighbour along u
-    is the next float, not the next (u, v) row of all views)."""
-    Nv, Nu, _ = U.shape
-    for v in numba.prange(Nv):
-        for k in range(K):
-            for view in range(nxy):
-                p = slot[view]
-                if p < 0:
-                    continue
-                row = E[v, k, p]
-                for u in range(Nu):
-                    row[u] = U[v, u, k * nxy + view]
-
-
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
                            e_max, out, ok, marks, has_marks):
-    """Fill the rays :func:`_warp_xy_kernel` left empty because their moved focal-plane point
+    """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
     ``x_e + d`` along u is the ray from ``x_e`` along ``u + ρ d`` (ρ = f / Z, u per unit x),
@@ -413,10 +421,10 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     ky = step_y / step_v), 4-point Lagrange along the axis (or axes) that extrapolate (rays
     whose nodes leave the directions stay empty), linear along the array's edge between
     the two nearest edge views (one view at a corner).
-    ``E`` (Nv, K, P, Nu): the edge views' (u, v)-warped images (:func:`_edge_views_kernel`),
+    ``E`` (Nv, K, P, Nu): the edge views' (u, v)-warped images (:func:`_warp_rows_kernel`),
     ``slot`` (Ny Nx,) each view's index in E (:func:`_perimeter`). ``rho`` (Nv, Nu): the
     disparity per direction of face ``face`` (NaN: unknown, the ray stays empty). Other
-    arguments as :func:`_warp_xy_kernel`; ``ok`` gets 1 where filled, and with
+    arguments as :func:`_xy_row`; ``ok`` gets 1 where filled, and with
     ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
     K, _, Ny, Nx = out.shape[:4]
     Nv, _, P, Nu = E.shape
@@ -596,11 +604,6 @@ def _padded(m: int) -> int:
     return -(-m // 16) * 16
 
 
-def _warp_scratch_shape(srcT: np.ndarray) -> tuple:
-    """Dims of the (u, v)-warped scratch U for a source from :func:`_views_inner`."""
-    return srcT.shape[1:]
-
-
 def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """(F, K, Ny, Nx, Nv, Nu) → (F, Nv, Nu, M) float32 C, M = :func:`_padded` (K Ny Nx): the
     warp's source layout, (K, Ny, Nx) flattened then zeros (into ``out`` when given)."""
@@ -616,13 +619,12 @@ _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.float32)
 
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
-               out: np.ndarray, ok: np.ndarray, U: np.ndarray, rho: np.ndarray | None = None,
+               out: np.ndarray, ok: np.ndarray, rho: np.ndarray | None = None,
                extrapolate_views: float = 0.0,
                marks: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
-    float32 (1 inside, 0 outside); U (Nv, Nu, M) float32 scratch
-    (:func:`_warp_scratch_shape`). With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per
+    float32 (1 inside, 0 outside). With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per
     direction, u per unit x; NaN unknown) and ``extrapolate_views`` > 0, rays up to that many
     view steps outside the viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`);
     ``marks`` (F, Ny, Nx, Nv, Nu) float32, if given, gets 1 at the filled samples (the caller
@@ -633,16 +635,14 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
     y, x = np.meshgrid(ys, xs, indexing="ij")
     extrapolate = rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1)
-    if extrapolate:
-        slot = _perimeter(Ny, Nx)
-        E = np.empty((Nv, K, int(slot.max()) + 1, Nu), np.float32)
+    slot = _perimeter(Ny, Nx)
+    E = np.empty((Nv, K, int(slot.max()) + 1, Nu) if extrapolate else (1, 1, 1, 1), np.float32)
     for k, face in enumerate(grid.faces):
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
         G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
         R = np.ascontiguousarray(G[:3, :3])
         wv, iv, wu, iu, ok_uv, slope_x, slope_y = _uv_stencils(grid, face, R, int(uv_taps))
-        _warp_uv_kernel(srcT[k], wv, iv, wu, iu, U)
         o = np.stack([x, y, np.full_like(x, face.z_pi)], axis=-1) @ R.T + G[:3, 3]     # moved origins
         sz = face.z_pi - o[..., 2]
         # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis
@@ -650,11 +650,11 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
-        _warp_xy_kernel(U, ok_uv, slope_x, slope_y, *cx, *cy, k, out, ok)
+        _warp_rows_kernel(srcT[k], wv, iv, wu, iu, ok_uv, slope_x, slope_y, *cx, *cy, k, out, ok,
+                          slot, E, extrapolate)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
-            _edge_views_kernel(U, slot, K, Ny * Nx, E)
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
                                    float(extrapolate_views), out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None)
@@ -681,8 +681,7 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     out = np.empty(arrays.shape, np.float32)
     ok = np.empty(arrays.shape[1:], np.float32)
     srcT = _views_inner(np.moveaxis(arrays, 0, 1))
-    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, np.empty(_warp_scratch_shape(srcT), np.float32),
-               None if rho is None else np.asarray(rho, np.float64), extrapolate_views)
+    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, None if rho is None else np.asarray(rho, np.float64), extrapolate_views)
     return out, ok > 0
 
 
