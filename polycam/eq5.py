@@ -724,10 +724,11 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
 
 
 @numba.njit(cache=True, inline="always")
-def _depth_products(Lx, Ly, Lu, Lv, base, box, fc, j, i, w, out):
+def _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, fc, j, i, w, out):
     """out[c] += w × the masked Eq. 6 products of view image (fc, j, i) (indices already
     clamped): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v, 2 L_x² + L_y², 3 the mask, all
-    0 outside the valid box and where base <= 0 (a view outside the box adds nothing)."""
+    0 outside the valid box, where base <= 0 and (with ``has_near``) where ``near`` is
+    nonzero (a view outside the box adds nothing)."""
     if j < box[0] or j >= box[1] or i < box[2] or i >= box[3] or w == 0.0:
         return
     for v in range(box[4], box[5]):
@@ -736,12 +737,13 @@ def _depth_products(Lx, Ly, Lu, Lv, base, box, fc, j, i, w, out):
         gu = Lu[fc, j, i, v]
         gv = Lv[fc, j, i, v]
         bw = base[fc, j, i, v]
+        nr = near[fc, j, i, v] if has_near else near[0, 0, 0, 0]
         o0 = out[0, v]
         o1 = out[1, v]
         o2 = out[2, v]
         o3 = out[3, v]
         for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
-            m = w if bw[u] > 0.0 else np.float32(0.0)
+            m = w if (bw[u] > 0.0) & (nr[u] == 0) else np.float32(0.0)
             a = gu[u]
             b = gv[u]
             c = gx[u]
@@ -793,9 +795,11 @@ def _window_uv(A, B, C, t9, box):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, thr_gate, na, nb, rho_max, rho, stats, parts):
+def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, thr_gate, na, nb, rho_max, rho,
+                      stats, parts):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho (F, Ny, Nx, Nv, Nu) float32,
-    NaN where the measured L_x, L_y are kept (inside the box: base <= 0, or the window is not
+    NaN where the measured L_x, L_y are kept (inside the box: base <= 0, ``near`` nonzero
+    with ``has_near`` (else a (1, 1, 1, 1, Nu) row of zeros), or the window is not
     explained by one depth; the caller fills the views outside the box). The window sums
     are separable: fs3 across x (per view row, rolling over y), fs3 across y, then t9 =
     fs5 ∗ fs5 along v and u with zeros outside the box (= :func:`depth_regularise`'s two fs5
@@ -830,7 +834,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, thr_gate, na, nb, 
             rc = min(max(r, 0), Ny - 1)
             for dx in range(3):
                 ic = min(max(i + dx - 1, 0), Nx - 1)
-                _depth_products(Lx, Ly, Lu, Lv, base, box, fc, rc, ic, t3[dx], s)
+                _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, fc, rc, ic, t3[dx], s)
             if r < ja + 1:
                 continue
             j = r - 1                                   # rows j-1, j, j+1 are ready
@@ -860,10 +864,11 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, thr, thr_gate, na, nb, 
                 sn = C[3, v]
                 o = out[v]
                 b = bw[v]
+                nr = near[fc, j, i, v] if has_near else near[0, 0, 0, 0]
                 gu = Lu[fc, j, i, v]
                 gv = Lv[fc, j, i, v]
                 for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
-                    ok = b[u] > 0.0
+                    ok = (b[u] > 0.0) & (nr[u] == 0)
                     has = suu[u] > 0.0
                     inv = np.float32(1.0) / max(suu[u], np.float32(1e-30))
                     q = sxu[u] * inv if has else np.float32(0.0)
@@ -906,10 +911,10 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
 
 
 @numba.njit(parallel=True, cache=True)
-def _fill_rho(rho, real, base, rho_bar, box):
-    """ρ̂ ← rho_bar[f, v, u] (F, Nv, Nu) where rho_bar is a number, base > 0 and real <= 0
-    (rays whose filter support holds extrapolated samples; inside box (8,), as
-    :func:`depth_rho`)."""
+def _fill_rho(rho, near, base, rho_bar, box):
+    """ρ̂ ← rho_bar[f, v, u] (F, Nv, Nu) where rho_bar is a number, base > 0 and ``near``
+    (uint8, same dims as rho) is nonzero (rays whose filter support holds extrapolated
+    samples; inside box (8,), as :func:`depth_rho`)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     F = rho.shape[0]
@@ -917,22 +922,24 @@ def _fill_rho(rho, real, base, rho_bar, box):
         fc, j, i = _box_view(idx, box, ny, nx)
         for v in range(box[4], box[5]):
             q = rho[fc, j, i, v]
-            r = real[fc, j, i, v]
+            r = near[fc, j, i, v]
             b = base[fc, j, i, v]
             rb = rho_bar[fc, v]
             for u in range(numba.uint64(box[6]), numba.uint64(box[7])):     # branch-free: vectorises
-                fill = (r[u] <= 0.0) & (b[u] > 0.0) & (rb[u] == rb[u])
+                fill = (r[u] != 0) & (b[u] > 0.0) & (rb[u] == rb[u])
                 q[u] = np.float32(rb[u]) if fill else q[u]
 
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
-              rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
+              rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
+              near: np.ndarray | None = None) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
     der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
-    L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`. Returns (4,) the variances for the
-    replaced regressors, as depth_regularise."""
+    L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`; ``near`` (same dims
+    as out, uint8): rays where it is nonzero count as base <= 0. Returns (4,) the variances
+    for the replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
@@ -947,7 +954,9 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
             out[sl] = np.nan                            # views outside the box (the kernel does the rest)
         vxy = float(var[0] + var[1])
         na, nb = _depth_rho_noise(var)
-        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, box, t9, t3, _DEPTH_KEEP * vxy, float(gate_misfit) * vxy,
+        has_near = near is not None
+        near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, _DEPTH_KEEP * vxy, float(gate_misfit) * vxy,
                           na, nb, float(rho_max), out, stats, parts)
     else:
         out[...] = np.nan

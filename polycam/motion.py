@@ -142,7 +142,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _padded, _unmarked, _view_mean, _views_inner, _warp_into, warp_lightfield,
+from .warp import (_T_sqrt, _near_marks, _padded, _view_mean, _views_inner, _warp_into, warp_lightfield,
                    warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
@@ -421,8 +421,8 @@ class _Solver:
         H1 = T_inverse(H) if opts.symmetric else T_inverse(M)
         marks = None
         if self.rho_bar is not None and not opts.symmetric:
-            marks = self.marks = _work_array("marks", self.shape) if self.marks is None else self.marks
-            marks.fill(0.0)
+            marks = self.marks = _work_array("marks", self.shape, np.uint8) if self.marks is None else self.marks
+            marks.fill(0)
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks)
         conf = self.conf
@@ -481,12 +481,13 @@ class _Solver:
             self.rho = _work_array("rho", self.shape)
             # ρ̂ from the captured samples only: a window holding extrapolated samples (made
             # with an earlier ρ̂) would pull the new ρ̂ back towards it
-            real = None if marks is None else _unmarked(marks, self.base, self.radius["y"], self.radius["x"])
+            near = None if marks is None else _near_marks(marks, self.radius["y"], self.radius["x"],
+                                                          _work_array("near", self.shape, np.uint8))
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, False, False)
-                self.var = self.var_dr = self._depth_rho(var, rho_max, floor, real)
+                self.var = self.var_dr = self._depth_rho(var, rho_max, floor, near)
                 _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                              np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
@@ -508,17 +509,16 @@ class _Solver:
         self.n_base = int(sums[1][..., 1].sum())
         return sums
 
-    def _depth_rho(self, var: np.ndarray, rho_max: float, floor: float, real: np.ndarray | None) -> np.ndarray:
+    def _depth_rho(self, var: np.ndarray, rho_max: float, floor: float, near: np.ndarray | None) -> np.ndarray:
         """:func:`polycam.eq5.depth_rho` into ``self.rho`` from the measured regressors; with
-        ``real`` (F, Ny, Nx, Nv, Nu: the base weights, 0 where an extrapolated sample lies
-        within the (x, y) support of a ray's filters) only those rays enter ρ̂'s windows, ``rho_bar`` becomes their view mean and the
-        other valid rays get it (their measured L_x, L_y mix the extrapolated copies' noise).
-        Returns the regressors' noise variances (4,)."""
-        var_dr = depth_rho(self.der, self.base if real is None else real, self.box, self._var_measured(var), self.rho,
-                           rho_max, floor)
-        if real is not None:
+        ``near`` (F, Ny, Nx, Nv, Nu uint8: 1 where an extrapolated sample lies within the
+        (x, y) support of a ray's filters) only the other rays enter ρ̂'s windows, ``rho_bar``
+        becomes their view mean and the near rays get it (their measured L_x, L_y mix the
+        extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
+        var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near)
+        if near is not None:
             self.rho_bar = _view_mean(self.rho)
-            _fill_rho(self.rho, real, self.base, self.rho_bar, self.box)
+            _fill_rho(self.rho, near, self.base, self.rho_bar, self.box)
         return var_dr
 
     def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
@@ -825,6 +825,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     diag = None
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
+        levels[li + 1:] = [None] * (len(levels) - li - 1)      # and its frames
         solver = _Solver(levels[li], opts, filters, li)
         finest = li == 0
         whiten = finest and opts.whiten != "off"

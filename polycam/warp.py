@@ -516,37 +516,34 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                             out[k, face, jy, ix, jv, iu] = val
                     okrow[iu] = 1.0
                     if has_marks:
-                        marks[face, jy, ix, jv, iu] = 1.0
+                        marks[face, jy, ix, jv, iu] = 1
 
 
 @numba.njit(parallel=True, cache=True)
-def _unmarked_kernel(marks, base, ry, rx, out):
+def _near_marks_kernel(marks, ry, rx, out):
     F, Ny, Nx, Nv, Nu = marks.shape
     for idx in numba.prange(F * Ny * Nx):
         f = idx // (Ny * Nx)
         j = (idx // Nx) % Ny
         i = idx % Nx
         o = out[f, j, i]
-        b = base[f, j, i]
-        for v in range(Nv):
-            for u in range(Nu):
-                o[v, u] = b[v, u] if b[v, u] > 0.0 else 0.0
+        o[:, :] = 0
         for jj in range(max(j - ry, 0), min(j + ry + 1, Ny)):
             for ii in range(max(i - rx, 0), min(i + rx + 1, Nx)):
                 m = marks[f, jj, ii]
                 for v in range(Nv):
-                    for u in range(Nu):
-                        if m[v, u] > 0.0:
-                            o[v, u] = 0.0
+                    orow = o[v]
+                    mrow = m[v]
+                    for u in range(numba.uint64(Nu)):
+                        orow[u] |= mrow[u]
 
 
-def _unmarked(marks: np.ndarray, base: np.ndarray, ry: int, rx: int) -> np.ndarray:
-    """(F, Ny, Nx, Nv, Nu) float32: ``base`` (same dims) where it is > 0 and no sample of
-    ``marks`` (> 0: marked) lies within ``ry``, ``rx`` views at the same direction, else 0
-    (the (x, y) part of a ray's filter support; the marked samples of :func:`_warp_into`
-    change slowly with the direction, so the (u, v) part is left out)."""
-    out = np.empty(marks.shape, np.float32)
-    _unmarked_kernel(marks, base, int(ry), int(rx), out)
+def _near_marks(marks: np.ndarray, ry: int, rx: int, out: np.ndarray) -> np.ndarray:
+    """``out`` (F, Ny, Nx, Nv, Nu) uint8: 1 where a sample of ``marks`` (same dims, uint8 0 / 1)
+    lies within ``ry``, ``rx`` views at the same direction, else 0 (the (x, y) part of a
+    ray's filter support; the marked samples of :func:`_warp_into` change slowly with the
+    direction, so the (u, v) part is left out)."""
+    _near_marks_kernel(marks, int(ry), int(rx), out)
     return out
 
 
@@ -615,7 +612,7 @@ def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
     return out
 
 
-_NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.float32)
+_NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.uint8)
 
 
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
@@ -627,7 +624,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     float32 (1 inside, 0 outside). With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per
     direction, u per unit x; NaN unknown) and ``extrapolate_views`` > 0, rays up to that many
     view steps outside the viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`);
-    ``marks`` (F, Ny, Nx, Nv, Nu) float32, if given, gets 1 at the filled samples (the caller
+    ``marks`` (F, Ny, Nx, Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller
     zeroes it)."""
     K, F, Ny, Nx, Nv, Nu = out.shape
     xs, ys = grid.x.values, grid.y.values

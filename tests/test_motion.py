@@ -799,6 +799,13 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     var_ref = depth_regularise(ref, valid, var, rho_max)
     rho = np.empty(grid.shape, np.float32)
     var_k = depth_rho(der, base, box, var, rho, rho_max)
+    # rays marked ``near`` (extrapolated samples in their support) count as base <= 0
+    near = (rng.random(grid.shape) < 0.2).astype(np.uint8)
+    with_near, zeroed = np.empty(grid.shape, np.float32), np.empty(grid.shape, np.float32)
+    var_near = depth_rho(der, base, box, var, with_near, rho_max, near=near)
+    var_zeroed = depth_rho(der, base * (near == 0), box, var, zeroed, rho_max)
+    assert np.array_equal(with_near, zeroed, equal_nan=True) and np.array_equal(var_near, var_zeroed)
+    assert np.isfinite(with_near).sum() < np.isfinite(rho).sum()
     if gate > 0:
         ungated = np.empty(grid.shape, np.float32)
         depth_rho(der, base, box, var, ungated)
