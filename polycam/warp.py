@@ -32,7 +32,8 @@ on sharp images).
 The fast path (:func:`warp_lightfield`) is views-innermost: the (u, v) part of the
 stencil depends only on the direction, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, followed by a branch-free blend across
-views; :func:`warp_lightfield_reference` does all taps per ray in one kernel (speed
+views, one direction row at a time (:func:`_warp_rows_kernel`: the row's (u, v)-warped
+images stay in a per-thread scratch); :func:`warp_lightfield_reference` does all taps per ray in one kernel (speed
 figures: docs/motion.md).
 """
 
