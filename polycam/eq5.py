@@ -502,6 +502,8 @@ def _bin_select(a, w, has_w, bins, hist, target):
         if not hi > lo:
             return lo                              # the bin holds one value, repeated
         scale = (nb - 1) / (np.float64(hi) - np.float64(lo))
+        if not scale < 1e300:                      # subnormal spread: sort what is left
+            break
         sub = np.empty(cnt, np.int32)
         subhist = np.zeros(nb)
         for k in range(cnt):
@@ -548,7 +550,7 @@ def _weighted_median(a, w):
     if not hi > 0.0:
         return 0.0
     nb = 4096
-    scale = nb / hi
+    scale = nb / hi if nb / hi < 1e300 else 0.0     # subnormal values: one bin, sorted
     bins = np.empty(a.shape[0], np.int32)           # nb + 1: w <= 0, out of every bin
     for k in range(n):
         bins[k] = np.int32(min(a[k] * scale, np.float64(nb))) if w[k] > 0.0 else np.int32(nb + 1)

@@ -88,6 +88,8 @@ def _median_kernel(a):
         return lo
     nb = 4096
     scale = (nb - 1) / (np.float64(hi) - np.float64(lo))
+    if not scale < 1e300:                # subnormal spread: one bin, sorted
+        scale = 0.0
     bins = np.empty(n, np.int32)
     hist = np.zeros(nb)
     for i in range(n):

@@ -423,7 +423,8 @@ def test_median_matches_numpy(rng, n):
     from polycam.motion_weights import _median
     for a in (np.abs(rng.standard_cauchy(n)).astype(np.float32), rng.integers(0, 4, n).astype(np.float32),
               rng.standard_normal(n), np.full(n, 0.25, np.float32),
-              np.exp(8 * rng.standard_normal(n)).astype(np.float32)):    # bins re-binned twice
+              np.exp(8 * rng.standard_normal(n)).astype(np.float32),     # bins re-binned twice
+              rng.integers(0, 5, n) * 5e-324):                           # a subnormal spread
         assert _median(a) == float(np.median(a))
     rows = rng.standard_normal((n, 3)).astype(np.float32)[::2]        # strided rows, as the solver passes
     assert _median(rows) == float(np.median(rows))
@@ -432,7 +433,8 @@ def test_median_matches_numpy(rng, n):
 @pytest.mark.parametrize("n", [1, 5, 50_000])
 def test_weighted_median_matches_sorting(rng, n):
     from polycam.eq5 import _weighted_median
-    for a in (np.abs(rng.standard_normal(n)), np.exp(8 * rng.standard_normal(n)), rng.integers(0, 3, n) * 1.0):
+    for a in (np.abs(rng.standard_normal(n)), np.exp(8 * rng.standard_normal(n)), rng.integers(0, 3, n) * 1.0,
+              rng.integers(0, 5, n) * 5e-324):
         w = rng.uniform(-0.5, 1.0, n)                         # w <= 0: left out
         if not np.any(w > 0):
             w[0] = 1.0
