@@ -15,7 +15,7 @@ bench: setup
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; .venv/bin/python $$b || exit 1; done
 
 # numba's on-disk caches (*.nbi / *.nbc in __pycache__) are keyed on each kernel's own
-# source file only: after editing a module whose kernels others inline (e.g.
+# source file only: after editing a module whose functions other kernels call or inline (e.g.
 # polycam/derivatives.py, polycam/eq5.py), `make clean` so that they are recompiled.
 clean:
 	rm -rf demo-out .pytest_cache

@@ -314,10 +314,17 @@ def plenoptic_derivatives_reference(L0: np.ndarray, L1: np.ndarray, grid: LightF
     return Derivatives(Lx, Ly, Lu, Lv, Lt, valid, {k: pairs[k] is not None for k in _AX})
 
 
+_FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+"""LLVM fast-math flags of the accumulating kernels (here the per-view stages the motion
+solver's fused kernels call, and :mod:`polycam.eq5`, :mod:`polycam.warp`): re-associated
+sums let the ray loops vectorise (results change by float rounding only); no ``nnan`` /
+``ninf``, so the ``not w > 0`` tests keep their meaning."""
+
+
 # ---------------------------------------------------------------------------- fused kernels
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def xy_view(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """(x, y) stage of one output view image (f, j, i) from the frames' mean S and
     difference D: a1 = Px Py S, a2 = Dx Py S, a3 = Px Dy S, a4 = Px Py D, each (Nv, Nu)
@@ -328,7 +335,7 @@ def xy_view(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
         _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """:func:`xy_view` for 3-tap filters along x and y (fs3, the solver's default), in one
     pass per (v) row: the 18 neighbouring rows of both frames are combined in registers
@@ -372,7 +379,7 @@ def _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
             o4[u] = r0 * Ta + r1 * Tb + r2 * Tc
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """:func:`xy_view` for any tap counts: one accumulating pass per (x, y) tap."""
     Ny, Nx, Nv, Nu = L0.shape[1:]
@@ -412,7 +419,7 @@ def _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
                     o4[u] += d1 * (r1[u] - r0[u])
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _filt_v(src, w, out):
     """out[v, u] = sum_t w[t] src[clamp(v + t - r), u] for 2-D (Nv, Nu) arrays."""
     Nv, Nu = src.shape
@@ -452,7 +459,7 @@ def _filt_v(src, w, out):
                     o[u] += wt * row[u]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _filt_u(src, w, scale, out):
     """out[v, u] = scale * sum_t w[t] src[v, clamp(u + t - r)] for 2-D (Nv, Nu) arrays."""
     Nv, Nu = src.shape
@@ -490,7 +497,7 @@ def _filt_u(src, w, scale, out):
             out[v, j] = acc * scale
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def uv_view(a1, a2, a3, a4, pv, dv, pu, du, sx, sy, su, sv, tmp, lx, ly, lu, lv, lt):
     """(u, v) stage of one view image: lu = Du Pv a1, lv = Pu Dv a1, lx = Pu Pv a2,
     ly = Pu Pv a3, lt = Pu Pv a4, derivatives scaled by 1/step (s*); all (Nv, Nu)."""

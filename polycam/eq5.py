@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
+from .derivatives import _FASTMATH, FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
 from .lightfield import LightFieldGrid
 
 __all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho"]
@@ -103,13 +103,9 @@ def _row_energy(x, y, v, z_pi, f, S, var, poly, st):
                 k += 1
 
 
-_FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
-"""LLVM fast-math flags of the accumulating kernels: re-associated sums let the ray loops
-vectorise (results change by float rounding only); no ``nnan`` / ``ninf``, so the
-``not w > 0`` tests keep their meaning."""
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv_sc, tile,
                      v_lo, v_hi, u_lo, u_hi, h, var, final, acc, st, poly, S):
     """Eq. 5 normal-equation sums of one view image's rays (samples v_lo:v_hi, u_lo:u_hi).
