@@ -142,8 +142,8 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _near_marks, _padded, _view_mean, _views_inner, _warp_into, warp_lightfield,
-                   warp_lightfield_reference)
+from .warp import (_T_sqrt, _apply_warped_confidence, _near_marks, _padded, _view_mean, _views_inner, _warp_into,
+                   warp_lightfield, warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -299,11 +299,6 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -
     return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1), out)
 
 
-def _warped_confidence(out: np.ndarray) -> np.ndarray:
-    """Confidence factor of warped channels (K, F, ...) from :func:`_warp_source` with W."""
-    return np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6)
-
-
 _RHO_SETTLED = 0.05
 """ρ̂ of the Eq. 6 regressors is reused while the warp has moved no ray by more than this
 many samples (of any axis) since it was computed (:meth:`_Solver.warp_change`). Measured
@@ -427,14 +422,14 @@ class _Solver:
                    None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks)
         conf = self.conf
         if lev.W1 is not None:
-            conf *= _warped_confidence(self.out1)
+            _apply_warped_confidence(conf, self.out1)
         if opts.symmetric:
             out0 = np.empty((1 if lev.W0 is None else 3,) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
             _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0)
             conf *= ok0
             if lev.W0 is not None:
-                conf *= _warped_confidence(out0)
+                _apply_warped_confidence(conf, out0)
             L0 = out0[0]
         else:
             L0 = lev.L0

@@ -613,6 +613,24 @@ def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
     return out
 
 
+@numba.njit(parallel=True, cache=True)
+def _warped_confidence_kernel(conf, W, nodata):
+    n = conf.shape[0]
+    rows = max(1, n // 16384)
+    for r in numba.prange(rows):
+        for k in range(r * n // rows, (r + 1) * n // rows):
+            w = min(max(W[k], np.float32(0.0)), np.float32(1.0))
+            conf[k] *= w * (np.float32(1.0) if abs(nodata[k]) < 1e-6 else np.float32(0.0))
+
+
+def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray) -> None:
+    """conf (F, Ny, Nx, Nv, Nu) *= the confidence of the warped channels out (3, F, Ny, Nx, Nv,
+    Nu) of the motion solver's source with W (``polycam.motion._warp_source``: L, W and the
+    "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
+    indicator is not 0 (in place, no frame-sized temporaries)."""
+    _warped_confidence_kernel(conf.reshape(-1), out[1].reshape(-1), out[2].reshape(-1))
+
+
 _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.uint8)
 
 
