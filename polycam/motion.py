@@ -372,14 +372,19 @@ class _Solver:
         self.conf0 = None
         if lev.W0 is not None and not opts.symmetric:
             self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
-        K = 1 if lev.W1 is None else 3
-        # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
-        # warped W and "no data" channels (K = 3) share L_x's and L_y's memory — they are
-        # read (folded into conf) before the fused kernel writes the derivatives
-        warped = _work_array("warped_derivatives", (6,) + self.shape)
-        self.out1 = warped[:K]
+        if lev.W1 is None:
+            self.out1 = _work_array("out1", (1,) + self.shape)
+            self.der = [_work_array(n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+        else:
+            # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
+            # warped W and "no data" channels share L_x's and L_y's memory — they are read
+            # (folded into conf) before the fused kernel writes the derivatives. (Without W
+            # separate arrays: the same live memory, but one 6-frame block left ~1 frame more
+            # resident, measured: the allocator's heap keeps freed temporaries then.)
+            warped = _work_array("warped_derivatives", (6,) + self.shape)
+            self.out1 = warped[:3]
+            self.der = [warped[1 + n] for n in range(5)]          # L_x, L_y, L_u, L_v, L_t
         self.conf = _work_array("conf", self.shape)
-        self.der = [warped[1 + n] for n in range(5)]          # L_x, L_y, L_u, L_v, L_t
         self.base = _work_array("base", self.shape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
