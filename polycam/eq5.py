@@ -462,6 +462,20 @@ _BIN_SORT_MAX = 2048
 values in the lowest bins) is re-binned over its own range first."""
 
 
+@numba.njit(cache=True, inline="always")
+def _bin_scale(a, n, nb):
+    """(lo, hi, scale) of a[:n]: its range and the factor that maps it onto bins 0 .. nb - 1,
+    ``int((a - lo) scale)``; scale 0 (one bin) when the range is empty or subnormal (its
+    inverse would overflow)."""
+    lo = a[0]
+    hi = a[0]
+    for k in range(n):
+        lo = min(lo, a[k])
+        hi = max(hi, a[k])
+    scale = (nb - 1) / (np.float64(hi) - np.float64(lo)) if hi > lo else 0.0
+    return lo, hi, (scale if scale < 1e300 else 0.0)
+
+
 @numba.njit(cache=True)
 def _bin_select(a, w, has_w, bins, hist, target):
     """The smallest a_k whose cumulative weight Σ_{a_i <= a_k} w_i reaches ``target``, given
@@ -490,15 +504,10 @@ def _bin_select(a, w, has_w, bins, hist, target):
     if cnt == 0:
         return np.zeros(1, a.dtype)[0]             # in a's precision, as the values
     while cnt > _BIN_SORT_MAX:
-        lo = vals[0]
-        hi = vals[0]
-        for k in range(cnt):
-            lo = min(lo, vals[k])
-            hi = max(hi, vals[k])
+        lo, hi, scale = _bin_scale(vals, cnt, nb)
         if not hi > lo:
             return lo                              # the bin holds one value, repeated
-        scale = (nb - 1) / (np.float64(hi) - np.float64(lo))
-        if not scale < 1e300:                      # subnormal spread: sort what is left
+        if scale == 0.0:                           # subnormal spread: sort what is left
             break
         sub = np.empty(cnt, np.int32)
         subhist = np.zeros(nb)

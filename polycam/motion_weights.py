@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from .derivatives import FILTERS, min_filter_axis
-from .eq5 import _bin_select
+from .eq5 import _bin_scale, _bin_select
 from .lightfield import LightFieldGrid
 from .motion_options import MotionOptions
 from .pyramid import _Level
@@ -79,17 +79,10 @@ def _axis_rows(n, h, o, differenced):
 @numba.njit(cache=True)
 def _median_kernel(a):
     n = a.shape[0]
-    lo = a[0]
-    hi = a[0]
-    for i in range(n):
-        lo = min(lo, a[i])
-        hi = max(hi, a[i])
+    nb = 4096
+    lo, hi, scale = _bin_scale(a, n, nb)                # scale 0 (subnormal spread): one bin, sorted
     if not hi > lo:
         return lo
-    nb = 4096
-    scale = (nb - 1) / (np.float64(hi) - np.float64(lo))
-    if not scale < 1e300:                # subnormal spread: one bin, sorted
-        scale = 0.0
     bins = np.empty(n, np.int32)
     hist = np.zeros(nb)
     for i in range(n):
