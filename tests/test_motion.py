@@ -430,6 +430,19 @@ def test_median_matches_numpy(rng, n):
     assert _median(rows) == float(np.median(rows))
 
 
+def test_warped_confidence_in_place(rng):
+    """conf *= clip(warped W, 0, 1) x (warped "no data" indicator == 0), as the numpy formula."""
+    from polycam.warp import _apply_warped_confidence
+
+    shape = (2, 3, 3, 8, 8)
+    conf = rng.integers(0, 2, shape).astype(np.float32)
+    out = np.stack([rng.random(shape), rng.uniform(-0.5, 1.5, shape),
+                    np.where(rng.random(shape) < 0.3, rng.uniform(-1, 1, shape), 0.0)]).astype(np.float32)
+    expected = conf * (np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6))
+    _apply_warped_confidence(conf, out)
+    assert np.array_equal(conf, expected)
+
+
 @pytest.mark.parametrize("n", [1, 5, 50_000])
 def test_weighted_median_matches_sorting(rng, n):
     from polycam.eq5 import _weighted_median
