@@ -430,6 +430,18 @@ def test_median_matches_numpy(rng, n):
     assert _median(rows) == float(np.median(rows))
 
 
+def test_near_marks_dilate_across_views():
+    """A marked sample makes the same direction 'near' in the views within (ry, rx) of its view."""
+    from polycam.warp import _near_marks
+
+    marks = np.zeros((1, 5, 6, 4, 4), np.uint8)
+    marks[0, 1, 4, 2, 3] = 1
+    near = _near_marks(marks, 1, 2, np.full(marks.shape, 7, np.uint8))
+    expected = np.zeros_like(marks)
+    expected[0, 0:3, 2:6, 2, 3] = 1
+    assert np.array_equal(near, expected)
+
+
 def test_warped_confidence_in_place(rng):
     """conf *= clip(warped W, 0, 1) x (warped "no data" indicator == 0), as the numpy formula."""
     from polycam.warp import _apply_warped_confidence
