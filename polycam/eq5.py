@@ -16,6 +16,12 @@ holds
   ``depth_rho``, the kernel the solver uses;
   :attr:`~polycam.motion_options.MotionOptions.depth_regressors`).
 
+Per-ray work arrays (derivatives, base weights, ρ̂) may hold only the views of the
+valid box (the solver's: the views whose (x, y) filter support lies inside the grid; the
+others would never be read). The kernels take their *view origin* ``vo`` (4,) int64
+``[y0, x0, Ny, Nx]``: such an array's view (j − y0, i − x0) is view (j, i) of the Ny x Nx
+grid; ``(0, 0, Ny, Nx)`` for arrays over every view (``_view_origin``).
+
 The ray loops are branch-free with unsigned indices and re-associated sums
 (``_FASTMATH``) so that LLVM vectorises them (speed figures: docs/motion.md).
 """
@@ -41,6 +47,19 @@ _NSTAT = 25
 
 
 _ROBUST_KIND = {"none": 0, "tukey": 1, "huber": 2}
+
+
+def _view_origin(Ny: int, Nx: int, box: np.ndarray | None = None) -> np.ndarray:
+    """View origin ``vo`` (4,) int64 of work arrays over the views of ``box`` (8,) of an
+    Ny x Nx view grid, or over every view (``box`` None); module docstring."""
+    y0, x0 = (0, 0) if box is None else (int(box[0]), int(box[2]))
+    return np.array([y0, x0, Ny, Nx], np.int64)
+
+
+def _box_views(shape: tuple, box: np.ndarray) -> tuple:
+    """Dims (F, ny, nx, Nv, Nu) of a work array over the views of ``box`` (8,) of a light
+    field of dims ``shape`` (F, Ny, Nx, Nv, Nu)."""
+    return (shape[0], max(int(box[1] - box[0]), 0), max(int(box[3] - box[2]), 0)) + tuple(shape[3:])
 
 
 @numba.njit(cache=True, inline="always")
@@ -295,13 +314,13 @@ def _box_view(idx, box, ny, nx):
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
-                 box, h, var, final, acc, st, chunks):
+                 box, vo, h, var, final, acc, st, chunks):
     """One pass over the rays of the view images box[0]:box[1] (y) x box[2]:box[3] (x),
     samples box[4]:box[5] (v) x box[6]:box[7] (u) of every face: :func:`_accumulate_view`
-    with the stored derivatives (F, Ny, Nx, Nv, Nu) and base weights (unit weights
-    without ``has_base``). P (F, 6): the parameters in each face's frame.
-    acc (n_views, n_tv, n_tu, 29), st (n_views, 25), views ordered (face, y, x)."""
-    F, Ny, Nx, Nv, Nu = Lx.shape
+    with the stored derivatives (F, ny, nx, Nv, Nu; view origin ``vo``, module docstring)
+    and base weights (unit weights without ``has_base``). P (F, 6): the parameters in each
+    face's frame. acc (n_views, n_tv, n_tu, 29), st (n_views, 25), views ordered (face, y, x)."""
+    F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     n = F * ny * nx
@@ -312,19 +331,21 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, 
         ones = np.ones((Nv if not has_base else 1, Nu if not has_base else 1), np.float32)
         for idx in range(c * n // chunks, (c + 1) * n // chunks):
             fc, j, i = _box_view(idx, box, ny, nx)
+            ja = j - vo[0]
+            ia = i - vo[1]
             a = acc[idx]
             a[:, :, :] = 0.0
             s = st[idx]
             s[:] = 0.0
-            wb = base[fc, j, i] if has_base else ones
-            _accumulate_view(Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i], wb,
+            wb = base[fc, ja, ia] if has_base else ones
+            _accumulate_view(Lx[fc, ja, ia], Ly[fc, ja, ia], Lu[fc, ja, ia], Lv[fc, ja, ia], Lt[fc, ja, ia], wb,
                              xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], kind, inv_sc, tile,
                              box[4], box[5], box[6], box[7], h, var, final, a, s, poly, S)
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
-                    sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, h,
+                    sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
                     var, final, acc, st, chunks, rho, has_rho, sums):
     """Per valid view image, in cache: the plenoptic derivatives of the (warped) pair
     (L0, L1), the base weight = confidence ``conf`` minimised over the filter support
@@ -332,7 +353,9 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
     ρ̂ L_u, ρ̂ L_v where ``rho`` (same dims) is a number and the base weight > 0
     (:func:`depth_rho`), and with ``sums`` the unit-IRLS-weight normal sums
     (:func:`_accumulate_view`; else acc and st are left as they are). box as in
-    :func:`_pass_kernel` (the filter radii)."""
+    :func:`_pass_kernel` (the filter radii). L0, L1, conf: every view; Lx .. Lt, base,
+    ``smooth`` (with ``has_smooth``) and ``rho`` (with ``has_rho``): view origin ``vo``
+    (module docstring)."""
     F, Ny, Nx, Nv, Nu = L0.shape
     ry = box[0]
     rx = box[2]
@@ -348,9 +371,15 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
         S = np.empty(5)
         for idx in range(c * n // chunks, (c + 1) * n // chunks):
             fc, j, i = _box_view(idx, box, ny, nx)
+            ja = j - vo[0]
+            ia = i - vo[1]
+            gx = Lx[fc, ja, ia]
+            gy = Ly[fc, ja, ia]
+            gu = Lu[fc, ja, ia]
+            gv = Lv[fc, ja, ia]
+            lt = Lt[fc, ja, ia]
             xy_view(L0, L1, fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
-            uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4],
-                    Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i])
+            uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4], gx, gy, gu, gv, lt)
             cm = buf[5]
             t2 = buf[6]
             cm[:, :] = conf[fc, j, i]
@@ -380,17 +409,13 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
                         sr = tr[d:d + Nu - 2 * ru]
                         for u in range(n_in):
                             cr[u] = min(cr[u], sr[u])
-            b = base[fc, j, i]
+            b = base[fc, ja, ia]
             b[:, :] = 0.0
             for v in range(rv, Nv - rv):
                 for u in range(ru, Nu - ru):
-                    b[v, u] = cm[v, u] * smooth[fc, j, i, v, u] if has_smooth else cm[v, u]
+                    b[v, u] = cm[v, u] * smooth[fc, ja, ia, v, u] if has_smooth else cm[v, u]
             if has_rho:
-                q = rho[fc, j, i]
-                gx = Lx[fc, j, i]
-                gy = Ly[fc, j, i]
-                gu = Lu[fc, j, i]
-                gv = Lv[fc, j, i]
+                q = rho[fc, ja, ia]
                 for v in range(rv, Nv - rv):
                     qr = q[v]
                     br = b[v]
@@ -404,17 +429,16 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
             a[:, :, :] = 0.0
             s = st[idx]
             s[:] = 0.0
-            _accumulate_view(Lx[fc, j, i], Ly[fc, j, i], Lu[fc, j, i], Lv[fc, j, i], Lt[fc, j, i], b,
-                             xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], 0, 0.0, tile,
+            _accumulate_view(gx, gy, gu, gv, lt, b, xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], 0, 0.0, tile,
                              rv, Nv - rv, ru, Nu - ru, h, var, final, a, s, poly, S)
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, stride, out_a, out_w):
+def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, vo, stride, out_a, out_w):
     """|Eq. 5 residual| and base weight of the rays of every ``stride``-th (v) row of the
     box's view images (rows numbered in C order over (face, y, x, v) inside box; whole
-    rows keep the memory access contiguous). out_a, out_w: (n_rows, box u width)."""
-    F, Ny, Nx, Nv, Nu = Lx.shape
+    rows keep the memory access contiguous; arrays with view origin ``vo``, module
+    docstring). out_a, out_w: (n_rows, box u width)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     nv = box[5] - box[4]
@@ -434,12 +458,14 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
         y = ys[j]
         v = vs[jv]
         p0, p1, p2, p3, p4, p5 = P[fc, 0], P[fc, 1], P[fc, 2], P[fc, 3], P[fc, 4], P[fc, 5]
-        rx = Lx[fc, j, i, jv]
-        ry = Ly[fc, j, i, jv]
-        ru = Lu[fc, j, i, jv]
-        rv = Lv[fc, j, i, jv]
-        rt = Lt[fc, j, i, jv]
-        rw = base[fc, j, i, jv]
+        ja = j - vo[0]
+        ia = i - vo[1]
+        rx = Lx[fc, ja, ia, jv]
+        ry = Ly[fc, ja, ia, jv]
+        ru = Lu[fc, ja, ia, jv]
+        rv = Lv[fc, ja, ia, jv]
+        rt = Lt[fc, ja, ia, jv]
+        rw = base[fc, ja, ia, jv]
         oa = out_a[k]
         ow = out_w[k]
         for m in range(numba.uint64(out_a.shape[1])):          # branch-free: vectorises
@@ -602,8 +628,8 @@ def _accumulate(der, base: np.ndarray, has_base: bool, grid: LightFieldGrid, P: 
     fs = np.array([face.f for face in grid.faces], float)
     if nv_ and box[5] > box[4] and box[7] > box[6]:
         _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, base, has_base, *vals, zs, fs,
-                     np.ascontiguousarray(P, dtype=np.float64), kind, float(inv_sc), int(tile), box, h, var,
-                     final, acc, st, parallel_chunks())
+                     np.ascontiguousarray(P, dtype=np.float64), kind, float(inv_sc), int(tile), box,
+                     _view_origin(Ny, Nx), h, var, final, acc, st, parallel_chunks())
     else:
         acc[:] = 0.0
         st[:] = 0.0
@@ -731,20 +757,22 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
 
 
 @numba.njit(cache=True, inline="always")
-def _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, fc, j, i, w, out):
+def _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, j, i, w, out):
     """out[c] += w × the masked Eq. 6 products of view image (fc, j, i) (indices already
-    clamped): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v, 2 L_x² + L_y², 3 the mask, all
-    0 outside the valid box, where base <= 0 and (with ``has_near``) where ``near`` is
-    nonzero (a view outside the box adds nothing)."""
+    clamped; arrays with view origin ``vo``): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v,
+    2 L_x² + L_y², 3 the mask, all 0 outside the valid box, where base <= 0 and (with
+    ``has_near``) where ``near`` is nonzero (a view outside the box adds nothing)."""
     if j < box[0] or j >= box[1] or i < box[2] or i >= box[3] or w == 0.0:
         return
+    ja = j - vo[0]
+    ia = i - vo[1]
     for v in range(box[4], box[5]):
-        gx = Lx[fc, j, i, v]
-        gy = Ly[fc, j, i, v]
-        gu = Lu[fc, j, i, v]
-        gv = Lv[fc, j, i, v]
-        bw = base[fc, j, i, v]
-        nr = near[fc, j, i, v] if has_near else near[0, 0, 0, 0]
+        gx = Lx[fc, ja, ia, v]
+        gy = Ly[fc, ja, ia, v]
+        gu = Lu[fc, ja, ia, v]
+        gv = Lv[fc, ja, ia, v]
+        bw = base[fc, ja, ia, v]
+        nr = near[fc, ja, ia, v] if has_near else near[0, 0, 0, 0]
         o0 = out[0, v]
         o1 = out[1, v]
         o2 = out[2, v]
@@ -802,9 +830,10 @@ def _window_uv(A, B, C, t9, box):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, thr_gate, na, nb, rho_max, rho,
-                      stats, parts):
-    """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho (F, Ny, Nx, Nv, Nu) float32,
+def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
+                      rho, stats, parts):
+    """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho float32 (all arrays with
+    view origin ``vo``, module docstring),
     NaN where the measured L_x, L_y are kept (inside the box: base <= 0, ``near`` nonzero
     with ``has_near`` (else a (1, 1, 1, 1, Nu) row of zeros), or the window is not
     explained by one depth; the caller fills the views outside the box). The window sums
@@ -816,7 +845,8 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, th
     its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
     and the misfit at least ``thr_gate`` x the weight. stats (units, 4): valid rays, used
     rays, Σ ρ̂² and Σ (L_u² + L_v²) nb / S_uu over the used ones."""
-    F, Ny, Nx, Nv, Nu = Lx.shape
+    F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
+    Ny, Nx = vo[2], vo[3]
     nx = box[3] - box[2]
     ny = box[1] - box[0]
     n_units = F * nx * parts
@@ -841,7 +871,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, th
             rc = min(max(r, 0), Ny - 1)
             for dx in range(3):
                 ic = min(max(i + dx - 1, 0), Nx - 1)
-                _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, fc, rc, ic, t3[dx], s)
+                _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, rc, ic, t3[dx], s)
             if r < ja + 1:
                 continue
             j = r - 1                                   # rows j-1, j, j+1 are ready
@@ -857,9 +887,11 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, th
                     for u in range(numba.uint64(box[7] - box[6])):
                         o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
             _window_uv(A, B, C, t9, box)
-            out = rho[fc, j, i]
+            ja = j - vo[0]
+            ia = i - vo[1]
+            out = rho[fc, ja, ia]
             out[:, :] = np.nan
-            bw = base[fc, j, i]
+            bw = base[fc, ja, ia]
             n_valid = 0.0
             n_use = 0.0
             r2 = 0.0
@@ -871,9 +903,9 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, th
                 sn = C[3, v]
                 o = out[v]
                 b = bw[v]
-                nr = near[fc, j, i, v] if has_near else near[0, 0, 0, 0]
-                gu = Lu[fc, j, i, v]
-                gv = Lv[fc, j, i, v]
+                nr = near[fc, ja, ia, v] if has_near else near[0, 0, 0, 0]
+                gu = Lu[fc, ja, ia, v]
+                gv = Lv[fc, ja, ia, v]
                 for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
                     ok = (b[u] > 0.0) & (nr[u] == 0)
                     has = suu[u] > 0.0
@@ -896,21 +928,23 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, thr, th
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
+def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box, vo):
     """L_x, L_y ← ρ̂ L_u, ρ̂ L_v in place where ρ̂ is a number and base > 0 (inside box (8,),
-    as :func:`depth_rho`; rho is NaN elsewhere)."""
+    as :func:`depth_rho`; rho is NaN elsewhere; arrays with view origin ``vo``)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     F = Lx.shape[0]
     for idx in numba.prange(F * ny * nx):
         fc, j, i = _box_view(idx, box, ny, nx)
+        ja = j - vo[0]
+        ia = i - vo[1]
         for v in range(box[4], box[5]):
-            q = rho[fc, j, i, v]
-            b = base[fc, j, i, v]
-            gx = Lx[fc, j, i, v]
-            gy = Ly[fc, j, i, v]
-            gu = Lu[fc, j, i, v]
-            gv = Lv[fc, j, i, v]
+            q = rho[fc, ja, ia, v]
+            b = base[fc, ja, ia, v]
+            gx = Lx[fc, ja, ia, v]
+            gy = Ly[fc, ja, ia, v]
+            gu = Lu[fc, ja, ia, v]
+            gv = Lv[fc, ja, ia, v]
             for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
                 ok = b[u] > 0.0 and q[u] == q[u]
                 gx[u] = q[u] * gu[u] if ok else gx[u]
@@ -918,19 +952,21 @@ def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box):
 
 
 @numba.njit(parallel=True, cache=True)
-def _fill_rho(rho, near, base, rho_bar, box):
+def _fill_rho(rho, near, base, rho_bar, box, vo):
     """ρ̂ ← rho_bar[f, v, u] (F, Nv, Nu) where rho_bar is a number, base > 0 and ``near``
     (uint8, same dims as rho) is nonzero (rays whose filter support holds extrapolated
-    samples; inside box (8,), as :func:`depth_rho`)."""
+    samples; inside box (8,), as :func:`depth_rho`; arrays with view origin ``vo``)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     F = rho.shape[0]
     for idx in numba.prange(F * ny * nx):
         fc, j, i = _box_view(idx, box, ny, nx)
+        ja = j - vo[0]
+        ia = i - vo[1]
         for v in range(box[4], box[5]):
-            q = rho[fc, j, i, v]
-            r = near[fc, j, i, v]
-            b = base[fc, j, i, v]
+            q = rho[fc, ja, ia, v]
+            r = near[fc, ja, ia, v]
+            b = base[fc, ja, ia, v]
             rb = rho_bar[fc, v]
             for u in range(numba.uint64(box[6]), numba.uint64(box[7])):     # branch-free: vectorises
                 fill = (r[u] != 0) & (b[u] > 0.0) & (rb[u] == rb[u])
@@ -939,32 +975,35 @@ def _fill_rho(rho, near, base, rho_bar, box):
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
-              near: np.ndarray | None = None) -> np.ndarray:
+              near: np.ndarray | None = None, vo: np.ndarray | None = None) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
     der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
     L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`; ``near`` (same dims
-    as out, uint8): rays where it is nonzero count as base <= 0. Returns (4,) the variances
-    for the replaced regressors, as depth_regularise."""
+    as out, uint8): rays where it is nonzero count as base <= 0. ``vo``: the arrays' view
+    origin (module docstring; None: they hold every view). Returns (4,) the variances for
+    the replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
     t3 = FILTERS["fs3"].prefilter.astype(np.float32)
-    F, Ny, Nx = Lx.shape[:3]
+    F = Lx.shape[0]
+    vo = _view_origin(*Lx.shape[1:3]) if vo is None else np.asarray(vo, np.int64)
     # about two units per thread (each unit recomputes the products of two extra view rows)
     parts = max(1, min(int(box[1] - box[0]), -(-2 * numba.get_num_threads() // max(1, F * int(box[3] - box[2])))))
     stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 4))
     box = np.asarray(box, np.int64)
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
-        for sl in (np.s_[:, :box[0]], np.s_[:, box[1]:], np.s_[:, :, :box[2]], np.s_[:, :, box[3]:]):
+        y0, y1, x0, x1 = box[0] - vo[0], box[1] - vo[0], box[2] - vo[1], box[3] - vo[1]
+        for sl in (np.s_[:, :y0], np.s_[:, y1:], np.s_[:, :, :x0], np.s_[:, :, x1:]):
             out[sl] = np.nan                            # views outside the box (the kernel does the rest)
         vxy = float(var[0] + var[1])
         na, nb = _depth_rho_noise(var)
         has_near = near is not None
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
-        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, t9, t3, _DEPTH_KEEP * vxy, float(gate_misfit) * vxy,
-                          na, nb, float(rho_max), out, stats, parts)
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
+                          float(gate_misfit) * vxy, na, nb, float(rho_max), out, stats, parts)
     else:
         out[...] = np.nan
         stats[:] = 0.0

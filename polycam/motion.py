@@ -132,8 +132,9 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, _fill_rho, depth_rho, _face_B, _pass_kernel,
-                  _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _weighted_median, ray_motion_coefficients)
+from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho, _pass_kernel,
+                  _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _view_origin, _weighted_median, depth_rho,
+                  ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
@@ -365,27 +366,21 @@ class _Solver:
         self.tile = max(1, min(int(opts.tile), max(4, -(-max(Nu, Nv) // 8))))   # >= ~8 x 8 tiles per face
         self.kind = _ROBUST_KIND[opts.robust]
         self.scale: float | None = None
-        self.smooth = _level_discontinuity_weight(lev, opts) if opts.smooth_c > 0 else None
+        # per-ray work arrays hold the views of the box only (eq5's view origin): the others
+        # are never read (their (x, y) filter support leaves the grid)
+        self.vo = _view_origin(Ny, Nx, self.box)
+        self.cshape = _box_views(self.shape, self.box)
+        self.smooth = _level_discontinuity_weight(lev, opts, self.box) if opts.smooth_c > 0 else None
         self.var: np.ndarray | None = None
         self.src1 = _warp_source(lev.L1, lev.W1, "src1")
         self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
         self.conf0 = None
         if lev.W0 is not None and not opts.symmetric:
             self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
-        if lev.W1 is None:
-            self.out1 = _work_array("out1", (1,) + self.shape)
-            self.der = [_work_array(n, self.shape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
-        else:
-            # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
-            # warped W and "no data" channels share L_x's and L_y's memory — they are read
-            # (folded into conf) before the fused kernel writes the derivatives. (Without W
-            # separate arrays: the same live memory, but one 6-frame block left ~1 frame more
-            # resident, measured: the allocator's heap keeps freed temporaries then.)
-            warped = _work_array("warped_derivatives", (6,) + self.shape)
-            self.out1 = warped[:3]
-            self.der = [warped[1 + n] for n in range(5)]          # L_x, L_y, L_u, L_v, L_t
+        self.out1 = _work_array("out1", (1 if lev.W1 is None else 3,) + self.shape)
+        self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
         self.conf = _work_array("conf", self.shape)
-        self.base = _work_array("base", self.shape)
+        self.base = _work_array("base", self.cshape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
@@ -475,27 +470,27 @@ class _Solver:
         tile = self.tile if check else self._tile(final)     # the check's covariance needs the tiles
         derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
                        Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
-                       np.zeros((self.shape[0], 6)), tile, self.box, self.h)
+                       np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                         self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
             if check:
                 p_measured, sigma_measured, cond_measured = self._increment_and_sigma()
-            self.rho = _work_array("rho", self.shape)
+            self.rho = _work_array("rho", self.cshape)
             # ρ̂ from the captured samples only: a window holding extrapolated samples (made
             # with an earlier ρ̂) would pull the new ρ̂ back towards it
             near = None if marks is None else _near_marks(marks, self.radius["y"], self.radius["x"],
-                                                          _work_array("near", self.shape, np.uint8))
+                                                          _work_array("near", self.cshape, np.uint8), *self.vo[:2])
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, False, False)
                 self.var = self.var_dr = self._depth_rho(var, rho_max, floor, near)
-                _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box)
+                _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box, self.vo)
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                              np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
-                             self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
+                             self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
                 self.gate_misfit = floor
                 if n + 1 < len(floors):
                     p_gate, _, cond = self._increment_and_sigma()
@@ -519,10 +514,11 @@ class _Solver:
         (x, y) support of a ray's filters) only the other rays enter ρ̂'s windows, ``rho_bar``
         becomes their view mean and the near rays get it (their measured L_x, L_y mix the
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
-        var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near)
+        var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near,
+                           self.vo)
         if near is not None:
             self.rho_bar = _view_mean(self.rho)
-            _fill_rho(self.rho, near, self.base, self.rho_bar, self.box)
+            _fill_rho(self.rho, near, self.base, self.rho_bar, self.box, self.vo)
         return var_dr
 
     def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
@@ -560,7 +556,7 @@ class _Solver:
         Lx, Ly, Lu, Lv, Lt = self.der
         _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
                      self._face_params(p_rig), self.kind, 1.0 / (self.scale * self.opts.robust_c), self._tile(final),
-                     self.box, self.h, self.var, final, self.acc, self.st, parallel_chunks())
+                     self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
         return self._sums()
 
     def mad(self, p_rig: np.ndarray, max_samples: int = _SCALE_SAMPLES) -> float:
@@ -579,7 +575,7 @@ class _Solver:
         a = np.empty((n, int(box[7] - box[6])), np.float32)
         w = np.empty_like(a)
         _sample_residuals(*self.der, self.base, *self.vals, self.zs, self.fs, self._face_params(p_rig),
-                          box, stride, a, w)
+                          box, self.vo, stride, a, w)
         return 1.4826 * float(_weighted_median(a.reshape(-1), w.reshape(-1)))
 
     def derivative_noise(self) -> np.ndarray:
@@ -610,7 +606,7 @@ class _Solver:
         inv_sc = 1.0 / (self.scale * self.opts.robust_c) if kind else 0.0
         factors = _whitening_factors(self.filters, self.radius, self.box, self.opts.whiten_floor)
         acc = _whitened_sums(tuple(self.der), self.base, self.vals, self.zs, self.fs, P, kind, inv_sc,
-                             self.box, factors, self.tile)
+                             self.box, factors, self.tile, self.vo)
         return _reduce(acc, self.B)
 
     def decide_whiten(self) -> bool:

@@ -261,14 +261,18 @@ def _noise_energy_quantile(radius: int) -> float:
 
 
 def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
-                          samples: int = 50_000, noise_var: float = 0.0) -> np.ndarray:
+                          samples: int = 50_000, noise_var: float = 0.0, box: np.ndarray | None = None) -> np.ndarray:
     """:func:`discontinuity_weight` of S = (L0 + L1) / 2 (zero where W0 <= 0); the median
     from about ``samples`` values in whole rows. ``noise_var``: sensor-noise variance of S
-    per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e)."""
+    per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e).
+    ``box`` (8,): return only the weights of its views (F, box y, box x, Nv, Nu), as the
+    solver keeps them (the median is still that of every view)."""
     e = np.empty_like(L0)
     _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e)
     rows = e.reshape(-1, e.shape[-1])
     m = _median(rows[:: max(1, e.size // samples)])
+    if box is not None:
+        e = np.ascontiguousarray(e[:, box[0]:box[1], box[2]:box[3]])
     if not m > 0:
         return np.ones_like(e)
     if opts.smooth_noise and noise_var > 0:
@@ -297,11 +301,12 @@ def discontinuity_weight(S: np.ndarray, opts: MotionOptions, noise_var: float = 
     return _discontinuity_weight(S, S, None, opts, noise_var=noise_var)
 
 
-def _level_discontinuity_weight(lev: _Level, opts: MotionOptions) -> np.ndarray:
+def _level_discontinuity_weight(lev: _Level, opts: MotionOptions, box: np.ndarray | None = None) -> np.ndarray:
     """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data); the
-    mean of two frames has half the per-frame noise variance (:func:`_noise_variance`)."""
+    mean of two frames has half the per-frame noise variance (:func:`_noise_variance`).
+    ``box``: only its views (:func:`_discontinuity_weight`)."""
     var_S = 0.5 * _noise_variance(lev) if opts.smooth_noise else 0.0
-    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts, noise_var=var_S)
+    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts, noise_var=var_S, box=box)
 
 
 def solver_filter_pairs(grid: LightFieldGrid, opts: MotionOptions) -> dict:

@@ -521,14 +521,17 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
 
 
 @numba.njit(parallel=True, cache=True)
-def _near_marks_kernel(marks, ry, rx, out):
+def _near_marks_kernel(marks, ry, rx, oy, ox, out):
     F, Ny, Nx, Nv, Nu = marks.shape
-    for idx in numba.prange(F * Ny * Nx):
-        f = idx // (Ny * Nx)
-        j = (idx // Nx) % Ny
-        i = idx % Nx
+    ny, nx = out.shape[1], out.shape[2]
+    for idx in numba.prange(F * ny * nx):
+        f = idx // (ny * nx)
+        j = (idx // nx) % ny
+        i = idx % nx
         o = out[f, j, i]
         o[:, :] = 0
+        j += oy
+        i += ox
         for jj in range(max(j - ry, 0), min(j + ry + 1, Ny)):
             for ii in range(max(i - rx, 0), min(i + rx + 1, Nx)):
                 m = marks[f, jj, ii]
@@ -539,12 +542,13 @@ def _near_marks_kernel(marks, ry, rx, out):
                         orow[u] |= mrow[u]
 
 
-def _near_marks(marks: np.ndarray, ry: int, rx: int, out: np.ndarray) -> np.ndarray:
-    """``out`` (F, Ny, Nx, Nv, Nu) uint8: 1 where a sample of ``marks`` (same dims, uint8 0 / 1)
-    lies within ``ry``, ``rx`` views at the same direction, else 0 (the (x, y) part of a
-    ray's filter support; the marked samples of :func:`_warp_into` change slowly with the
-    direction, so the (u, v) part is left out)."""
-    _near_marks_kernel(marks, int(ry), int(rx), out)
+def _near_marks(marks: np.ndarray, ry: int, rx: int, out: np.ndarray, oy: int = 0, ox: int = 0) -> np.ndarray:
+    """``out`` (F, ny, nx, Nv, Nu) uint8: 1 where a sample of ``marks`` (F, Ny, Nx, Nv, Nu,
+    uint8 0 / 1) lies within ``ry``, ``rx`` views at the same direction, else 0 (the (x, y)
+    part of a ray's filter support; the marked samples of :func:`_warp_into` change slowly
+    with the direction, so the (u, v) part is left out); out's view (j, i) is view
+    (j + oy, i + ox) of marks."""
+    _near_marks_kernel(marks, int(ry), int(rx), int(oy), int(ox), out)
     return out
 
 

@@ -440,6 +440,9 @@ def test_near_marks_dilate_across_views():
     expected = np.zeros_like(marks)
     expected[0, 0:3, 2:6, 2, 3] = 1
     assert np.array_equal(near, expected)
+    # into an array over views 1:4 (y) x 2:4 (x) only, as the solver keeps it
+    inner = _near_marks(marks, 1, 2, np.full((1, 3, 2, 4, 4), 7, np.uint8), 1, 2)
+    assert np.array_equal(inner, expected[:, 1:4, 2:4])
 
 
 def test_warped_confidence_in_place(rng):
@@ -503,6 +506,39 @@ def test_fused_normal_sums_match_coefficient_matrix(scene, rng):
         assert np.allclose(N, N_ref, rtol=MOTION_NORMAL_SUMS_RTOL, atol=MOTION_NORMAL_SUMS_RTOL * np.abs(N_ref).max())
         p_ref = np.linalg.solve(N_ref, A.T @ (wf * b))
         assert np.allclose(p, p_ref, rtol=MOTION_SOLVE_RTOL, atol=MOTION_SOLVE_RTOL * np.abs(p_ref).max())
+
+
+def test_passes_on_box_view_arrays(scene, rng):
+    """The solver keeps its per-ray work arrays over the valid box's views only (eq5's view
+    origin): the IRLS pass sums and the sampled residuals from such arrays equal those from
+    arrays over every view."""
+    from polycam.eq5 import _pass_kernel, _sample_residuals, _view_origin
+
+    grid = make_grid(("+z", "-x"), views=5, directions=20)
+    M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
+    der = plenoptic_derivatives(scene.render(grid, np.eye(4)), scene.render(grid, M), grid,
+                                filters=MotionOptions().filters)
+    full = [np.ascontiguousarray(a, dtype=np.float32) for a in (der.Lx, der.Ly, der.Lu, der.Lv, der.Lt)]
+    full.append(rng.random(grid.shape).astype(np.float32))                  # base weights
+    F, Ny, Nx, Nv, Nu = grid.shape
+    box = np.array([1, Ny - 1, 2, Nx - 2, 2, Nv - 2, 2, Nu - 2], np.int64)
+    inner = [np.ascontiguousarray(a[:, 1:Ny - 1, 2:Nx - 2]) for a in full]
+    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    zs = np.array([face.z_pi for face in grid.faces])
+    fs = np.array([face.f for face in grid.faces])
+    P = rng.normal(0, 1e-3, (F, 6))
+    h = np.array([grid.x.step, grid.y.step, grid.u.step, grid.v.step])
+    n_views = F * (Ny - 2) * (Nx - 4)
+    out = []
+    for arrays, vo in ((full, _view_origin(Ny, Nx)), (inner, _view_origin(Ny, Nx, box))):
+        acc, st = np.empty((n_views, 3, 3, 29)), np.empty((n_views, 25))
+        _pass_kernel(*arrays, True, *vals, zs, fs, P, 1, 50.0, 8, box, vo, h, np.full(4, 1e-4), True, acc, st, 2)
+        a, w = (np.empty((-(-n_views * (Nv - 4) // 3), Nu - 4), np.float32) for _ in range(2))   # every 3rd row
+        _sample_residuals(*arrays, *vals, zs, fs, P, box, vo, 3, a, w)
+        out.append((acc, st, a, w))
+    for x, y in zip(*out):
+        assert np.array_equal(x, y)
+    assert out[0][0].any() and out[0][2].any()
 
 
 def test_row_wide_passes_give_the_tiled_totals(scene):
@@ -652,7 +688,7 @@ def test_whitened_sums_match_dense_gls(scene, rng):
     """The GLS path (rows whitened by banded Cholesky factors per axis) gives the normal sums
     Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box."""
     from polycam.derivatives import FILTERS
-    from polycam.eq5 import _face_B, _reduce
+    from polycam.eq5 import _face_B, _reduce, _view_origin
     from polycam.whitening import _whitened_sums, _whitening_factors
 
     grid = make_grid(("+z", "-x"), views=5, directions=16)
@@ -670,6 +706,12 @@ def test_whitened_sums_match_dense_gls(scene, rng):
     acc = _whitened_sums((der.Lx, der.Ly, der.Lu, der.Lv, der.Lt), w, vals, zs, fs, np.zeros((F, 6)), 0, 0.0,
                          box, _whitening_factors(filters, r, box), 8)
     N, rhs, sbb, _, _ = _reduce(acc, [_face_B(face) for face in grid.faces])
+    # the same from arrays that hold the box's views only (the solver's work arrays)
+    inner = np.s_[:, box[0]:box[1], box[2]:box[3]]
+    acc_c = _whitened_sums(tuple(np.ascontiguousarray(a[inner]) for a in (der.Lx, der.Ly, der.Lu, der.Lv, der.Lt)),
+                           np.ascontiguousarray(w[inner]), vals, zs, fs, np.zeros((F, 6)), 0, 0.0, box,
+                           _whitening_factors(filters, r, box), 8, _view_origin(Ny, Nx, box))
+    assert np.array_equal(acc_c, acc)
 
     S = np.ones((1, 1))
     for a, n in zip("yxvu", (Ny, Nx, Nv, Nu)):
@@ -806,7 +848,7 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     the same noise variances of the replaced regressors; with the disparity gate
     (``rho_max``, here ``gate`` x the median |L_x| / |L_u|) more rays are replaced where the
     misfit is far above the noise (here: var 1000x smaller than without the gate)."""
-    from polycam.eq5 import _apply_rho, depth_regularise, depth_rho
+    from polycam.eq5 import _apply_rho, _view_origin, depth_regularise, depth_rho
 
     grid = make_grid(("+z", "-x"), views=7, directions=32, spacing=0.01)
     M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
@@ -842,7 +884,18 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     assert not np.any(used & ~valid)
     assert 0.1 * valid.sum() < replaced.sum() < 0.9 * valid.sum()      # both cases occur
     assert np.sum(used ^ replaced) <= MOTION_DEPTH_RHO_FLIPS * valid.sum()
-    _apply_rho(*der[:4], base, rho, box)
+    # the same on arrays that hold only the box's views (the solver's work arrays)
+    vo = _view_origin(Ny, Nx, box)
+    inner = np.s_[:, 1:Ny - 1, 1:Nx - 1]
+    compact = np.empty(rho[inner].shape, np.float32)
+    var_c = depth_rho([np.ascontiguousarray(a[inner]) for a in der], np.ascontiguousarray(base[inner]), box, var,
+                      compact, rho_max, near=np.ascontiguousarray(near[inner]), vo=vo)
+    assert np.array_equal(compact, with_near[inner], equal_nan=True) and np.array_equal(var_c, var_near)
+    gx = np.ascontiguousarray(der[0][inner])
+    _apply_rho(gx, np.ascontiguousarray(der[1][inner]), *(np.ascontiguousarray(a[inner]) for a in der[2:4]),
+               np.ascontiguousarray(base[inner]), np.ascontiguousarray(rho[inner]), box, vo)
+    _apply_rho(*der[:4], base, rho, box, _view_origin(Ny, Nx))
+    assert np.array_equal(gx, der[0][inner])
     both = used & replaced
     for k in (0, 1):
         scale = np.abs(ref[k][valid]).max()
