@@ -143,8 +143,8 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _apply_warped_confidence, _near_marks, _padded, _view_mean, _views_inner, _warp_into,
-                   warp_lightfield, warp_lightfield_reference)
+from .warp import (_T_sqrt, _apply_warped_confidence, _apply_weight_confidence, _near_marks, _padded, _view_mean,
+                   _views_inner_lw_kernel, _warp_into, warp_lightfield, warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -294,10 +294,13 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -
     interpolated into usable samples (any stencil tap on it makes the sample unusable).
     ``name``: into that per-thread work array (:func:`_work_array`)."""
     F, Ny, Nx, Nv, Nu = L.shape
-    out = None if name is None else _work_array(name, (F, Nv, Nu, _padded((1 if W is None else 3) * Ny * Nx)))
-    if W is None:
-        return _views_inner(L[:, None], out)
-    return _views_inner(np.stack([L, W, (W <= 0).astype(np.float32)], axis=1), out)
+    shape = (F, Nv, Nu, _padded((1 if W is None else 3) * Ny * Nx))
+    out = np.empty(shape, np.float32) if name is None else _work_array(name, shape)
+    flat = (F, Ny * Nx, Nv, Nu)
+    L = np.ascontiguousarray(L, dtype=np.float32).reshape(flat)
+    _views_inner_lw_kernel(L, L if W is None else np.ascontiguousarray(W, dtype=np.float32).reshape(flat),
+                           W is not None, out)
+    return out
 
 
 _RHO_SETTLED = 0.05
@@ -374,11 +377,19 @@ class _Solver:
         self.var: np.ndarray | None = None
         self.src1 = _warp_source(lev.L1, lev.W1, "src1")
         self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
-        self.conf0 = None
-        if lev.W0 is not None and not opts.symmetric:
-            self.conf0 = (np.clip(lev.W0, 0, 1) * (lev.W0 > 0)).astype(np.float32)
-        self.out1 = _work_array("out1", (1 if lev.W1 is None else 3,) + self.shape)
-        self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+        if lev.W1 is None:
+            self.out1 = _work_array("out1", (1,) + self.shape)
+            self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+        else:
+            # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
+            # warped W and "no data" channels share the derivatives' memory — they are read
+            # (folded into conf) before the fused kernel writes the derivatives. (Without W
+            # separate arrays: one block measured ~1 frame more resident for the same live
+            # arrays, session 8: the allocator's heap keeps freed temporaries then.)
+            S, C = math.prod(self.shape), math.prod(self.cshape)
+            block = _work_array("warped_derivatives", (S + max(2 * S, 5 * C),))
+            self.out1 = block[:3 * S].reshape((3,) + self.shape)
+            self.der = [block[S + n * C:S + (n + 1) * C].reshape(self.cshape) for n in range(5)]  # L_x .. L_t
         self.conf = _work_array("conf", self.shape)
         self.base = _work_array("base", self.cshape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
@@ -437,8 +448,8 @@ class _Solver:
             L0 = out0[0]
         else:
             L0 = lev.L0
-            if self.conf0 is not None:
-                conf *= self.conf0
+            if lev.W0 is not None:
+                _apply_weight_confidence(conf, lev.W0)
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der

@@ -600,6 +600,31 @@ def _views_inner_kernel(a, out):
             o[u, M:Mp] = 0.0
 
 
+@numba.njit(parallel=True, cache=True)
+def _views_inner_lw_kernel(L, W, has_w, out):
+    """:func:`_views_inner_kernel` of the channels L, W and the "no data" indicator W <= 0
+    (1 / 0; without ``has_w`` L alone) from L, W (F, Ny Nx, Nv, Nu): no stacked copy."""
+    F, V, Nv, Nu = L.shape
+    M = 3 * V if has_w else V
+    Mp = out.shape[3]
+    for fv in numba.prange(F * Nv):
+        f = fv // Nv
+        v = fv - f * Nv
+        o = out[f, v]
+        for m in range(V):
+            row = L[f, m, v]
+            for u in range(Nu):
+                o[u, m] = row[u]
+        if has_w:
+            for m in range(V):
+                row = W[f, m, v]
+                for u in range(Nu):
+                    o[u, V + m] = row[u]
+                    o[u, 2 * V + m] = np.float32(1.0) if row[u] <= 0.0 else np.float32(0.0)
+        for u in range(Nu):
+            o[u, M:Mp] = 0.0
+
+
 def _padded(m: int) -> int:
     """The warp's view axis length for m = K Ny Nx values: the next multiple of 16 (the
     (u, v) warp's vector loops then have no scalar remainder: 81 → 96 is ~25 % faster)."""
@@ -633,6 +658,22 @@ def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray) -> None:
     "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
     indicator is not 0 (in place, no frame-sized temporaries)."""
     _warped_confidence_kernel(conf.reshape(-1), out[1].reshape(-1), out[2].reshape(-1))
+
+
+@numba.njit(parallel=True, cache=True)
+def _weight_confidence_kernel(conf, W):
+    n = conf.shape[0]
+    rows = max(1, n // 16384)
+    for r in numba.prange(rows):
+        for k in range(r * n // rows, (r + 1) * n // rows):
+            w = W[k]
+            conf[k] *= min(max(w, np.float32(0.0)), np.float32(1.0)) * (np.float32(1.0) if w > 0.0 else np.float32(0.0))
+
+
+def _apply_weight_confidence(conf: np.ndarray, W: np.ndarray) -> None:
+    """conf (F, Ny, Nx, Nv, Nu) *= W (same dims, float32) clipped to [0, 1], zero where W <= 0
+    (the confidence of an unwarped frame; in place, no frame-sized temporaries)."""
+    _weight_confidence_kernel(conf.reshape(-1), np.ascontiguousarray(W, dtype=np.float32).reshape(-1))
 
 
 _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.uint8)
