@@ -143,8 +143,8 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _apply_warped_confidence, _apply_weight_confidence, _near_marks, _padded, _view_mean,
-                   _views_inner_lw_kernel, _warp_into, warp_lightfield, warp_lightfield_reference)
+from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _apply_weight_confidence, _near_marks, _padded,
+                   _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield, warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -290,17 +290,25 @@ def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarra
 
 def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> np.ndarray:
     """Channels warped together, (F, Nv, Nu, M) (:func:`~polycam.warp._views_inner`): L,
-    and with a confidence W also W and the "no data" indicator (W <= 0), which must not be
-    interpolated into usable samples (any stencil tap on it makes the sample unusable).
-    ``name``: into that per-thread work array (:func:`_work_array`)."""
+    and with a confidence W also W and, where W has samples without data (W <= 0), the "no
+    data" indicator W <= 0, which must not be interpolated into usable samples (any stencil
+    tap on it makes the sample unusable; without such samples it would warp to 0
+    everywhere, so it is left out: a third less warping). ``name``: into that per-thread
+    work array (:func:`_work_array`). The channel count is ``M // _padded(Ny Nx)``."""
     F, Ny, Nx, Nv, Nu = L.shape
-    shape = (F, Nv, Nu, _padded((1 if W is None else 3) * Ny * Nx))
-    out = np.empty(shape, np.float32) if name is None else _work_array(name, shape)
     flat = (F, Ny * Nx, Nv, Nu)
     L = np.ascontiguousarray(L, dtype=np.float32).reshape(flat)
-    _views_inner_lw_kernel(L, L if W is None else np.ascontiguousarray(W, dtype=np.float32).reshape(flat),
-                           W is not None, out)
+    W = L if W is None else np.ascontiguousarray(W, dtype=np.float32).reshape(flat)
+    channels = 1 if W is L else (3 if _any_at_most_zero(W.reshape(-1)) else 2)
+    shape = (F, Nv, Nu, _padded(channels * Ny * Nx))
+    out = np.empty(shape, np.float32) if name is None else _work_array(name, shape)
+    _views_inner_lw_kernel(L, W, channels, out)
     return out
+
+
+def _source_channels(src: np.ndarray, shape: tuple) -> int:
+    """Channels of a warp source (:func:`_warp_source`) of a light field of dims ``shape``."""
+    return 1 + (src.shape[3] > _padded(shape[1] * shape[2])) + (src.shape[3] > _padded(2 * shape[1] * shape[2]))
 
 
 _RHO_SETTLED = 0.05
@@ -377,6 +385,7 @@ class _Solver:
         self.var: np.ndarray | None = None
         self.src1 = _warp_source(lev.L1, lev.W1, "src1")
         self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
+        K = _source_channels(self.src1, self.shape)
         if lev.W1 is None:
             self.out1 = _work_array("out1", (1,) + self.shape)
             self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
@@ -387,8 +396,8 @@ class _Solver:
             # separate arrays: one block measured ~1 frame more resident for the same live
             # arrays, session 8: the allocator's heap keeps freed temporaries then.)
             S, C = math.prod(self.shape), math.prod(self.cshape)
-            block = _work_array("warped_derivatives", (S + max(2 * S, 5 * C),))
-            self.out1 = block[:3 * S].reshape((3,) + self.shape)
+            block = _work_array("warped_derivatives", (S + max((K - 1) * S, 5 * C),))
+            self.out1 = block[:K * S].reshape((K,) + self.shape)
             self.der = [block[S + n * C:S + (n + 1) * C].reshape(self.cshape) for n in range(5)]  # L_x .. L_t
         self.conf = _work_array("conf", self.shape)
         self.base = _work_array("base", self.cshape)
@@ -439,7 +448,7 @@ class _Solver:
         if lev.W1 is not None:
             _apply_warped_confidence(conf, self.out1)
         if opts.symmetric:
-            out0 = np.empty((1 if lev.W0 is None else 3,) + self.shape, np.float32)
+            out0 = np.empty((_source_channels(self.src0, self.shape),) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
             _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0)
             conf *= ok0

@@ -601,11 +601,11 @@ def _views_inner_kernel(a, out):
 
 
 @numba.njit(parallel=True, cache=True)
-def _views_inner_lw_kernel(L, W, has_w, out):
-    """:func:`_views_inner_kernel` of the channels L, W and the "no data" indicator W <= 0
-    (1 / 0; without ``has_w`` L alone) from L, W (F, Ny Nx, Nv, Nu): no stacked copy."""
+def _views_inner_lw_kernel(L, W, channels, out):
+    """:func:`_views_inner_kernel` of the first ``channels`` (1, 2 or 3) of L, W and the "no
+    data" indicator W <= 0 (1 / 0) from L, W (F, Ny Nx, Nv, Nu): no stacked copy."""
     F, V, Nv, Nu = L.shape
-    M = 3 * V if has_w else V
+    M = channels * V
     Mp = out.shape[3]
     for fv in numba.prange(F * Nv):
         f = fv // Nv
@@ -615,14 +615,27 @@ def _views_inner_lw_kernel(L, W, has_w, out):
             row = L[f, m, v]
             for u in range(Nu):
                 o[u, m] = row[u]
-        if has_w:
+        if channels > 1:
             for m in range(V):
                 row = W[f, m, v]
                 for u in range(Nu):
                     o[u, V + m] = row[u]
+        if channels > 2:
+            for m in range(V):
+                row = W[f, m, v]
+                for u in range(Nu):
                     o[u, 2 * V + m] = np.float32(1.0) if row[u] <= 0.0 else np.float32(0.0)
         for u in range(Nu):
             o[u, M:Mp] = 0.0
+
+
+@numba.njit(cache=True)
+def _any_at_most_zero(a):
+    """Whether a (n,) has a value <= 0 (no temporary)."""
+    for k in range(a.shape[0]):
+        if a[k] <= 0.0:
+            return True
+    return False
 
 
 def _padded(m: int) -> int:
@@ -643,21 +656,21 @@ def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
 
 
 @numba.njit(parallel=True, cache=True)
-def _warped_confidence_kernel(conf, W, nodata):
+def _warped_confidence_kernel(conf, W, nodata, has_nodata):
     n = conf.shape[0]
     rows = max(1, n // 16384)
     for r in numba.prange(rows):
         for k in range(r * n // rows, (r + 1) * n // rows):
             w = min(max(W[k], np.float32(0.0)), np.float32(1.0))
-            conf[k] *= w * (np.float32(1.0) if abs(nodata[k]) < 1e-6 else np.float32(0.0))
+            conf[k] *= w * (np.float32(1.0) if not has_nodata or abs(nodata[k]) < 1e-6 else np.float32(0.0))
 
 
 def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray) -> None:
-    """conf (F, Ny, Nx, Nv, Nu) *= the confidence of the warped channels out (3, F, Ny, Nx, Nv,
-    Nu) of the motion solver's source with W (``polycam.motion._warp_source``: L, W and the
-    "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
+    """conf (F, Ny, Nx, Nv, Nu) *= the confidence of the warped channels out (K, F, Ny, Nx, Nv,
+    Nu) of the motion solver's source with W (``polycam.motion._warp_source``: L, W and, K = 3,
+    the "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
     indicator is not 0 (in place, no frame-sized temporaries)."""
-    _warped_confidence_kernel(conf.reshape(-1), out[1].reshape(-1), out[2].reshape(-1))
+    _warped_confidence_kernel(conf.reshape(-1), out[1].reshape(-1), out[-1].reshape(-1), out.shape[0] > 2)
 
 
 @numba.njit(parallel=True, cache=True)
