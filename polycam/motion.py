@@ -288,13 +288,13 @@ def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarra
 # ============================================================================ the solver
 
 
-def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> np.ndarray:
+def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> tuple[np.ndarray, int]:
     """Channels warped together, (F, Nv, Nu, M) (:func:`~polycam.warp._views_inner`): L,
     and with a confidence W also W and, where W has samples without data (W <= 0), the "no
     data" indicator W <= 0, which must not be interpolated into usable samples (any stencil
     tap on it makes the sample unusable; without such samples it would warp to 0
     everywhere, so it is left out: a third less warping). ``name``: into that per-thread
-    work array (:func:`_work_array`). The channel count is ``M // _padded(Ny Nx)``."""
+    work array (:func:`_work_array`). Returns the source and its channel count (1, 2 or 3)."""
     F, Ny, Nx, Nv, Nu = L.shape
     flat = (F, Ny * Nx, Nv, Nu)
     L = np.ascontiguousarray(L, dtype=np.float32).reshape(flat)
@@ -303,12 +303,7 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -
     shape = (F, Nv, Nu, _padded(channels * Ny * Nx))
     out = np.empty(shape, np.float32) if name is None else _work_array(name, shape)
     _views_inner_lw_kernel(L, W, channels, out)
-    return out
-
-
-def _source_channels(src: np.ndarray, shape: tuple) -> int:
-    """Channels of a warp source (:func:`_warp_source`) of a light field of dims ``shape``."""
-    return 1 + (src.shape[3] > _padded(shape[1] * shape[2])) + (src.shape[3] > _padded(2 * shape[1] * shape[2]))
+    return out, channels
 
 
 _RHO_SETTLED = 0.05
@@ -383,9 +378,8 @@ class _Solver:
         self.cshape = _box_views(self.shape, self.box)
         self.smooth = _level_discontinuity_weight(lev, opts, self.box) if opts.smooth_c > 0 else None
         self.var: np.ndarray | None = None
-        self.src1 = _warp_source(lev.L1, lev.W1, "src1")
-        self.src0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else None
-        K = _source_channels(self.src1, self.shape)
+        self.src1, K = _warp_source(lev.L1, lev.W1, "src1")
+        self.src0, self.K0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else (None, 0)
         if lev.W1 is None:
             self.out1 = _work_array("out1", (1,) + self.shape)
             self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
@@ -448,7 +442,7 @@ class _Solver:
         if lev.W1 is not None:
             _apply_warped_confidence(conf, self.out1)
         if opts.symmetric:
-            out0 = np.empty((_source_channels(self.src0, self.shape),) + self.shape, np.float32)
+            out0 = np.empty((self.K0,) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
             _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0)
             conf *= ok0
