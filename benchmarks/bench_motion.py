@@ -26,8 +26,9 @@ coefficient matrix A formed in numpy and AᵀWA by a matrix product), both measu
 this run; plus the full default estimate per pair against the same algorithm written
 in numpy / scipy (:func:`numpy_full_solve`: same pyramid, warp stencils, filters,
 weights, IRLS, covariance scores and the same number of solves per level as our run),
-and the peak memory of one full estimate in a fresh process relative to one frame.
-Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
+the default estimate with confidences W (a resampled session's frames carry them: the
+warp then also moves W), and the peak memory of one full estimate in a fresh process
+relative to one frame. Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
 machine (2 cores) may be shared, which inflates both (numba's threads spin-wait).
 """
 
@@ -396,19 +397,21 @@ small = default_lightfield_grid("+z", views=5, directions=32)
 a = np.random.default_rng(0).random(small.shape).astype(np.float32)
 estimate_motion(a, a * 0.99 + 0.005, small)              # load the compiled kernels
 L0, L1 = np.load({f0!r}), np.load({f1!r})
+W = np.ones_like(L0) if {with_w} else None
 grid = default_lightfield_grid("+z", directions={directions})
 with open("/proc/self/clear_refs", "w") as f:            # reset the peak resident set (VmHWM)
     f.write("5")
 before = status("VmRSS")
-estimate_motion(L0, L1, grid, options=MotionOptions(depth_regressors={dr}))
+estimate_motion(L0, L1, grid, W0=W, W1=W, options=MotionOptions(depth_regressors={dr}))
 print(status("VmHWM") - before)
 """
 
 
-def peak_memory(L0, L1, directions: int, depth_regressors: bool = True) -> int:
+def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: bool = False) -> int:
     """Peak growth of the resident set [bytes] during one full estimate, in a fresh process
     (frames loaded and kernels warmed up on a small grid first; Linux: the peak is reset
-    through /proc/self/clear_refs, so earlier peaks such as imports do not hide it)."""
+    through /proc/self/clear_refs, so earlier peaks such as imports do not hide it).
+    ``with_w``: with confidences W = 1 for both frames (allocated before the reset)."""
     import subprocess
     import tempfile
 
@@ -416,7 +419,8 @@ def peak_memory(L0, L1, directions: int, depth_regressors: bool = True) -> int:
         f0, f1 = str(Path(tmp) / "L0.npy"), str(Path(tmp) / "L1.npy")
         np.save(f0, L0)
         np.save(f1, L1)
-        code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions, dr=depth_regressors)
+        code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions, dr=depth_regressors,
+                                   with_w=with_w)
         out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
     return int(out.stdout.split()[-1])
 
@@ -455,6 +459,8 @@ def speed(repeat: int, directions: int) -> None:
     t_full_m = best_time(lambda: estimate_motion(L0, L1, grid, options=meas), repeat)
     t_full = min(t_full, best_time(lambda: estimate_motion(L0, L1, grid), repeat))   # alternate: same load
     t_full_m = min(t_full_m, best_time(lambda: estimate_motion(L0, L1, grid, options=meas), repeat))
+    W = np.ones_like(L0)          # confidences of a resampled session's frames (all measured)
+    t_full_w = best_time(lambda: estimate_motion(L0, L1, grid, W0=W, W1=W), repeat)
     t_full_np = best_time(lambda: numpy_full_solve(L0, L1, grid, schedule, meas), 1)
     c_ours = cpu_time(ours, repeat)
     c_der = cpu_time(ours_der, repeat)
@@ -464,6 +470,7 @@ def speed(repeat: int, directions: int) -> None:
     c_full_np = cpu_time(lambda: numpy_full_solve(L0, L1, grid, schedule, meas), 1)
     mem = peak_memory(L0, L1, directions)
     mem_m = peak_memory(L0, L1, directions, False)
+    mem_w = peak_memory(L0, L1, directions, with_w=True)
     import numba
 
     threads = numba.get_num_threads()
@@ -480,6 +487,8 @@ def speed(repeat: int, directions: int) -> None:
           f"{1e3 * t_full:.0f} | {n / t_full / 1e6:.1f} | {1e3 * c_full:.0f} |")
     print(f"| the same with `depth_regressors=False` (measured L_x, L_y), ours | {1e3 * t_full_m:.0f} | "
           f"{n / t_full_m / 1e6:.1f} | {1e3 * c_full_m:.0f} |")
+    print(f"| the default with confidences W0 = W1 = 1 (as a resampled session's frames), ours | "
+          f"{1e3 * t_full_w:.0f} | {n / t_full_w / 1e6:.1f} | – |")
     print(f"| that algorithm and solve schedule {schedule} in numpy/scipy | {1e3 * t_full_np:.0f} | "
           f"{n / t_full_np / 1e6:.2f} | {1e3 * c_full_np:.0f} |")
     print(f"\nspeed-up of ours over the baselines: derivatives + solve {t_base / t_ours:.1f}x "
@@ -493,7 +502,8 @@ def speed(repeat: int, directions: int) -> None:
     print(f"numpy baseline vs ours: max |Δr| = {d[:3].max():.1e} rad, max |Δt| = {d[3:].max():.1e} m")
     print(f"peak memory of one full estimate (growth of the resident set, fresh process): "
           f"{mem / 2**20:.0f} MiB = {mem / L0.nbytes:.1f} x one frame ({L0.nbytes / 2**20:.1f} MiB); "
-          f"with depth_regressors=False {mem_m / 2**20:.0f} MiB = {mem_m / L0.nbytes:.1f} frames")
+          f"with depth_regressors=False {mem_m / 2**20:.0f} MiB = {mem_m / L0.nbytes:.1f} frames; "
+          f"with confidences W {mem_w / 2**20:.0f} MiB = {mem_w / L0.nbytes:.1f} frames")
     print(f"depth_regressors (the default) costs +{1e3 * (t_full - t_full_m):.1f} ms wall (best of {2 * repeat}, "
           f"alternating), +{1e3 * (c_full - c_full_m):.0f} ms CPU time")
 
