@@ -439,8 +439,11 @@ class _Solver:
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks)
         conf = self.conf
+        W0 = lev.W0 if not opts.symmetric else None          # frame 1's confidence, unwarped
         if lev.W1 is not None:
-            _apply_warped_confidence(conf, self.out1)
+            _apply_warped_confidence(conf, self.out1, W0)     # both factors in one pass
+        elif W0 is not None:
+            _apply_weight_confidence(conf, W0)
         if opts.symmetric:
             out0 = np.empty((self.K0,) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
@@ -451,8 +454,6 @@ class _Solver:
             L0 = out0[0]
         else:
             L0 = lev.L0
-            if lev.W0 is not None:
-                _apply_weight_confidence(conf, lev.W0)
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der

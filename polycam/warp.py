@@ -655,22 +655,33 @@ def _views_inner(arrays: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _weight_confidence(w):
+    """The confidence of a weight w: w clipped to [0, 1], zero where w <= 0."""
+    return min(max(w, np.float32(0.0)), np.float32(1.0)) * (np.float32(1.0) if w > 0.0 else np.float32(0.0))
+
+
 @numba.njit(parallel=True, cache=True)
-def _warped_confidence_kernel(conf, W, nodata, has_nodata):
+def _warped_confidence_kernel(conf, W, nodata, has_nodata, W0, has_w0):
     n = conf.shape[0]
     rows = max(1, n // 16384)
     for r in numba.prange(rows):
         for k in range(r * n // rows, (r + 1) * n // rows):
             w = min(max(W[k], np.float32(0.0)), np.float32(1.0))
-            conf[k] *= w * (np.float32(1.0) if not has_nodata or abs(nodata[k]) < 1e-6 else np.float32(0.0))
+            c = conf[k] * (w * (np.float32(1.0) if not has_nodata or abs(nodata[k]) < 1e-6 else np.float32(0.0)))
+            conf[k] = c * _weight_confidence(W0[k]) if has_w0 else c
 
 
-def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray) -> None:
+def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray, W0: np.ndarray | None = None) -> None:
     """conf (F, Ny, Nx, Nv, Nu) *= the confidence of the warped channels out (K, F, Ny, Nx, Nv,
     Nu) of the motion solver's source with W (``polycam.motion._warp_source``: L, W and, K = 3,
     the "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
-    indicator is not 0 (in place, no frame-sized temporaries)."""
-    _warped_confidence_kernel(conf.reshape(-1), out[1].reshape(-1), out[-1].reshape(-1), out.shape[0] > 2)
+    indicator is not 0; then, with ``W0`` (same dims as conf), by :func:`_apply_weight_confidence`'s
+    factor in the same pass (in place, no frame-sized temporaries)."""
+    flat = conf.reshape(-1)
+    _warped_confidence_kernel(flat, out[1].reshape(-1), out[-1].reshape(-1), out.shape[0] > 2,
+                              flat if W0 is None else np.ascontiguousarray(W0, dtype=np.float32).reshape(-1),
+                              W0 is not None)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -679,8 +690,7 @@ def _weight_confidence_kernel(conf, W):
     rows = max(1, n // 16384)
     for r in numba.prange(rows):
         for k in range(r * n // rows, (r + 1) * n // rows):
-            w = W[k]
-            conf[k] *= min(max(w, np.float32(0.0)), np.float32(1.0)) * (np.float32(1.0) if w > 0.0 else np.float32(0.0))
+            conf[k] *= _weight_confidence(W[k])
 
 
 def _apply_weight_confidence(conf: np.ndarray, W: np.ndarray) -> None:

@@ -446,16 +446,27 @@ def test_near_marks_dilate_across_views():
 
 
 def test_warped_confidence_in_place(rng):
-    """conf *= clip(warped W, 0, 1) x (warped "no data" indicator == 0), as the numpy formula."""
-    from polycam.warp import _apply_warped_confidence
+    """conf *= clip(warped W, 0, 1) x (warped "no data" indicator == 0), as the numpy formula;
+    without the indicator channel (W had no samples without data) the clipped W alone; with
+    frame 1's W0 also x clip(W0, 0, 1) x (W0 > 0) in the same pass, or alone."""
+    from polycam.warp import _apply_warped_confidence, _apply_weight_confidence
 
     shape = (2, 3, 3, 8, 8)
-    conf = rng.integers(0, 2, shape).astype(np.float32)
+    conf0 = rng.integers(0, 2, shape).astype(np.float32)
     out = np.stack([rng.random(shape), rng.uniform(-0.5, 1.5, shape),
                     np.where(rng.random(shape) < 0.3, rng.uniform(-1, 1, shape), 0.0)]).astype(np.float32)
-    expected = conf * (np.clip(out[1], 0, 1) * (np.abs(out[2]) < 1e-6))
-    _apply_warped_confidence(conf, out)
-    assert np.array_equal(conf, expected)
+    W0 = rng.uniform(-0.5, 1.5, shape).astype(np.float32)
+    factor0 = np.clip(W0, 0, 1) * (W0 > 0)
+    for channels, with_w0 in ((3, False), (2, False), (3, True), (2, True)):
+        conf = conf0.copy()
+        expected = conf * (np.clip(out[1], 0, 1) * ((np.abs(out[2]) < 1e-6) if channels == 3 else 1.0))
+        if with_w0:
+            expected = expected * factor0
+        _apply_warped_confidence(conf, out[:channels], W0 if with_w0 else None)
+        assert np.array_equal(conf, expected.astype(np.float32))
+    conf = conf0.copy()
+    _apply_weight_confidence(conf, W0)
+    assert np.array_equal(conf, (conf0 * factor0).astype(np.float32))
 
 
 @pytest.mark.parametrize("n", [1, 5, 50_000])
