@@ -301,6 +301,27 @@ def test_confidence_zero_region_is_ignored(scene):
     assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL_ONE_FACE)
 
 
+def test_no_data_channel_left_out_only_when_empty(scene, monkeypatch):
+    """Without samples of W <= 0 the warp source has no "no data" channel (it would warp to
+    0 everywhere): the estimate equals the one with the channel warped; with such samples
+    the channel is there."""
+    import polycam.motion as motion
+
+    grid = make_grid(("+z",), directions=24)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    W = np.random.default_rng(3).uniform(0.2, 1.0, grid.shape).astype(np.float32)
+    assert motion._warp_source(L1, W)[1] == 2
+    W_holes = W.copy()
+    W_holes[..., :3] = 0.0
+    assert motion._warp_source(L1, W_holes)[1] == 3 and motion._warp_source(L1, None)[1] == 1
+    lean = estimate_motion(L0, L1, grid, W0=W, W1=W)
+    monkeypatch.setattr(motion, "_any_at_most_zero", lambda a: True)       # warp the channel anyway
+    full = estimate_motion(L0, L1, grid, W0=W, W1=W)
+    assert lean and np.array_equal(lean.T_prev_next, full.T_prev_next)
+    assert np.array_equal(lean.covariance, full.covariance)
+
+
 def test_covariance_matches_scatter_under_noise(scene):
     grid = make_grid(("+z",), directions=24)
     rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
