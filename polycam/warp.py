@@ -581,6 +581,15 @@ def _view_mean(rho: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _put_views(o, a, f, v, m0):
+    """o[u, m0 + m] = a[f, m, v, u] for every m of a (F, M, Nv, Nu) and u."""
+    for m in range(a.shape[1]):
+        row = a[f, m, v]
+        for u in range(a.shape[3]):
+            o[u, m0 + m] = row[u]
+
+
 @numba.njit(parallel=True, cache=True)
 def _views_inner_kernel(a, out):
     """out[f, v, u, m] = a[f, m, v, u] (m = the flattened (K, Ny, Nx)), zero for m beyond
@@ -592,10 +601,7 @@ def _views_inner_kernel(a, out):
         f = fv // Nv
         v = fv - f * Nv
         o = out[f, v]
-        for m in range(M):
-            row = a[f, m, v]
-            for u in range(Nu):
-                o[u, m] = row[u]
+        _put_views(o, a, f, v, 0)
         for u in range(Nu):
             o[u, M:Mp] = 0.0
 
@@ -611,15 +617,9 @@ def _views_inner_lw_kernel(L, W, channels, out):
         f = fv // Nv
         v = fv - f * Nv
         o = out[f, v]
-        for m in range(V):
-            row = L[f, m, v]
-            for u in range(Nu):
-                o[u, m] = row[u]
+        _put_views(o, L, f, v, 0)
         if channels > 1:
-            for m in range(V):
-                row = W[f, m, v]
-                for u in range(Nu):
-                    o[u, V + m] = row[u]
+            _put_views(o, W, f, v, V)
         if channels > 2:
             for m in range(V):
                 row = W[f, m, v]
