@@ -395,7 +395,8 @@ def status(key):
 
 small = default_lightfield_grid("+z", views=5, directions=32)
 a = np.random.default_rng(0).random(small.shape).astype(np.float32)
-estimate_motion(a, a * 0.99 + 0.005, small)              # load the compiled kernels
+Ws = np.ones_like(a) if {with_w} else None
+estimate_motion(a, a * 0.99 + 0.005, small, W0=Ws, W1=Ws)   # load the compiled kernels (as a session: with W)
 L0, L1 = np.load({f0!r}), np.load({f1!r})
 W = np.ones_like(L0) if {with_w} else None
 grid = default_lightfield_grid("+z", directions={directions})
@@ -411,7 +412,9 @@ def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: 
     """Peak growth of the resident set [bytes] during one full estimate, in a fresh process
     (frames loaded and kernels warmed up on a small grid first; Linux: the peak is reset
     through /proc/self/clear_refs, so earlier peaks such as imports do not hide it).
-    ``with_w``: with confidences W = 1 for both frames (allocated before the reset)."""
+    ``with_w``: with confidences W = 1 for both frames (allocated before the reset; the
+    warm-up has them too, as every pair of a session does: the work arrays' dtypes then
+    match, which the allocator's reuse of freed memory depends on)."""
     import subprocess
     import tempfile
 

@@ -393,7 +393,10 @@ class _Solver:
             block = _work_array("warped_derivatives", (S + max((K - 1) * S, 5 * C),))
             self.out1 = block[:K * S].reshape((K,) + self.shape)
             self.der = [block[S + n * C:S + (n + 1) * C].reshape(self.cshape) for n in range(5)]  # L_x .. L_t
-        self.conf = _work_array("conf", self.shape)
+        # the warp's confidence: 0 / 1 without W (uint8: a quarter of the memory), else
+        # multiplied by the (warped) confidences
+        binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
+        self.conf = _work_array("conf", self.shape, np.uint8 if binary else np.float32)
         self.base = _work_array("base", self.cshape)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
