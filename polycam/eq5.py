@@ -887,11 +887,11 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr
                     for u in range(numba.uint64(box[7] - box[6])):
                         o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
             _window_uv(A, B, C, t9, box)
-            ja = j - vo[0]
-            ia = i - vo[1]
-            out = rho[fc, ja, ia]
+            jw = j - vo[0]                              # the view in the work arrays
+            iw = i - vo[1]
+            out = rho[fc, jw, iw]
             out[:, :] = np.nan
-            bw = base[fc, ja, ia]
+            bw = base[fc, jw, iw]
             n_valid = 0.0
             n_use = 0.0
             r2 = 0.0
@@ -903,9 +903,9 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr
                 sn = C[3, v]
                 o = out[v]
                 b = bw[v]
-                nr = near[fc, ja, ia, v] if has_near else near[0, 0, 0, 0]
-                gu = Lu[fc, ja, ia, v]
-                gv = Lv[fc, ja, ia, v]
+                nr = near[fc, jw, iw, v] if has_near else near[0, 0, 0, 0]
+                gu = Lu[fc, jw, iw, v]
+                gv = Lv[fc, jw, iw, v]
                 for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
                     ok = (b[u] > 0.0) & (nr[u] == 0)
                     has = suu[u] > 0.0
