@@ -829,6 +829,80 @@ def _window_uv(A, B, C, t9, box):
                     + w3 * (b3[u] + b5[u])
 
 
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max, rho,
+                    st, fc, i, ja, jb):
+    """One work unit of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds
+    its statistics to st (4,). A function of its own, called from the parallel loop (a
+    body this large inside the prange compiled ~2x slower)."""
+    Nv, Nu = Lx.shape[3], Lx.shape[4]
+    Ny, Nx = vo[2], vo[3]
+    px = np.zeros((3, 4, Nv, Nu), np.float32)     # rows r = j-1, j, j+1 at slot (r + 3) % 3
+    A = np.zeros((4, Nv + 8, Nu + 8), np.float32)
+    B = np.zeros((4, Nv, Nu + 8), np.float32)
+    C = np.empty((4, Nv, Nu), np.float32)
+    for r in range(ja - 1, jb + 1):
+        s = px[(r + 3) % 3]
+        s[:, :, :] = 0.0
+        rc = min(max(r, 0), Ny - 1)
+        for dx in range(3):
+            ic = min(max(i + dx - 1, 0), Nx - 1)
+            _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, rc, ic, t3[dx], s)
+        if r < ja + 1:
+            continue
+        j = r - 1                                   # rows j-1, j, j+1 are ready
+        a0 = px[(j + 2) % 3]
+        a1 = px[(j + 3) % 3]
+        a2 = px[(j + 4) % 3]
+        for c in range(4):
+            for v in range(box[4], box[5]):
+                o = A[c, v + 4, 4 + box[6]:4 + box[7]]
+                s0 = a0[c, v, box[6]:box[7]]
+                s1 = a1[c, v, box[6]:box[7]]
+                s2 = a2[c, v, box[6]:box[7]]
+                for u in range(numba.uint64(box[7] - box[6])):
+                    o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
+        _window_uv(A, B, C, t9, box)
+        jw = j - vo[0]                              # the view in the work arrays
+        iw = i - vo[1]
+        out = rho[fc, jw, iw]
+        out[:, :] = np.nan
+        bw = base[fc, jw, iw]
+        n_valid = 0.0
+        n_use = 0.0
+        r2 = 0.0
+        er = 0.0
+        for v in range(box[4], box[5]):
+            suu = C[0, v]
+            sxu = C[1, v]
+            sxx = C[2, v]
+            sn = C[3, v]
+            o = out[v]
+            b = bw[v]
+            nr = near[fc, jw, iw, v] if has_near else near[0, 0, 0, 0]
+            gu = Lu[fc, jw, iw, v]
+            gv = Lv[fc, jw, iw, v]
+            for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
+                ok = (b[u] > 0.0) & (nr[u] == 0)
+                has = suu[u] > 0.0
+                inv = np.float32(1.0) / max(suu[u], np.float32(1e-30))
+                q = sxu[u] * inv if has else np.float32(0.0)
+                e = (gu[u] * gu[u] + gv[u] * gv[u]) * np.float32(nb) * inv if has else np.float32(0.0)
+                res = np.float64(sxx[u] - q * sxu[u])
+                nw = np.float64(sn[u])
+                quiet = q * q * np.float32(na) + e <= np.float32(1.0)
+                use = ok and quiet and (res <= thr * nw or (abs(q) <= rho_max and res >= thr_gate * nw))
+                o[u] = q if use else np.float32(np.nan)
+                n_valid += 1.0 if ok else 0.0
+                n_use += 1.0 if use else 0.0
+                r2 += np.float64(q) * np.float64(q) if use else 0.0
+                er += np.float64(e) if use else 0.0
+        st[0] += n_valid
+        st[1] += n_use
+        st[2] += r2
+        st[3] += er
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
                       rho, stats, parts):
@@ -845,8 +919,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr
     its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
     and the misfit at least ``thr_gate`` x the weight. stats (units, 4): valid rays, used
     rays, Σ ρ̂² and Σ (L_u² + L_v²) nb / S_uu over the used ones."""
-    F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
-    Ny, Nx = vo[2], vo[3]
+    F = Lx.shape[0]
     nx = box[3] - box[2]
     ny = box[1] - box[0]
     n_units = F * nx * parts
@@ -861,70 +934,8 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr
         st[:] = 0.0
         if jb <= ja:
             continue
-        px = np.zeros((3, 4, Nv, Nu), np.float32)     # rows r = j-1, j, j+1 at slot (r + 3) % 3
-        A = np.zeros((4, Nv + 8, Nu + 8), np.float32)
-        B = np.zeros((4, Nv, Nu + 8), np.float32)
-        C = np.empty((4, Nv, Nu), np.float32)
-        for r in range(ja - 1, jb + 1):
-            s = px[(r + 3) % 3]
-            s[:, :, :] = 0.0
-            rc = min(max(r, 0), Ny - 1)
-            for dx in range(3):
-                ic = min(max(i + dx - 1, 0), Nx - 1)
-                _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, rc, ic, t3[dx], s)
-            if r < ja + 1:
-                continue
-            j = r - 1                                   # rows j-1, j, j+1 are ready
-            a0 = px[(j + 2) % 3]
-            a1 = px[(j + 3) % 3]
-            a2 = px[(j + 4) % 3]
-            for c in range(4):
-                for v in range(box[4], box[5]):
-                    o = A[c, v + 4, 4 + box[6]:4 + box[7]]
-                    s0 = a0[c, v, box[6]:box[7]]
-                    s1 = a1[c, v, box[6]:box[7]]
-                    s2 = a2[c, v, box[6]:box[7]]
-                    for u in range(numba.uint64(box[7] - box[6])):
-                        o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
-            _window_uv(A, B, C, t9, box)
-            jw = j - vo[0]                              # the view in the work arrays
-            iw = i - vo[1]
-            out = rho[fc, jw, iw]
-            out[:, :] = np.nan
-            bw = base[fc, jw, iw]
-            n_valid = 0.0
-            n_use = 0.0
-            r2 = 0.0
-            er = 0.0
-            for v in range(box[4], box[5]):
-                suu = C[0, v]
-                sxu = C[1, v]
-                sxx = C[2, v]
-                sn = C[3, v]
-                o = out[v]
-                b = bw[v]
-                nr = near[fc, jw, iw, v] if has_near else near[0, 0, 0, 0]
-                gu = Lu[fc, jw, iw, v]
-                gv = Lv[fc, jw, iw, v]
-                for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
-                    ok = (b[u] > 0.0) & (nr[u] == 0)
-                    has = suu[u] > 0.0
-                    inv = np.float32(1.0) / max(suu[u], np.float32(1e-30))
-                    q = sxu[u] * inv if has else np.float32(0.0)
-                    e = (gu[u] * gu[u] + gv[u] * gv[u]) * np.float32(nb) * inv if has else np.float32(0.0)
-                    res = np.float64(sxx[u] - q * sxu[u])
-                    nw = np.float64(sn[u])
-                    quiet = q * q * np.float32(na) + e <= np.float32(1.0)
-                    use = ok and quiet and (res <= thr * nw or (abs(q) <= rho_max and res >= thr_gate * nw))
-                    o[u] = q if use else np.float32(np.nan)
-                    n_valid += 1.0 if ok else 0.0
-                    n_use += 1.0 if use else 0.0
-                    r2 += np.float64(q) * np.float64(q) if use else 0.0
-                    er += np.float64(e) if use else 0.0
-            st[0] += n_valid
-            st[1] += n_use
-            st[2] += r2
-            st[3] += er
+        _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max, rho,
+                        st, fc, i, ja, jb)
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
