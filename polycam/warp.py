@@ -322,8 +322,8 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, o
     viewpoints of the row's (u, v)-warped images Uv (Nu M,) ((Nu, M) flattened, M >= K Ny Nx:
     (K, Ny, Nx) flattened, then padding) at each moved ray's focal-plane point in grid units,
     fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view from its
-    moved origin; slopes (Nv, Nu) per direction); ok[face] (F, Ny, Nx, Nv, Nu) float32 is 1
-    where the moved ray lies inside the grid, else 0 (and out 0)."""
+    moved origin; slopes (Nv, Nu) per direction); ok[face] (F, Ny, Nx, Nv, Nu; float32 or
+    uint8) is 1 where the moved ray lies inside the grid, else 0 (and out 0)."""
     K, _, Ny, Nx = out.shape[:4]
     Nu = out.shape[5]
     eps = 1e-6
@@ -708,8 +708,8 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                marks: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
-    float32 (1 inside, 0 outside). With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per
-    direction, u per unit x; NaN unknown) and ``extrapolate_views`` > 0, rays up to that many
+    float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
+    With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per direction, u per unit x; NaN unknown) and ``extrapolate_views`` > 0, rays up to that many
     view steps outside the viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`);
     ``marks`` (F, Ny, Nx, Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller
     zeroes it)."""
