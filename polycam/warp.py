@@ -709,10 +709,10 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
-    With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per direction, u per unit x; NaN unknown) and ``extrapolate_views`` > 0, rays up to that many
-    view steps outside the viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`);
-    ``marks`` (F, Ny, Nx, Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller
-    zeroes it)."""
+    With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per direction, u per unit x; NaN
+    unknown) and ``extrapolate_views`` > 0, rays up to that many view steps outside the
+    viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`); ``marks`` (F, Ny, Nx,
+    Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller zeroes it)."""
     K, F, Ny, Nx, Nv, Nu = out.shape
     xs, ys = grid.x.values, grid.y.values
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
