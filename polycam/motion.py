@@ -383,6 +383,7 @@ class _Solver:
         if lev.W1 is None:
             self.out1 = _work_array("out1", (1,) + self.shape)
             self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
+            self.warp_scratch = self.der[4]   # the warp's scratch: see below
         else:
             # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
             # warped W and "no data" channels share the derivatives' memory — they are read
@@ -393,6 +394,10 @@ class _Solver:
             block = _work_array("warped_derivatives", (S + max((K - 1) * S, 5 * C),))
             self.out1 = block[:K * S].reshape((K,) + self.shape)
             self.der = [block[S + n * C:S + (n + 1) * C].reshape(self.cshape) for n in range(5)]  # L_x .. L_t
+            # the warp's scratch (its copy of the edge views, warp._warp_into) lies in the
+            # derivatives' memory past the warped channels: the fused kernel rewrites it after
+            # each warp
+            self.warp_scratch = block[K * S:]
         # the warp's confidence: 0 / 1 without W (uint8: a quarter of the memory), else
         # multiplied by the (warped) confidences
         binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
@@ -440,7 +445,8 @@ class _Solver:
             marks = self.marks = _work_array("marks", self.shape, np.uint8) if self.marks is None else self.marks
             marks.fill(0)
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
-                   None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks)
+                   None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks,
+                   scratch=self.warp_scratch)
         conf = self.conf
         W0 = lev.W0 if not opts.symmetric else None          # frame 1's confidence, unwarped
         if lev.W1 is not None:

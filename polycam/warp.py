@@ -209,15 +209,15 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
 
 
 @numba.njit(cache=True, inline="always")
-def _lagrange_stencil(fi, n, taps, den, w, idx, jv, ju):
+def _lagrange_stencil(fi, n, taps, den, w, idx):
     """Lagrange weights and clamped indices (``taps`` points, padded to 6 with zero weights)
-    at the fractional sample position fi of an n-sample axis into w[jv, ju], idx[jv, ju];
-    den[q] = Π_{m≠q} (q − m) for the number of points used."""
+    at the fractional sample position fi of an n-sample axis into w (6,), idx (6,);
+    den[q] = Π_{m≠q} (q − m) for the number of points used (:func:`_lagrange_dens`)."""
     T = max(1, min(taps, n - n % 2))
     if n == 1:
         for q in range(6):
-            w[jv, ju, q] = 1.0 if q == 0 else 0.0
-            idx[jv, ju, q] = 0
+            w[q] = 1.0 if q == 0 else 0.0
+            idx[q] = 0
         return
     b = min(max(math.floor(fi), 0.0), n - 2.0)
     a = min(max(fi - b, 0.0), 1.0)
@@ -225,26 +225,22 @@ def _lagrange_stencil(fi, n, taps, den, w, idx, jv, ju):
     ib = int(b)
     pre = 1.0                                      # prefix x suffix products of (a − node)
     for q in range(T):
-        w[jv, ju, q] = pre
+        w[q] = pre
         pre *= a - (q - o)
-        idx[jv, ju, q] = min(max(ib - o + q, 0), n - 1)
+        idx[q] = min(max(ib - o + q, 0), n - 1)
     suf = 1.0
     for q in range(T - 1, -1, -1):
-        w[jv, ju, q] *= suf / den[q]
+        w[q] *= suf / den[q]
         suf *= a - (q - o)
     for q in range(T, 6):
-        w[jv, ju, q] = 0.0
-        idx[jv, ju, q] = idx[jv, ju, 0]
+        w[q] = 0.0
+        idx[q] = idx[0]
 
 
-@numba.njit(parallel=True, cache=True)
-def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy):
-    """:func:`_uv_stencils` into given arrays (us (Nu,), vs (Nv,) the sample values)."""
-    Nv = vs.shape[0]
-    Nu = us.shape[0]
-    eps = 1e-6
-    hv = (vs[Nv - 1] - vs[0]) / (Nv - 1) if Nv > 1 else 1.0
-    hu = (us[Nu - 1] - us[0]) / (Nu - 1) if Nu > 1 else 1.0
+@numba.njit(cache=True)
+def _lagrange_dens(Nv, Nu, taps):
+    """(2, 6): the Lagrange denominators Π_{m≠q} (q − m) of :func:`_lagrange_stencil` for
+    the v and u axes (Nv, Nu samples; ``taps`` points at most)."""
     dens = np.ones((2, 6))
     for k, n in enumerate((Nv, Nu)):
         T = max(1, min(taps, n - n % 2))
@@ -252,50 +248,87 @@ def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy):
             for m in range(T):
                 if m != q:
                     dens[k, q] *= q - m
+    return dens
+
+
+@numba.njit(cache=True, inline="always")
+def _moved_uv(us, vs, R, f, jv, ju):
+    """Where the direction (vs[jv], us[ju]) moved by R samples its face: (fv, fu) in
+    samples of the v and u axes, whether it lies inside them (and ahead), and its slopes
+    d_x / d_z, d_y / d_z (0 when outside)."""
+    Nv = vs.shape[0]
+    Nu = us.shape[0]
+    eps = 1e-6
+    hv = (vs[Nv - 1] - vs[0]) / (Nv - 1) if Nv > 1 else 1.0
+    hu = (us[Nu - 1] - us[0]) / (Nu - 1) if Nu > 1 else 1.0
+    d0, d1, d2 = _face_direction(R, us[ju], vs[jv], f)
+    good = d2 > 1e-9 * f
+    dz = d2 if good else 1.0
+    fv = (f * d1 / dz - vs[0]) / hv
+    fu = (f * d0 / dz - us[0]) / hu
+    if Nv > 1:
+        good = good and fv > -eps and fv < Nv - 1 + eps
+    if Nu > 1:
+        good = good and fu > -eps and fu < Nu - 1 + eps
+    return fv, fu, good, (d0 / dz if good else 0.0), (d1 / dz if good else 0.0)
+
+
+@numba.njit(cache=True)
+def _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu):
+    """The Lagrange stencils of direction row jv (:func:`_uv_stencils`) into wv, wu (Nu, 6)
+    float64 and iv, iu (Nu, 6) int64. Not inlined, and compiled without fast-math flags,
+    so the weights are those of :func:`_uv_stencils` to the last bit wherever it is called."""
+    for ju in range(us.shape[0]):
+        fv, fu, _, _, _ = _moved_uv(us, vs, R, f, jv, ju)
+        _lagrange_stencil(fv, vs.shape[0], taps, dens[0], wv[ju], iv[ju])
+        _lagrange_stencil(fu, us.shape[0], taps, dens[1], wu[ju], iu[ju])
+
+
+@numba.njit(parallel=True, cache=True)
+def _uv_stencil_kernel(us, vs, R, f, taps, wv, iv, wu, iu, ok, sx, sy, weights):
+    """:func:`_uv_stencils` into given arrays (us (Nu,), vs (Nv,) the sample values);
+    without ``weights`` only ok, sx, sy (wv .. iu are not touched)."""
+    Nv = vs.shape[0]
+    Nu = us.shape[0]
+    dens = _lagrange_dens(Nv, Nu, taps)
     for jv in numba.prange(Nv):
-        v = vs[jv]
+        if weights:
+            _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv[jv], iv[jv], wu[jv], iu[jv])
         for ju in range(Nu):
-            u = us[ju]
-            d0, d1, d2 = _face_direction(R, u, v, f)
-            good = d2 > 1e-9 * f
-            dz = d2 if good else 1.0
-            fv = (f * d1 / dz - vs[0]) / hv
-            fu = (f * d0 / dz - us[0]) / hu
-            if Nv > 1:
-                good = good and fv > -eps and fv < Nv - 1 + eps
-            if Nu > 1:
-                good = good and fu > -eps and fu < Nu - 1 + eps
-            _lagrange_stencil(fv, Nv, taps, dens[0], wv, iv, jv, ju)
-            _lagrange_stencil(fu, Nu, taps, dens[1], wu, iu, jv, ju)
+            _, _, good, slx, sly = _moved_uv(us, vs, R, f, jv, ju)
             ok[jv, ju] = good
-            sx[jv, ju] = d0 / dz if good else 0.0
-            sy[jv, ju] = d1 / dz if good else 0.0
+            sx[jv, ju] = slx
+            sy[jv, ju] = sly
 
 
-def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int):
+def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: bool = True):
     """Where each target direction (v, u) samples the source: the moved direction
     ``R (u, v, f)`` re-projected on the face's image plane depends on (u, v) only.
 
     Returns per-(v, u) Lagrange weights and clamped indices along v and u
     (``(Nv, Nu, 6)`` float64 / int64 each; fewer taps are padded with zero weights),
     ``ok_uv`` (Nv, Nu) bool and the moved direction's slopes d_x / d_z, d_y / d_z (Nv, Nu).
+    Without ``weights`` the first four are None (:func:`_warp_rows_kernel` computes each
+    row's stencils itself: 0.6 frames less memory at 128 x 128 directions).
     """
     us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
     vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
     shape = (vs.size, us.size)
-    wv, wu = np.empty(shape + (6,)), np.empty(shape + (6,))
-    iv, iu = np.empty(shape + (6,), np.int64), np.empty(shape + (6,), np.int64)
+    st = shape + (6,) if weights else (1, 1, 6)
+    wv, wu = np.empty(st), np.empty(st)
+    iv, iu = np.empty(st, np.int64), np.empty(st, np.int64)
     ok = np.empty(shape, bool)
     sx, sy = np.empty(shape), np.empty(shape)
     _uv_stencil_kernel(us, vs, np.ascontiguousarray(R, dtype=np.float64), float(face.f), int(taps),
-                       wv, iv, wu, iu, ok, sx, sy)
-    return wv, iv, wu, iu, ok, sx, sy
+                       wv, iv, wu, iu, ok, sx, sy, weights)
+    return (wv, iv, wu, iu, ok, sx, sy) if weights else (None, None, None, None, ok, sx, sy)
 
 
 @numba.njit(cache=True, inline="always")
-def _uv_row(srcT, wv, iv, wu, iu, jv, Ur):
-    """Ur[u, m] = Σ_q Σ_r wv[jv, u, q] wu[jv, u, r] srcT[iv[jv, u, q], iu[jv, u, r], m]: row jv
-    of the (u, v) part of the warp (6 x 6 taps), shared by all views. Views (and channels)
+def _uv_row(srcT, wv, iv, wu, iu, Ur):
+    """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m]: one direction row of
+    the (u, v) part of the warp (6 x 6 taps; stencils (Nu, 6) of :func:`_uv_stencil_row`),
+    shared by all views. Views (and channels)
     are the innermost axis m of srcT (Nv, Nu, M) and Ur (Nu, M), so each tap is one
     vectorised multiply-add over all view images (M a multiple of 16: no scalar remainder)."""
     Nu, M = Ur.shape
@@ -303,15 +336,15 @@ def _uv_row(srcT, wv, iv, wu, iu, jv, Ur):
         o = Ur[u]
         o[:] = 0.0
         for q in range(6):
-            wq = wv[jv, u, q]
+            wq = wv[u, q]
             if wq == 0.0:
                 continue
-            row = srcT[iv[jv, u, q]]
+            row = srcT[iv[u, q]]
             for r in range(6):
-                w = np.float32(wq * wu[jv, u, r])
+                w = np.float32(wq * wu[u, r])
                 if w == 0.0:
                     continue
-                s = row[iu[jv, u, r]]
+                s = row[iu[u, r]]
                 for m in range(M):
                     o[m] += w * s[m]
 
@@ -369,11 +402,13 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, o
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _warp_rows_kernel(srcT, wv, iv, wu, iu, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok,
+def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok,
                       slot, E, edges):
     """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
-    time: the row's (u, v)-warped images of all views (:func:`_uv_row`, from srcT (Nv, Nu, M),
-    views innermost) stay in a per-thread scratch (Nu, M) while :func:`_xy_row` blends them
+    time: the row's (u, v) stencils (:func:`_uv_stencil_row`; us (Nu,), vs (Nv,) the sample
+    values, R (3, 3) the ray rotation in face coordinates, f the focal length) and its
+    (u, v)-warped images of all views (:func:`_uv_row`, from srcT (Nv, Nu, M), views
+    innermost) stay in a per-thread scratch (Nu, M) while :func:`_xy_row` blends them
     across viewpoints (no (Nv, Nu, M) intermediate: 1.2 frames less memory, and read from
     cache). With ``edges`` the edge views' rows are copied to E (Nv, K, P, Nu), directions
     innermost, at their ``slot`` (Ny Nx,) (:func:`_perimeter`), for
@@ -381,12 +416,18 @@ def _warp_rows_kernel(srcT, wv, iv, wu, iu, ok_uv, slope_x, slope_y, ax_, bx_, a
     K, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
     nxy = Ny * Nx
+    dens = _lagrange_dens(Nv, Nu, taps)
     chunks = min(Nv, 32)
     for c in numba.prange(chunks):
         Ur = np.empty((Nu, M), np.float32)
         Uv = Ur.reshape(Nu * M)
+        wv = np.empty((Nu, 6))
+        wu = np.empty((Nu, 6))
+        iv = np.empty((Nu, 6), np.int64)
+        iu = np.empty((Nu, 6), np.int64)
         for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
-            _uv_row(srcT, wv, iv, wu, iu, jv, Ur)
+            _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
+            _uv_row(srcT, wv, iv, wu, iu, Ur)
             if edges:
                 for k in range(K):
                     for view in range(nxy):
@@ -705,28 +746,37 @@ _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.uint8)
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
                out: np.ndarray, ok: np.ndarray, rho: np.ndarray | None = None,
                extrapolate_views: float = 0.0,
-               marks: np.ndarray | None = None) -> None:
+               marks: np.ndarray | None = None, scratch: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
     With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per direction, u per unit x; NaN
     unknown) and ``extrapolate_views`` > 0, rays up to that many view steps outside the
     viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`); ``marks`` (F, Ny, Nx,
-    Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller zeroes it)."""
+    Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller zeroes it).
+    ``scratch``: float32 C memory that is free during the call (the solver passes its
+    derivatives', which each warp precedes): the extrapolation's copy of the edge views
+    (K P Nv Nu floats, P the edge views) goes there when it fits."""
     K, F, Ny, Nx, Nv, Nu = out.shape
     xs, ys = grid.x.values, grid.y.values
+    us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
+    vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
     y, x = np.meshgrid(ys, xs, indexing="ij")
     extrapolate = rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1)
     slot = _perimeter(Ny, Nx)
-    E = np.empty((Nv, K, int(slot.max()) + 1, Nu) if extrapolate else (1, 1, 1, 1), np.float32)
+    e_shape = (Nv, K, int(slot.max()) + 1, Nu) if extrapolate else (1, 1, 1, 1)
+    n_e = math.prod(e_shape)
+    flat = None if scratch is None else scratch.reshape(-1)
+    E = flat[:n_e].reshape(e_shape) if flat is not None and flat.dtype == np.float32 and flat.size >= n_e \
+        else np.empty(e_shape, np.float32)
     for k, face in enumerate(grid.faces):
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
         G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
         R = np.ascontiguousarray(G[:3, :3])
-        wv, iv, wu, iu, ok_uv, slope_x, slope_y = _uv_stencils(grid, face, R, int(uv_taps))
+        _, _, _, _, ok_uv, slope_x, slope_y = _uv_stencils(grid, face, R, int(uv_taps), weights=False)
         o = np.stack([x, y, np.full_like(x, face.z_pi)], axis=-1) @ R.T + G[:3, 3]     # moved origins
         sz = face.z_pi - o[..., 2]
         # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis
@@ -734,8 +784,8 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
-        _warp_rows_kernel(srcT[k], wv, iv, wu, iu, ok_uv, slope_x, slope_y, *cx, *cy, k, out, ok,
-                          slot, E, extrapolate)
+        _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
+                          out, ok, slot, E, extrapolate)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0

@@ -388,6 +388,27 @@ def test_warp_extrapolates_beyond_the_views_by_eq6(tx, ty):
     assert not ok_short[edge].any()
 
 
+def test_warp_scratch_holds_the_edge_copy():
+    """The warp's copy of the edge views (Eq. 6 extrapolation) goes in the caller's scratch
+    when it fits (the solver passes its derivatives' memory), with the same output; a
+    scratch too small is left alone and the copy allocated."""
+    from polycam.warp import _views_inner, _warp_into
+    grid = make_grid(("+z",), views=5, directions=32, spacing=0.015)
+    L = _plane_lightfield(grid, 2.0)
+    M = T_from_rt(np.array([0.0, 0.0, 0.0, 0.02, -0.02, 0.0]))
+    rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / 2.0)
+    srcT = _views_inner(np.moveaxis(L[None], 0, 1))
+    runs = {}
+    for name, size in (("none", None), ("fits", L.size), ("small", 100)):
+        out, ok = np.empty((1,) + L.shape, np.float32), np.empty(L.shape, np.float32)
+        scratch = None if size is None else np.full(size, -7.0, np.float32)
+        _warp_into(srcT, grid, M, 6, out, ok, rho, 2.0, scratch=scratch)
+        runs[name] = out, ok, scratch
+    for name in ("fits", "small"):
+        assert np.array_equal(runs[name][0], runs["none"][0]) and np.array_equal(runs[name][1], runs["none"][1])
+    assert (runs["fits"][2] != -7.0).any() and (runs["small"][2] == -7.0).all()
+
+
 def test_solver_extrapolates_beyond_the_views(scene):
     grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
     rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])      # 1.6 views
