@@ -383,7 +383,8 @@ class _Solver:
         if lev.W1 is None:
             self.out1 = _work_array("out1", (1,) + self.shape)
             self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
-            self.warp_scratch = self.der[4]   # the warp's scratch: see below
+            self.warp_scratch = self.der[4]   # the warp's scratch and the marks: see below
+            self.marks_memory = self.der[3]
         else:
             # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
             # warped W and "no data" channels share the derivatives' memory — they are read
@@ -394,10 +395,12 @@ class _Solver:
             block = _work_array("warped_derivatives", (S + max((K - 1) * S, 5 * C),))
             self.out1 = block[:K * S].reshape((K,) + self.shape)
             self.der = [block[S + n * C:S + (n + 1) * C].reshape(self.cshape) for n in range(5)]  # L_x .. L_t
-            # the warp's scratch (its copy of the edge views, warp._warp_into) lies in the
-            # derivatives' memory past the warped channels: the fused kernel rewrites it after
-            # each warp
-            self.warp_scratch = block[K * S:]
+            # the warp's scratch (its copy of the edge views, warp._warp_into) and the marks of
+            # its extrapolated samples lie in the derivatives' memory past the warped channels
+            # (the marks at the end): the fused kernel rewrites it after each warp
+            tail = block.size - (S + 3) // 4           # the marks: S bytes at the end
+            self.warp_scratch = block[K * S:tail] if tail >= K * S else block[K * S:]
+            self.marks_memory = block[tail:] if tail >= K * S else None
         # the warp's confidence: 0 / 1 without W (uint8: a quarter of the memory), else
         # multiplied by the (warped) confidences
         binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
@@ -411,7 +414,6 @@ class _Solver:
         self.var_dr: np.ndarray | None = None
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
-        self.marks: np.ndarray | None = None    # 1 at the samples the last warp extrapolated
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
@@ -429,6 +431,16 @@ class _Solver:
         row instead of once per 16 rays, ~2x faster)."""
         return self.tile if final else max(self.shape[3], self.shape[4])
 
+    def _marks(self) -> np.ndarray:
+        """The warp's marks of extrapolated samples, (F, Ny, Nx, Nv, Nu) uint8 zeroed: in the
+        derivatives' memory (free from the warp to the fused kernel) when it holds them."""
+        S = math.prod(self.shape)
+        mem = self.marks_memory
+        marks = mem.reshape(-1).view(np.uint8)[:S].reshape(self.shape) if mem is not None and mem.nbytes >= S \
+            else _work_array("marks", self.shape, np.uint8)
+        marks.fill(0)
+        return marks
+
     def _sums(self):
         F = self.shape[0]
         acc = self.acc.reshape(F, -1, self.acc.shape[1] * self.acc.shape[2], _NACC)
@@ -440,13 +452,27 @@ class _Solver:
         lev, opts = self.lev, self.opts
         H = _T_sqrt(M) if opts.symmetric else np.eye(4)
         H1 = T_inverse(H) if opts.symmetric else T_inverse(M)
-        marks = None
-        if self.rho_bar is not None and not opts.symmetric:
-            marks = self.marks = _work_array("marks", self.shape, np.uint8) if self.marks is None else self.marks
-            marks.fill(0)
+        # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ from the measured regressors, then the
+        # sums again; reused (the fused kernel replaces L_x, L_y) only while the warp has not
+        # moved since (ρ̂ of a warp a step before the converged one costs accuracy)
+        dr = opts.depth_regressors and self.level < _DR_LEVELS
+        moved = self.warp_change(self.M_rho, M) if dr and self.M_rho is not None else math.inf
+        first_dr = dr and moved > _RHO_SETTLED
+        if dr:
+            log.debug("depth regressors: warp moved %.3g samples since rho: %s", moved,
+                      "fresh" if first_dr else "reused")
+        if first_dr:
+            self.M_rho = np.array(M, float)
+        extrapolate = self.rho_bar is not None and not opts.symmetric
+        marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
-                   None if marks is None else self.rho_bar, opts.extrapolate_views, marks=marks,
+                   self.rho_bar if extrapolate else None, opts.extrapolate_views, marks=marks,
                    scratch=self.warp_scratch)
+        # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an
+        # earlier ρ̂) would pull the new ρ̂ back towards it. Taken now: the marks lie in the
+        # derivatives' memory, which the fused kernel rewrites
+        near = None if marks is None else _near_marks(marks, self.radius["y"], self.radius["x"],
+                                                      _work_array("near", self.cshape, np.uint8), *self.vo[:2])
         conf = self.conf
         W0 = lev.W0 if not opts.symmetric else None          # frame 1's confidence, unwarped
         if lev.W1 is not None:
@@ -466,17 +492,6 @@ class _Solver:
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der
-        # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ from the measured regressors, then the
-        # sums again; reused (the fused kernel replaces L_x, L_y) only while the warp has not
-        # moved since (ρ̂ of a warp a step before the converged one costs accuracy)
-        dr = opts.depth_regressors and self.level < _DR_LEVELS
-        moved = self.warp_change(self.M_rho, M) if dr and self.M_rho is not None else math.inf
-        first_dr = dr and moved > _RHO_SETTLED
-        if dr:
-            log.debug("depth regressors: warp moved %.3g samples since rho: %s", moved,
-                      "fresh" if first_dr else "reused")
-        if first_dr:
-            self.M_rho = np.array(M, float)
         has_rho = dr and not first_dr
         if has_rho:
             self.var = self.var_dr
@@ -502,10 +517,6 @@ class _Solver:
             if check:
                 p_measured, sigma_measured, cond_measured = self._increment_and_sigma()
             self.rho = _work_array("rho", self.cshape)
-            # ρ̂ from the captured samples only: a window holding extrapolated samples (made
-            # with an earlier ρ̂) would pull the new ρ̂ back towards it
-            near = None if marks is None else _near_marks(marks, self.radius["y"], self.radius["x"],
-                                                          _work_array("near", self.cshape, np.uint8), *self.vo[:2])
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
@@ -526,7 +537,7 @@ class _Solver:
                     # no bias the gate would remove (the two agree within the noise): fall back
                     if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
-        if first_dr and opts.extrapolate_views > 0 and marks is None:
+        if first_dr and opts.extrapolate_views > 0 and not extrapolate:
             self.rho_bar = _view_mean(self.rho)
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())

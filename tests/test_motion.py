@@ -433,6 +433,42 @@ def test_solver_extrapolates_beyond_the_views(scene):
     assert abs(np.mean(ratios) - 1.0) < MOTION_NOISE_EXTRAPOLATION_REL
 
 
+@pytest.mark.parametrize("with_w", [False, True])
+def test_extrapolation_marks_share_the_derivatives_memory(scene, monkeypatch, with_w):
+    """The warp's marks of extrapolated samples live in the derivatives' memory (free from the
+    warp to the fused kernel, which follows the marks' only use): the estimate is the same
+    to the last bit as with marks of their own."""
+    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
+    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])       # 1.4 views: extrapolated rays
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(2)
+    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
+    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    W = {"W0": np.ones_like(L0), "W1": np.ones_like(L1)} if with_w else {}
+    shared = []
+    marks = pm._Solver._marks
+
+    def spy(self):
+        m = marks(self)
+        shared.append(any(np.shares_memory(m, d) for d in self.der))
+        return m
+
+    monkeypatch.setattr(pm._Solver, "_marks", spy)
+    a = estimate_motion(L0, L1, grid, **W)
+    assert shared and all(shared)
+    own = pm._Solver.__init__
+
+    def separate(self, *args, **kwargs):
+        own(self, *args, **kwargs)
+        self.marks_memory = None
+
+    monkeypatch.setattr(pm._Solver, "__init__", separate)
+    shared.clear()
+    b = estimate_motion(L0, L1, grid, **W)
+    assert shared and not any(shared)
+    assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
+
+
 def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
     # spy on the solves: (level, warp change of the increment in that level's samples)
     seen = []
