@@ -328,9 +328,9 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 def _uv_row(srcT, wv, iv, wu, iu, Ur):
     """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m]: one direction row of
     the (u, v) part of the warp (6 x 6 taps; stencils (Nu, 6) of :func:`_uv_stencil_row`),
-    shared by all views. Views (and channels)
-    are the innermost axis m of srcT (Nv, Nu, M) and Ur (Nu, M), so each tap is one
-    vectorised multiply-add over all view images (M a multiple of 16: no scalar remainder)."""
+    shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
+    and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
+    multiple of 16: no scalar remainder)."""
     Nu, M = Ur.shape
     for u in range(Nu):
         o = Ur[u]
