@@ -790,43 +790,42 @@ def _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, j, i, w, 
 
 
 @numba.njit(cache=True, inline="always")
-def _window_uv(A, B, C, t9, box):
-    """The (u, v) part of the Eq. 6 window on the box's samples: C[c, v, u] = Σ t9 ⊗ t9 over
-    A (4, Nv + 8, Nu + 8), the (v, u) samples padded by 4 zeros on each side; B (4, Nv, Nu + 8)
-    holds the v pass (zero outside the box's u range). t9 = fs5 ∗ fs5 (symmetric: folded)."""
-    v0, v1, u0, u1 = box[4], box[5], box[6], box[7]
+def _window_uv_row(A, Brow, Crow, t9, box, v):
+    """Row v of the (u, v) part of the Eq. 6 window on the box's samples: Crow[c, u] =
+    Σ t9 ⊗ t9 over A (4, Nv + 8, Nu + 8), the (v, u) samples padded by 4 zeros on each side;
+    Brow (4, Nu + 8) holds the row's v pass (zero outside the box's u range). t9 = fs5 ∗ fs5
+    (symmetric: folded)."""
+    u0, u1 = box[6], box[7]
     w0, w1, w2, w3, w4 = t9[0], t9[1], t9[2], t9[3], t9[4]
     nu = numba.uint64(u1 - u0)
     for c in range(4):
-        for v in range(v0, v1):
-            o = B[c, v, 4 + u0:4 + u1]
-            a0 = A[c, v, 4 + u0:4 + u1]
-            a1 = A[c, v + 1, 4 + u0:4 + u1]
-            a2 = A[c, v + 2, 4 + u0:4 + u1]
-            a3 = A[c, v + 3, 4 + u0:4 + u1]
-            a4 = A[c, v + 4, 4 + u0:4 + u1]
-            a5 = A[c, v + 5, 4 + u0:4 + u1]
-            a6 = A[c, v + 6, 4 + u0:4 + u1]
-            a7 = A[c, v + 7, 4 + u0:4 + u1]
-            a8 = A[c, v + 8, 4 + u0:4 + u1]
-            for u in range(nu):
-                o[u] = w4 * a4[u] + w0 * (a0[u] + a8[u]) + w1 * (a1[u] + a7[u]) + w2 * (a2[u] + a6[u]) \
-                    + w3 * (a3[u] + a5[u])
-        for v in range(v0, v1):
-            row = B[c, v]
-            o = C[c, v, u0:u1]
-            b0 = row[u0:u1]
-            b1 = row[u0 + 1:u1 + 1]
-            b2 = row[u0 + 2:u1 + 2]
-            b3 = row[u0 + 3:u1 + 3]
-            b4 = row[u0 + 4:u1 + 4]
-            b5 = row[u0 + 5:u1 + 5]
-            b6 = row[u0 + 6:u1 + 6]
-            b7 = row[u0 + 7:u1 + 7]
-            b8 = row[u0 + 8:u1 + 8]
-            for u in range(nu):
-                o[u] = w4 * b4[u] + w0 * (b0[u] + b8[u]) + w1 * (b1[u] + b7[u]) + w2 * (b2[u] + b6[u]) \
-                    + w3 * (b3[u] + b5[u])
+        o = Brow[c, 4 + u0:4 + u1]
+        a0 = A[c, v, 4 + u0:4 + u1]
+        a1 = A[c, v + 1, 4 + u0:4 + u1]
+        a2 = A[c, v + 2, 4 + u0:4 + u1]
+        a3 = A[c, v + 3, 4 + u0:4 + u1]
+        a4 = A[c, v + 4, 4 + u0:4 + u1]
+        a5 = A[c, v + 5, 4 + u0:4 + u1]
+        a6 = A[c, v + 6, 4 + u0:4 + u1]
+        a7 = A[c, v + 7, 4 + u0:4 + u1]
+        a8 = A[c, v + 8, 4 + u0:4 + u1]
+        for u in range(nu):
+            o[u] = w4 * a4[u] + w0 * (a0[u] + a8[u]) + w1 * (a1[u] + a7[u]) + w2 * (a2[u] + a6[u]) \
+                + w3 * (a3[u] + a5[u])
+        row = Brow[c]
+        o = Crow[c, u0:u1]
+        b0 = row[u0:u1]
+        b1 = row[u0 + 1:u1 + 1]
+        b2 = row[u0 + 2:u1 + 2]
+        b3 = row[u0 + 3:u1 + 3]
+        b4 = row[u0 + 4:u1 + 4]
+        b5 = row[u0 + 5:u1 + 5]
+        b6 = row[u0 + 6:u1 + 6]
+        b7 = row[u0 + 7:u1 + 7]
+        b8 = row[u0 + 8:u1 + 8]
+        for u in range(nu):
+            o[u] = w4 * b4[u] + w0 * (b0[u] + b8[u]) + w1 * (b1[u] + b7[u]) + w2 * (b2[u] + b6[u]) \
+                + w3 * (b3[u] + b5[u])
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
@@ -839,8 +838,8 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
     Ny, Nx = vo[2], vo[3]
     px = np.zeros((3, 4, Nv, Nu), np.float32)     # rows r = j-1, j, j+1 at slot (r + 3) % 3
     A = np.zeros((4, Nv + 8, Nu + 8), np.float32)
-    B = np.zeros((4, Nv, Nu + 8), np.float32)
-    C = np.empty((4, Nv, Nu), np.float32)
+    Brow = np.zeros((4, Nu + 8), np.float32)       # one window row at a time (:func:`_window_uv_row`)
+    Crow = np.empty((4, Nu), np.float32)
     for r in range(ja - 1, jb + 1):
         s = px[(r + 3) % 3]
         s[:, :, :] = 0.0
@@ -862,7 +861,6 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
                 s2 = a2[c, v, box[6]:box[7]]
                 for u in range(numba.uint64(box[7] - box[6])):
                     o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
-        _window_uv(A, B, C, t9, box)
         jw = j - vo[0]                              # the view in the work arrays
         iw = i - vo[1]
         out = rho[fc, jw, iw]
@@ -873,10 +871,11 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
         r2 = 0.0
         er = 0.0
         for v in range(box[4], box[5]):
-            suu = C[0, v]
-            sxu = C[1, v]
-            sxx = C[2, v]
-            sn = C[3, v]
+            _window_uv_row(A, Brow, Crow, t9, box, v)
+            suu = Crow[0]
+            sxu = Crow[1]
+            sxx = Crow[2]
+            sn = Crow[3]
             o = out[v]
             b = bw[v]
             nr = near[fc, jw, iw, v] if has_near else near[0, 0, 0, 0]
