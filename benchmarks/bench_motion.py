@@ -28,7 +28,7 @@ in numpy / scipy (:func:`numpy_full_solve`: same pyramid, warp stencils, filters
 weights, IRLS, covariance scores and the same number of solves per level as our run),
 the default estimate with confidences W (a resampled session's frames carry them: the
 warp then also moves W), and the peak memory of one full estimate in a fresh process
-relative to one frame. Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
+relative to one frame (and over three consecutive estimates, as in a session). Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
 machine (2 cores) may be shared, which inflates both (numba's threads spin-wait).
 """
 
@@ -403,13 +403,16 @@ grid = default_lightfield_grid("+z", directions={directions})
 with open("/proc/self/clear_refs", "w") as f:            # reset the peak resident set (VmHWM)
     f.write("5")
 before = status("VmRSS")
-estimate_motion(L0, L1, grid, W0=W, W1=W, options=MotionOptions(depth_regressors={dr}))
+for _ in range({estimates}):
+    estimate_motion(L0, L1, grid, W0=W, W1=W, options=MotionOptions(depth_regressors={dr}))
 print(status("VmHWM") - before)
 """
 
 
-def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: bool = False) -> int:
-    """Peak growth of the resident set [bytes] during one full estimate, in a fresh process
+def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: bool = False,
+                estimates: int = 1) -> int:
+    """Peak growth of the resident set [bytes] during ``estimates`` consecutive full estimates
+    of the pair (as the pairs of a session: the work arrays stay between calls), in a fresh process
     (frames loaded and kernels warmed up on a small grid first; Linux: the peak is reset
     through /proc/self/clear_refs, so earlier peaks such as imports do not hide it).
     ``with_w``: with confidences W = 1 for both frames (allocated before the reset; the
@@ -423,7 +426,7 @@ def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: 
         np.save(f0, L0)
         np.save(f1, L1)
         code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions, dr=depth_regressors,
-                                   with_w=with_w)
+                                   with_w=with_w, estimates=estimates)
         out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
     return int(out.stdout.split()[-1])
 
@@ -474,6 +477,7 @@ def speed(repeat: int, directions: int) -> None:
     mem = peak_memory(L0, L1, directions)
     mem_m = peak_memory(L0, L1, directions, False)
     mem_w = peak_memory(L0, L1, directions, with_w=True)
+    mem_s = peak_memory(L0, L1, directions, estimates=3)
     import numba
 
     threads = numba.get_num_threads()
@@ -506,7 +510,9 @@ def speed(repeat: int, directions: int) -> None:
     print(f"peak memory of one full estimate (growth of the resident set, fresh process): "
           f"{mem / 2**20:.0f} MiB = {mem / L0.nbytes:.1f} x one frame ({L0.nbytes / 2**20:.1f} MiB); "
           f"with depth_regressors=False {mem_m / 2**20:.0f} MiB = {mem_m / L0.nbytes:.1f} frames; "
-          f"with confidences W {mem_w / 2**20:.0f} MiB = {mem_w / L0.nbytes:.1f} frames")
+          f"with confidences W {mem_w / 2**20:.0f} MiB = {mem_w / L0.nbytes:.1f} frames; "
+          f"over three consecutive estimates (a session's pairs: the work arrays stay, and the allocator "
+          f"keeps some freed memory) {mem_s / 2**20:.0f} MiB = {mem_s / L0.nbytes:.1f} frames")
     print(f"depth_regressors (the default) costs +{1e3 * (t_full - t_full_m):.1f} ms wall (best of {2 * repeat}, "
           f"alternating), +{1e3 * (c_full - c_full_m):.0f} ms CPU time")
 
