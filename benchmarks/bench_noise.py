@@ -202,11 +202,14 @@ class OracleDepth:
         self._pm, self._orig = pm, pm.depth_rho
         rho_true, orig = self.rho_true, self._orig
 
-        def depth_rho(der, base, box, var, out, rho_max=0.0, gate_misfit=0.0):
-            res = orig(der, base, box, var, out, rho_max, gate_misfit)
-            if out.shape == rho_true.shape:
+        def depth_rho(der, base, box, var, out, *args, **kw):
+            res = orig(der, base, box, var, out, *args, **kw)
+            # the solver's ρ̂ holds the valid box's views only (view origin vo: polycam.eq5)
+            vo = kw.get("vo", args[3] if len(args) > 3 else None)
+            truth = rho_true if vo is None else rho_true[:, vo[0]:vo[0] + out.shape[1], vo[1]:vo[1] + out.shape[2]]
+            if out.shape == truth.shape:
                 use = np.isfinite(out)
-                out[use] = rho_true[use]
+                out[use] = truth[use]
             return res
 
         pm.depth_rho = depth_rho
