@@ -22,16 +22,27 @@ others would never be read). The kernels take their *view origin* ``vo`` (4,) in
 ``[y0, x0, Ny, Nx]``: such an array's view (j − y0, i − x0) is view (j, i) of the Ny x Nx
 grid; ``(0, 0, Ny, Nx)`` for arrays over every view (``_view_origin``).
 
+The solver stores its derivatives as int16 with one scale per view image and
+derivative (*scaled views*): value = q × ``dsc[f, j, i, c]``, ``dsc`` (F, ny, nx, 5)
+float32 over the same views, c = 0..4 for L_x, L_y, L_u, L_v, L_t, the scale =
+max |value| of the view image / 32767 (``_quantise_plane``): half the memory of float32,
+with a rounding error of at most 1.5e-5 of the view's largest value (docs/motion.md,
+"Speed"). The kernels that read derivatives take such ``dsc``; float32 derivatives (the
+public :func:`~polycam.motion.solve_ray_motion`, the tests' references) pass unit scales
+(``_unit_scales``): the products are then exact.
+
 The ray loops are branch-free with unsigned indices and re-associated sums
 (``_FASTMATH``) so that LLVM vectorises them (speed figures: docs/motion.md).
 """
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
-from .derivatives import _FASTMATH, FILTERS, Derivatives, correlate_axis, parallel_chunks, uv_view, xy_view
+from .derivatives import _FASTMATH, FILTERS, Derivatives, _filt_u, _filt_v, correlate_axis, parallel_chunks, xy_view
 from .lightfield import LightFieldGrid
 
 __all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho"]
@@ -60,6 +71,84 @@ def _box_views(shape: tuple, box: np.ndarray) -> tuple:
     """Dims (F, ny, nx, Nv, Nu) of a work array over the views of ``box`` (8,) of a light
     field of dims ``shape`` (F, Ny, Nx, Nv, Nu)."""
     return (shape[0], max(int(box[1] - box[0]), 0), max(int(box[3] - box[2]), 0)) + tuple(shape[3:])
+
+
+_QMAX = 32767.0
+"""The largest stored magnitude of a scaled view (int16)."""
+
+
+def _unit_scales(shape: tuple) -> np.ndarray:
+    """Scales (F, ny, nx, 5) float32 of 1 for float32 derivatives of dims ``shape`` (F, ny, nx, Nv,
+    Nu): the kernels then read the values as they are (module docstring)."""
+    return np.ones(tuple(shape[:3]) + (5,), np.float32)
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _quantise_plane(a, q, v_lo, v_hi, u_lo, u_hi, w, has_w):
+    """q (Nv, Nu) int16 ← a (Nv, Nu) float32 / s rounded to the nearest integer on the samples
+    v_lo:v_hi x u_lo:u_hi (0 elsewhere: never read), with the scale s = max |a| / 32767 there
+    (0 for an all-zero a), which it returns (float32). With ``has_w`` the maximum is taken
+    over the samples whose weight w (Nv, Nu) is > 0 only (the others are never used, and
+    data without confidence must not change the rest: they are clipped to ±32767 s); w has
+    a's dims either way."""
+    Nv, Nu = a.shape
+    z = np.float32(0.0)
+    n = numba.uint64(u_hi - u_lo)
+    # column-wise maxima first: a running max over one loop does not vectorise (~7x slower)
+    cmax = np.zeros(u_hi - u_lo, np.float32)
+    for v in range(v_lo, v_hi):
+        r = a[v, u_lo:u_hi]
+        wr = w[v if has_w else 0, u_lo:u_hi]                 # (w has a's dims; unread without has_w)
+        for u in range(n):
+            x = abs(r[u]) if (not has_w) or wr[u] > z else z
+            cmax[u] = x if x > cmax[u] else cmax[u]
+    m = z
+    for u in range(n):
+        m = max(m, cmax[u])
+    inv = np.float32(_QMAX) / m if m > z else z
+    hi = np.float32(_QMAX)
+    off = np.float32(32768.5)
+    for v in range(Nv):
+        o = q[v]
+        if v < v_lo or v >= v_hi:
+            o[:] = 0
+            continue
+        o[:u_lo] = 0
+        o[u_hi:] = 0
+        r = a[v, u_lo:u_hi]
+        o = o[u_lo:u_hi]
+        for u in range(n):
+            # + 32768.5 then truncation: rounding to nearest without a call (vectorises)
+            o[u] = np.int16(np.int32(min(max(r[u] * inv, -hi), hi) + off) - 32768)
+    return m / np.float32(_QMAX)
+
+
+@numba.njit(parallel=True, cache=True)
+def _quantise_views_kernel(a, q, dsc, k, box):
+    ny, nx = a.shape[1], a.shape[2]
+    for idx in numba.prange(a.shape[0] * ny * nx):
+        fc = idx // (ny * nx)
+        j = (idx // nx) % ny
+        i = idx % nx
+        dsc[fc, j, i, k] = _quantise_plane(a[fc, j, i], q[fc, j, i], box[4], box[5], box[6], box[7], a[0, 0, 0], False)
+
+
+def _scaled_views(arrays: list, box: np.ndarray) -> tuple[list, np.ndarray]:
+    """The scaled views (module docstring) of float32 derivatives ``arrays`` = [L_x .. L_t], each
+    (F, ny, nx, Nv, Nu), on the (v, u) samples of ``box`` (8,): five int16 arrays and their
+    scales (F, ny, nx, 5) float32, as the solver's fused kernel stores them."""
+    shape = arrays[0].shape
+    dsc = np.zeros(shape[:3] + (5,), np.float32)
+    q = [np.empty(shape, np.int16) for _ in range(5)]
+    for k, a in enumerate(arrays):
+        _quantise_views_kernel(np.ascontiguousarray(a, dtype=np.float32), q[k], dsc, k, np.asarray(box, np.int64))
+    return q, dsc
+
+
+def _unscaled(q: np.ndarray, dsc: np.ndarray, k: int) -> np.ndarray:
+    """The float32 values (F, ny, nx, Nv, Nu) of scaled view ``q`` (int16, same dims), derivative
+    ``k`` (0..4: L_x .. L_t) of the scales ``dsc`` (F, ny, nx, 5)."""
+    return q.astype(np.float32) * dsc[..., k, None, None]
 
 
 @numba.njit(cache=True, inline="always")
@@ -125,11 +214,12 @@ def _row_energy(x, y, v, z_pi, f, S, var, poly, st):
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv_sc, tile,
+def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind, inv_sc, tile,
                      v_lo, v_hi, u_lo, u_hi, h, var, final, acc, st, poly, S):
     """Eq. 5 normal-equation sums of one view image's rays (samples v_lo:v_hi, u_lo:u_hi).
 
-    gx .. lt, wb: (Nv, Nu) derivatives and base weights of the view; c = the ray's Eq. 5
+    gx .. lt, wb: (Nv, Nu) derivatives (int16 or float32) and base weights of the view, sc
+    (5,) float32 the derivatives' scales (module docstring); c = the ray's Eq. 5
     coefficients in face coordinates, b = −L_t. With ``kind`` 1 (Tukey) or 2 (Huber) the
     weight is wb times the IRLS weight of the residual ``r = L_t + c · p`` normalised by
     1 / inv_sc. Adds the sums to acc (n_tv, n_tu, 29) per (u, v) tile of ``tile`` samples
@@ -153,6 +243,11 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
     wx = np.float32(p[3])
     wy = np.float32(p[4])
     wz = np.float32(p[5])
+    qx = np.float32(sc[0])
+    qy = np.float32(sc[1])
+    qu = np.float32(sc[2])
+    qv = np.float32(sc[3])
+    qt = np.float32(sc[4])
     hx2 = h[0] * h[0]
     hy2 = h[1] * h[1]
     hu2 = h[2] * h[2]
@@ -191,11 +286,11 @@ def _accumulate_view(gx, gy, gu, gv, lt, wb, x, y, us, vs, z_pi, f, p, kind, inv
                 wi = wraw if pos else z32
                 c_base += one if pos else z32
                 u = np.float32(us[iu])
-                g0 = rx[iu]
-                g1 = ry[iu]
-                g2 = ru[iu]
-                g3 = rv[iu]
-                b = -rt[iu]
+                g0 = np.float32(rx[iu]) * qx
+                g1 = np.float32(ry[iu]) * qy
+                g2 = np.float32(ru[iu]) * qu
+                g3 = np.float32(rv[iu]) * qv
+                b = -(np.float32(rt[iu]) * qt)
                 c0 = g0
                 c1 = g1
                 c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x32, y32, u, v32, z32_pi, f32, inv_f)
@@ -313,12 +408,12 @@ def _box_view(idx, box, ny, nx):
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
+def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs, P, kind, inv_sc, tile,
                  box, vo, h, var, final, acc, st, chunks):
     """One pass over the rays of the view images box[0]:box[1] (y) x box[2]:box[3] (x),
     samples box[4]:box[5] (v) x box[6]:box[7] (u) of every face: :func:`_accumulate_view`
-    with the stored derivatives (F, ny, nx, Nv, Nu; view origin ``vo``, module docstring)
-    and base weights (unit weights without ``has_base``). P (F, 6): the parameters in each
+    with the stored derivatives (F, ny, nx, Nv, Nu; view origin ``vo``, module docstring;
+    scales ``dsc``) and base weights (unit weights without ``has_base``). P (F, 6): the parameters in each
     face's frame. acc (n_views, n_tv, n_tu, 29), st (n_views, 25), views ordered (face, y, x)."""
     F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
     ny = box[1] - box[0]
@@ -338,24 +433,24 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, base, has_base, xs, ys, us, vs, zs, fs, P, 
             s = st[idx]
             s[:] = 0.0
             wb = base[fc, ja, ia] if has_base else ones
-            _accumulate_view(Lx[fc, ja, ia], Ly[fc, ja, ia], Lu[fc, ja, ia], Lv[fc, ja, ia], Lt[fc, ja, ia], wb,
-                             xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], kind, inv_sc, tile,
+            _accumulate_view(Lx[fc, ja, ia], Ly[fc, ja, ia], Lu[fc, ja, ia], Lv[fc, ja, ia], Lt[fc, ja, ia],
+                             dsc[fc, ja, ia], wb, xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], kind, inv_sc, tile,
                              box[4], box[5], box[6], box[7], h, var, final, a, s, poly, S)
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
-                    sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
+                    sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
                     var, final, acc, st, chunks, rho, has_rho, sums):
-    """Per valid view image, in cache: the plenoptic derivatives of the (warped) pair
-    (L0, L1), the base weight = confidence ``conf`` minimised over the filter support
-    (``need_min``) × valid × ``smooth``, with ``has_rho`` the Eq. 6 regressors L_x, L_y ←
-    ρ̂ L_u, ρ̂ L_v where ``rho`` (same dims) is a number and the base weight > 0
-    (:func:`depth_rho`), and with ``sums`` the unit-IRLS-weight normal sums
-    (:func:`_accumulate_view`; else acc and st are left as they are). box as in
-    :func:`_pass_kernel` (the filter radii). L0, L1, conf: every view; Lx .. Lt, base,
-    ``smooth`` (with ``has_smooth``) and ``rho`` (with ``has_rho``): view origin ``vo``
-    (module docstring)."""
+    """Per valid view image, in cache: the base weight = confidence ``conf`` minimised over the
+    filter support (``need_min``) × valid × ``smooth``, the plenoptic derivatives of the
+    (warped) pair (L0, L1) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
+    docstring), with ``has_rho`` the Eq. 6 regressors L_x, L_y ← ρ̂ L_u, ρ̂ L_v where ``rho``
+    (same dims) is a number and the base weight > 0 (:func:`depth_rho`), and with ``sums``
+    the unit-IRLS-weight normal sums (:func:`_accumulate_view`; else acc and st are left as
+    they are). box as in :func:`_pass_kernel` (the filter radii). L0, L1, conf: every view;
+    Lx .. Lt, dsc, base, ``smooth`` (with ``has_smooth``) and ``rho`` (with ``has_rho``): view
+    origin ``vo`` (module docstring)."""
     F, Ny, Nx, Nv, Nu = L0.shape
     ry = box[0]
     rx = box[2]
@@ -378,8 +473,8 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
             gu = Lu[fc, ja, ia]
             gv = Lv[fc, ja, ia]
             lt = Lt[fc, ja, ia]
+            sc = dsc[fc, ja, ia]
             xy_view(L0, L1, fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
-            uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4], gx, gy, gu, gv, lt)
             cm = buf[5]
             t2 = buf[6]
             cm[:, :] = conf[fc, j, i]
@@ -414,31 +509,56 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
             for v in range(rv, Nv - rv):
                 for u in range(ru, Nu - ru):
                     b[v, u] = cm[v, u] * smooth[fc, ja, ia, v, u] if has_smooth else cm[v, u]
-            if has_rho:
-                q = rho[fc, ja, ia]
-                for v in range(rv, Nv - rv):
-                    qr = q[v]
-                    br = b[v]
-                    for u in range(ru, Nu - ru):
-                        ok = br[u] > 0.0 and qr[u] == qr[u]
-                        gx[v, u] = qr[u] * gu[v, u] if ok else gx[v, u]
-                        gy[v, u] = qr[u] * gv[v, u] if ok else gy[v, u]
+            # the (u, v) stage one derivative at a time into o (cm is no longer needed), each
+            # quantised into its scaled view: L_u, L_v first (the Eq. 6 regressors use them)
+            tmp = buf[4]
+            o = buf[5]
+            _filt_v(buf[0], pv, tmp)
+            _filt_u(tmp, du, su, o)
+            sc[2] = _quantise_plane(o, gu, rv, Nv - rv, ru, Nu - ru, b, True)
+            _filt_v(buf[0], dv, tmp)
+            _filt_u(tmp, pu, sv, o)
+            sc[3] = _quantise_plane(o, gv, rv, Nv - rv, ru, Nu - ru, b, True)
+            for k in range(2):
+                _filt_v(buf[1 + k], pv, tmp)
+                _filt_u(tmp, pu, sx if k == 0 else sy, o)
+                if has_rho:
+                    _rho_times(o, rho[fc, ja, ia], b, gu if k == 0 else gv, sc[2 + k], rv, Nv - rv, ru, Nu - ru)
+                sc[k] = _quantise_plane(o, gx if k == 0 else gy, rv, Nv - rv, ru, Nu - ru, b, True)
+            _filt_v(buf[3], pv, tmp)
+            _filt_u(tmp, pu, np.float32(1.0), o)
+            sc[4] = _quantise_plane(o, lt, rv, Nv - rv, ru, Nu - ru, b, True)
             if not sums:
                 continue
             a = acc[idx]
             a[:, :, :] = 0.0
             s = st[idx]
             s[:] = 0.0
-            _accumulate_view(gx, gy, gu, gv, lt, b, xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], 0, 0.0, tile,
+            _accumulate_view(gx, gy, gu, gv, lt, sc, b, xs[i], ys[j], us, vs, zs[fc], fs[fc], P[fc], 0, 0.0, tile,
                              rv, Nv - rv, ru, Nu - ru, h, var, final, a, s, poly, S)
 
 
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _rho_times(o, q, b, g, s, v_lo, v_hi, u_lo, u_hi):
+    """o[v, u] ← q[v, u] × g[v, u] s (a scaled view's value: module docstring) where ρ̂ = q
+    is a number and the base weight b > 0, on the samples v_lo:v_hi x u_lo:u_hi; all (Nv, Nu)."""
+    s32 = np.float32(s)
+    for v in range(v_lo, v_hi):
+        qr = q[v]
+        br = b[v]
+        gr = g[v]
+        orow = o[v]
+        for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
+            ok = (br[u] > np.float32(0.0)) & (qr[u] == qr[u])
+            orow[u] = qr[u] * (np.float32(gr[u]) * s32) if ok else orow[u]
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, vo, stride, out_a, out_w):
+def _sample_residuals(Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, box, vo, stride, out_a, out_w):
     """|Eq. 5 residual| and base weight of the rays of every ``stride``-th (v) row of the
     box's view images (rows numbered in C order over (face, y, x, v) inside box; whole
-    rows keep the memory access contiguous; arrays with view origin ``vo``, module
-    docstring). out_a, out_w: (n_rows, box u width)."""
+    rows keep the memory access contiguous; arrays with view origin ``vo``, derivatives
+    with scales ``dsc``, module docstring). out_a, out_w: (n_rows, box u width)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     nv = box[5] - box[4]
@@ -466,6 +586,8 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
         rv = Lv[fc, ja, ia, jv]
         rt = Lt[fc, ja, ia, jv]
         rw = base[fc, ja, ia, jv]
+        sc = dsc[fc, ja, ia]
+        qx, qy, qu, qv, qt = sc[0], sc[1], sc[2], sc[3], sc[4]
         oa = out_a[k]
         ow = out_w[k]
         for m in range(numba.uint64(out_a.shape[1])):          # branch-free: vectorises
@@ -473,12 +595,12 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, base, xs, ys, us, vs, zs, fs, P, box, 
             wb = rw[iu]
             pos = wb > 0.0
             u = us[iu]
-            g0 = np.float64(rx[iu])
-            g1 = np.float64(ry[iu])
-            g2 = np.float64(ru[iu])
-            g3 = np.float64(rv[iu])
+            g0 = np.float64(np.float32(rx[iu]) * qx)
+            g1 = np.float64(np.float32(ry[iu]) * qy)
+            g2 = np.float64(np.float32(ru[iu]) * qu)
+            g3 = np.float64(np.float32(rv[iu]) * qv)
             c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
-            r = rt[iu] + g0 * p0 + g1 * p1 + c2 * p2 + c3 * p3 + c4 * p4 + c5 * p5
+            r = np.float64(np.float32(rt[iu]) * qt) + g0 * p0 + g1 * p1 + c2 * p2 + c3 * p3 + c4 * p4 + c5 * p5
             oa[m] = abs(r) if pos else 0.0
             ow[m] = wb if pos else 0.0
 
@@ -627,7 +749,7 @@ def _accumulate(der, base: np.ndarray, has_base: bool, grid: LightFieldGrid, P: 
     zs = np.array([face.z_pi for face in grid.faces], float)
     fs = np.array([face.f for face in grid.faces], float)
     if nv_ and box[5] > box[4] and box[7] > box[6]:
-        _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, base, has_base, *vals, zs, fs,
+        _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, _unit_scales(der.Lx.shape), base, has_base, *vals, zs, fs,
                      np.ascontiguousarray(P, dtype=np.float64), kind, float(inv_sc), int(tile), box,
                      _view_origin(Ny, Nx), h, var, final, acc, st, parallel_chunks())
     else:
@@ -757,15 +879,17 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
 
 
 @numba.njit(cache=True, inline="always")
-def _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, j, i, w, out):
+def _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, j, i, w, out):
     """out[c] += w × the masked Eq. 6 products of view image (fc, j, i) (indices already
-    clamped; arrays with view origin ``vo``): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v,
+    clamped; arrays with view origin ``vo``, derivatives with scales ``dsc``): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v,
     2 L_x² + L_y², 3 the mask, all 0 outside the valid box, where base <= 0 and (with
     ``has_near``) where ``near`` is nonzero (a view outside the box adds nothing)."""
     if j < box[0] or j >= box[1] or i < box[2] or i >= box[3] or w == 0.0:
         return
     ja = j - vo[0]
     ia = i - vo[1]
+    sc = dsc[fc, ja, ia]
+    qx, qy, qu, qv = sc[0], sc[1], sc[2], sc[3]
     for v in range(box[4], box[5]):
         gx = Lx[fc, ja, ia, v]
         gy = Ly[fc, ja, ia, v]
@@ -779,10 +903,10 @@ def _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, j, i, w, 
         o3 = out[3, v]
         for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
             m = w if (bw[u] > 0.0) & (nr[u] == 0) else np.float32(0.0)
-            a = gu[u]
-            b = gv[u]
-            c = gx[u]
-            d = gy[u]
+            a = np.float32(gu[u]) * qu
+            b = np.float32(gv[u]) * qv
+            c = np.float32(gx[u]) * qx
+            d = np.float32(gy[u]) * qy
             o0[u] += m * (a * a + b * b)
             o1[u] += m * (c * a + d * b)
             o2[u] += m * (c * c + d * d)
@@ -829,8 +953,8 @@ def _window_uv_row(A, Brow, Crow, t9, box, v):
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max, rho,
-                    st, fc, i, ja, jb):
+def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
+                    rho, st, fc, i, ja, jb):
     """One work unit of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds
     its statistics to st (4,). A function of its own, called from the parallel loop (a
     body this large inside the prange compiled ~2x slower)."""
@@ -846,7 +970,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
         rc = min(max(r, 0), Ny - 1)
         for dx in range(3):
             ic = min(max(i + dx - 1, 0), Nx - 1)
-            _depth_products(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, fc, rc, ic, t3[dx], s)
+            _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, rc, ic, t3[dx], s)
         if r < ja + 1:
             continue
         j = r - 1                                   # rows j-1, j, j+1 are ready
@@ -866,6 +990,8 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
         out = rho[fc, jw, iw]
         out[:, :] = np.nan
         bw = base[fc, jw, iw]
+        su = dsc[fc, jw, iw, 2]
+        sv = dsc[fc, jw, iw, 3]
         n_valid = 0.0
         n_use = 0.0
         r2 = 0.0
@@ -886,7 +1012,9 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
                 has = suu[u] > 0.0
                 inv = np.float32(1.0) / max(suu[u], np.float32(1e-30))
                 q = sxu[u] * inv if has else np.float32(0.0)
-                e = (gu[u] * gu[u] + gv[u] * gv[u]) * np.float32(nb) * inv if has else np.float32(0.0)
+                a = np.float32(gu[u]) * su
+                c = np.float32(gv[u]) * sv
+                e = (a * a + c * c) * np.float32(nb) * inv if has else np.float32(0.0)
                 res = np.float64(sxx[u] - q * sxu[u])
                 nw = np.float64(sn[u])
                 quiet = q * q * np.float32(na) + e <= np.float32(1.0)
@@ -903,10 +1031,10 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, 
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
+def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
                       rho, stats, parts):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho float32 (all arrays with
-    view origin ``vo``, module docstring),
+    view origin ``vo``, derivatives with scales ``dsc``, module docstring),
     NaN where the measured L_x, L_y are kept (inside the box: base <= 0, ``near`` nonzero
     with ``has_near`` (else a (1, 1, 1, 1, Nu) row of zeros), or the window is not
     explained by one depth; the caller fills the views outside the box). The window sums
@@ -933,32 +1061,45 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr
         st[:] = 0.0
         if jb <= ja:
             continue
-        _depth_rho_unit(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max, rho,
-                        st, fc, i, ja, jb)
+        _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
+                        rho, st, fc, i, ja, jb)
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _apply_rho(Lx, Ly, Lu, Lv, base, rho, box, vo):
+def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, box, vo, chunks):
     """L_x, L_y ← ρ̂ L_u, ρ̂ L_v in place where ρ̂ is a number and base > 0 (inside box (8,),
-    as :func:`depth_rho`; rho is NaN elsewhere; arrays with view origin ``vo``)."""
+    as :func:`depth_rho`; rho is NaN elsewhere; arrays with view origin ``vo``): scaled views
+    (int16 with scales ``dsc``, module docstring), each view image re-quantised with the
+    scale of its new values (``chunks``: :func:`~polycam.derivatives.parallel_chunks`)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
-    F = Lx.shape[0]
-    for idx in numba.prange(F * ny * nx):
-        fc, j, i = _box_view(idx, box, ny, nx)
-        ja = j - vo[0]
-        ia = i - vo[1]
-        for v in range(box[4], box[5]):
-            q = rho[fc, ja, ia, v]
-            b = base[fc, ja, ia, v]
-            gx = Lx[fc, ja, ia, v]
-            gy = Ly[fc, ja, ia, v]
-            gu = Lu[fc, ja, ia, v]
-            gv = Lv[fc, ja, ia, v]
-            for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
-                ok = b[u] > 0.0 and q[u] == q[u]
-                gx[u] = q[u] * gu[u] if ok else gx[u]
-                gy[u] = q[u] * gv[u] if ok else gy[u]
+    F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
+    n = F * ny * nx
+    chunks = max(1, min(n, chunks))
+    for c in numba.prange(chunks):
+        o = np.empty((Nv, Nu), np.float32)
+        for idx in range(c * n // chunks, (c + 1) * n // chunks):
+            fc, j, i = _box_view(idx, box, ny, nx)
+            ja = j - vo[0]
+            ia = i - vo[1]
+            sc = dsc[fc, ja, ia]
+            b = base[fc, ja, ia]
+            q = rho[fc, ja, ia]
+            for k in range(2):
+                g = Lx[fc, ja, ia] if k == 0 else Ly[fc, ja, ia]
+                d = Lu[fc, ja, ia] if k == 0 else Lv[fc, ja, ia]
+                s = np.float32(sc[k])
+                sd = np.float32(sc[2 + k])
+                for v in range(box[4], box[5]):
+                    gr = g[v]
+                    dr = d[v]
+                    qr = q[v]
+                    br = b[v]
+                    orow = o[v]
+                    for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
+                        ok = (br[u] > np.float32(0.0)) & (qr[u] == qr[u])
+                        orow[u] = qr[u] * (np.float32(dr[u]) * sd) if ok else np.float32(gr[u]) * s
+                sc[k] = _quantise_plane(o, g, box[4], box[5], box[6], box[7], b, True)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -985,11 +1126,13 @@ def _fill_rho(rho, near, base, rho_bar, box, vo):
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
-              near: np.ndarray | None = None, vo: np.ndarray | None = None) -> np.ndarray:
+              near: np.ndarray | None = None, vo: np.ndarray | None = None,
+              dsc: np.ndarray | None = None) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
-    der = [Lx, Ly, Lu, Lv, ...] float32 (unchanged); var (4,): noise variances of (L_x, L_y,
+    der = [Lx, Ly, Lu, Lv, ...] float32, or int16 scaled views with their scales ``dsc``
+    (module docstring) (unchanged); var (4,): noise variances of (L_x, L_y,
     L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`; ``near`` (same dims
     as out, uint8): rays where it is nonzero count as base <= 0. ``vo``: the arrays' view
     origin (module docstring; None: they hold every view). Returns (4,) the variances for
@@ -1000,6 +1143,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     t3 = FILTERS["fs3"].prefilter.astype(np.float32)
     F = Lx.shape[0]
     vo = _view_origin(*Lx.shape[1:3]) if vo is None else np.asarray(vo, np.int64)
+    dsc = _unit_scales(Lx.shape) if dsc is None else dsc
     # about two units per thread (each unit recomputes the products of two extra view rows)
     parts = max(1, min(int(box[1] - box[0]), -(-2 * numba.get_num_threads() // max(1, F * int(box[3] - box[2])))))
     stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 4))
@@ -1012,7 +1156,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
         na, nb = _depth_rho_noise(var)
         has_near = near is not None
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
-        _depth_rho_kernel(Lx, Ly, Lu, Lv, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
+        _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
                           float(gate_misfit) * vxy, na, nb, float(rho_max), out, stats, parts)
     else:
         out[...] = np.nan

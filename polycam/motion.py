@@ -380,27 +380,33 @@ class _Solver:
         self.var: np.ndarray | None = None
         self.src1, K = _warp_source(lev.L1, lev.W1, "src1")
         self.src0, self.K0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else (None, 0)
+        # the derivatives are int16 scaled views (polycam.eq5's docstring: a scale per view
+        # image and derivative in self.dsc), five in one block of float32 slots; with W the
+        # warped frame 2 comes first in the same buffer: warped[0] is L, and the warped W and
+        # "no data" channels share the derivatives' memory — they are read (folded into conf)
+        # before the fused kernel writes the derivatives. (Without W separate arrays: one
+        # block measured ~1 frame more resident for the same live arrays, session 8: the
+        # allocator's heap keeps freed temporaries then.)
+        S, C = math.prod(self.shape), math.prod(self.cshape)
+        nd = -(-5 * C // 2)                            # float32 slots of 5 C int16
         if lev.W1 is None:
             self.out1 = _work_array("out1", (1,) + self.shape)
-            self.der = [_work_array(n, self.cshape) for n in ("Lx", "Ly", "Lu", "Lv", "Lt")]
-            self.warp_scratch = self.der[4]   # the warp's scratch and the marks: see below
-            self.marks_memory = self.der[3]
+            dmem = _work_array("derivatives", (nd,))
+            free = 0                                    # dmem[free:] is free during a warp
         else:
-            # the warped frame 2 and the derivatives in one buffer: warped[0] is L, and the
-            # warped W and "no data" channels share the derivatives' memory — they are read
-            # (folded into conf) before the fused kernel writes the derivatives. (Without W
-            # separate arrays: one block measured ~1 frame more resident for the same live
-            # arrays, session 8: the allocator's heap keeps freed temporaries then.)
-            S, C = math.prod(self.shape), math.prod(self.cshape)
-            block = _work_array("warped_derivatives", (S + max((K - 1) * S, 5 * C),))
+            block = _work_array("warped_derivatives", (S + max((K - 1) * S, nd),))
             self.out1 = block[:K * S].reshape((K,) + self.shape)
-            self.der = [block[S + n * C:S + (n + 1) * C].reshape(self.cshape) for n in range(5)]  # L_x .. L_t
-            # the warp's scratch (its copy of the edge views, warp._warp_into) and the marks of
-            # its extrapolated samples lie in the derivatives' memory past the warped channels
-            # (the marks at the end): the fused kernel rewrites it after each warp
-            tail = block.size - (S + 3) // 4           # the marks: S bytes at the end
-            self.warp_scratch = block[K * S:tail] if tail >= K * S else block[K * S:]
-            self.marks_memory = block[tail:] if tail >= K * S else None
+            dmem = block[S:]
+            free = (K - 1) * S
+        q = dmem.view(np.int16)
+        self.der = [q[n * C:(n + 1) * C].reshape(self.cshape) for n in range(5)]   # L_x .. L_t
+        self.dsc = _work_array("dsc", self.cshape[:3] + (5,))
+        # the warp's scratch (its copy of the edge views, warp._warp_into) and the marks of
+        # its extrapolated samples lie in the derivatives' memory past the warped channels
+        # (the marks at the end): the fused kernel rewrites it after each warp
+        tail = dmem.size - (S + 3) // 4                # the marks: S bytes at the end
+        self.warp_scratch = dmem[free:tail] if tail >= free else dmem[free:]
+        self.marks_memory = dmem[tail:] if tail >= free else None
         # the warp's confidence: 0 / 1 without W (uint8: a quarter of the memory), else
         # multiplied by the (warped) confidences
         binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
@@ -508,7 +514,7 @@ class _Solver:
         check = first_dr and len(floors) > 1
         tile = self.tile if check else self._tile(final)     # the check's covariance needs the tiles
         derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
-                       Lx, Ly, Lu, Lv, Lt, self.base, *self.vals, self.zs, self.fs,
+                       Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, *self.vals, self.zs, self.fs,
                        np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                         self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
@@ -522,8 +528,8 @@ class _Solver:
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, False, False)
                 self.var = self.var_dr = self._depth_rho(var, rho_max, floor, near)
-                _apply_rho(Lx, Ly, Lu, Lv, self.base, self.rho, self.box, self.vo)
-                _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
+                _apply_rho(Lx, Ly, Lu, Lv, self.dsc, self.base, self.rho, self.box, self.vo, parallel_chunks())
+                _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
                              np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
                              self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
                 self.gate_misfit = floor
@@ -550,7 +556,7 @@ class _Solver:
         becomes their view mean and the near rays get it (their measured L_x, L_y mix the
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
         var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near,
-                           self.vo)
+                           self.vo, self.dsc)
         if near is not None:
             self.rho_bar = _view_mean(self.rho)
             _fill_rho(self.rho, near, self.base, self.rho_bar, self.box, self.vo)
@@ -589,7 +595,7 @@ class _Solver:
     def reweighted(self, p_rig: np.ndarray, final: bool):
         """Normal sums with IRLS weights of the residuals at p_rig (robust scale self.scale)."""
         Lx, Ly, Lu, Lv, Lt = self.der
-        _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.base, True, *self.vals, self.zs, self.fs,
+        _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
                      self._face_params(p_rig), self.kind, 1.0 / (self.scale * self.opts.robust_c), self._tile(final),
                      self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
         return self._sums()
@@ -609,7 +615,7 @@ class _Solver:
         n = -(-n_rows // stride)
         a = np.empty((n, int(box[7] - box[6])), np.float32)
         w = np.empty_like(a)
-        _sample_residuals(*self.der, self.base, *self.vals, self.zs, self.fs, self._face_params(p_rig),
+        _sample_residuals(*self.der, self.dsc, self.base, *self.vals, self.zs, self.fs, self._face_params(p_rig),
                           box, self.vo, stride, a, w)
         return 1.4826 * float(_weighted_median(a.reshape(-1), w.reshape(-1)))
 
@@ -641,7 +647,7 @@ class _Solver:
         inv_sc = 1.0 / (self.scale * self.opts.robust_c) if kind else 0.0
         factors = _whitening_factors(self.filters, self.radius, self.box, self.opts.whiten_floor)
         acc = _whitened_sums(tuple(self.der), self.base, self.vals, self.zs, self.fs, P, kind, inv_sc,
-                             self.box, factors, self.tile, self.vo)
+                             self.box, factors, self.tile, self.vo, self.dsc)
         return _reduce(acc, self.B)
 
     def decide_whiten(self) -> bool:

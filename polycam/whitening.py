@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from .derivatives import FilterPair
-from .eq5 import _NACC, _eq5_coefficients, _view_origin
+from .eq5 import _NACC, _eq5_coefficients, _unit_scales, _view_origin
 
 __all__: list[str] = []
 
@@ -71,12 +71,12 @@ def _whiten_rows(Z: np.ndarray, factors: list) -> None:
 
 
 @numba.njit(parallel=True, cache=True)
-def _weighted_rows(Lx, Ly, Lu, Lv, Lt, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, vo, Z, Wr):
+def _weighted_rows(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, vo, Z, Wr):
     """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7) and
     the weights w into Wr (n_y, n_x, n_v, n_u): c the Eq. 5 coefficients (face frame), b = −L_t,
     w = base weight × the IRLS weight (``kind`` 1 Tukey, 2 Huber, 0 none) of the residual at
     p (face frame) normalised by 1 / inv_sc, as :func:`~polycam.eq5._accumulate_view` weights them.
-    Lx .. Lt, base: view origin ``vo`` (:mod:`polycam.eq5`)."""
+    Lx .. Lt (scales ``dsc``), base: view origin ``vo`` (:mod:`polycam.eq5`)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     nv = box[5] - box[4]
@@ -91,6 +91,7 @@ def _weighted_rows(Lx, Ly, Lu, Lv, Lt, base, fc, xs, ys, us, vs, z_pi, f, p, kin
         y = ys[j]
         ja = j - vo[0]
         ia = i - vo[1]
+        sc = dsc[fc, ja, ia]
         for qv in range(nv):
             jv = box[4] + qv
             v = vs[jv]
@@ -98,11 +99,11 @@ def _weighted_rows(Lx, Ly, Lu, Lv, Lt, base, fc, xs, ys, us, vs, z_pi, f, p, kin
                 iu = box[6] + qu
                 z = Z[jj, ii, qv, qu]
                 wi = np.float64(base[fc, ja, ia, jv, iu])
-                g0 = np.float64(Lx[fc, ja, ia, jv, iu])
-                g1 = np.float64(Ly[fc, ja, ia, jv, iu])
-                g2 = np.float64(Lu[fc, ja, ia, jv, iu])
-                g3 = np.float64(Lv[fc, ja, ia, jv, iu])
-                b = -np.float64(Lt[fc, ja, ia, jv, iu])
+                g0 = np.float64(np.float32(Lx[fc, ja, ia, jv, iu]) * sc[0])
+                g1 = np.float64(np.float32(Ly[fc, ja, ia, jv, iu]) * sc[1])
+                g2 = np.float64(np.float32(Lu[fc, ja, ia, jv, iu]) * sc[2])
+                g3 = np.float64(np.float32(Lv[fc, ja, ia, jv, iu]) * sc[3])
+                b = -np.float64(np.float32(Lt[fc, ja, ia, jv, iu]) * sc[4])
                 c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, us[iu], v, z_pi, f, inv_f)
                 if kind != 0 and wi > 0.0:
                     r = g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5] - b
@@ -169,15 +170,17 @@ def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: floa
 
 def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs: np.ndarray,
                    P: np.ndarray, kind: int, inv_sc: float, box: np.ndarray, factors: list,
-                   tile: int, vo: np.ndarray | None = None) -> np.ndarray:
+                   tile: int, vo: np.ndarray | None = None, dsc: np.ndarray | None = None) -> np.ndarray:
     """Tile sums (F, 1, n_tiles, 29) as :func:`~polycam.eq5._accumulate` returns them, but of the *whitened*
     rows: per face, z = (⊗ₐ C_a)⁻¹ sqrt(w) (c, b) over the box (C_a C_aᵀ = K_a K_aᵀ, the noise
     covariance of the prefiltered temporal difference up to 2σ²), so that Σ z_c z_cᵀ =
     Aᵀ W^½ Σ⁻¹ W^½ A: generalised least squares. der: (Lx, Ly, Lu, Lv, Lt) (F, Ny, Nx, Nv, Nu);
     base: base weights of the same dims; P (F, 6): p in each face's frame (IRLS residuals);
-    ``vo``: the arrays' view origin (:mod:`polycam.eq5`; None: they hold every view)."""
+    ``vo``: the arrays' view origin (:mod:`polycam.eq5`; None: they hold every view); ``dsc``:
+    the derivatives' scales when they are int16 scaled views (:mod:`polycam.eq5`; None: float32)."""
     F, Nv, Nu = base.shape[0], base.shape[3], base.shape[4]
     vo = _view_origin(*base.shape[1:3]) if vo is None else vo
+    dsc = _unit_scales(base.shape) if dsc is None else dsc
     n = [int(box[2 * a + 1] - box[2 * a]) for a in range(4)]
     nt = (-(-Nv // tile), -(-Nu // tile))
     acc = np.zeros((F, 1, nt[0] * nt[1], _NACC))
@@ -187,7 +190,7 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     Wr = np.empty(tuple(n))
     xs, ys, us, vs = vals
     for k in range(F):
-        _weighted_rows(*der, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
+        _weighted_rows(*der, dsc, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
                        np.ascontiguousarray(P[k], dtype=np.float64), kind, float(inv_sc), box, vo, Z, Wr)
         _whiten_rows(Z, factors)
         a = np.empty(nt + (_NACC,))

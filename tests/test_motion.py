@@ -23,7 +23,8 @@ from polycam.trajectory import Trajectory
 from tolerances import (MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
-                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL, MOTION_WHITEN_GLS_RTOL,
+                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL,
+                        MOTION_SCALED_VIEWS_RTOL, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
 
 ROOM_RADIUS = 6.0
@@ -597,20 +598,47 @@ def test_fused_normal_sums_match_coefficient_matrix(scene, rng):
         assert np.allclose(p, p_ref, rtol=MOTION_SOLVE_RTOL, atol=MOTION_SOLVE_RTOL * np.abs(p_ref).max())
 
 
+def test_scaled_views_round_within_half_a_step(rng):
+    """The solver's int16 derivatives (eq5's scaled views): per view image, value = q × scale
+    with scale = max |value| / 32767 on the box's samples, so every value is within half a
+    step; samples outside the box are 0; with weights, samples of weight 0 neither set the
+    scale (garbage there must not change the rest) nor overflow (clipped)."""
+    from polycam.eq5 import _quantise_plane, _scaled_views, _unscaled
+
+    a = rng.normal(0, 1, (2, 3, 2, 12, 14)).astype(np.float32) * rng.uniform(1e-6, 1e3, (2, 3, 2, 1, 1)).astype(np.float32)
+    a[1, 2, 1] = 0.0                                      # an all-zero view: scale 0
+    box = np.array([0, 3, 0, 2, 2, 10, 3, 11], np.int64)
+    q, dsc = _scaled_views([a] * 5, box)
+    inside = np.s_[..., 2:10, 3:11]
+    back = _unscaled(q[2], dsc, 2)
+    vmax = np.abs(a[inside]).max(axis=(-1, -2))
+    assert np.allclose(dsc[..., 2], vmax / 32767, rtol=1e-6) and dsc[1, 2, 1, 2] == 0
+    assert np.all(np.abs(back - a)[inside] <= MOTION_SCALED_VIEWS_RTOL * vmax[..., None, None])
+    assert np.abs(q[2][inside]).max() == 32767
+    assert not q[2][..., :2, :].any() and not q[2][..., :, 11:].any()
+    plane = a[0, 0, 0].copy()
+    w = np.ones_like(plane)
+    plane[5, 6], w[5, 6] = 1e9, 0.0                         # no confidence there
+    out = np.empty(plane.shape, np.int16)
+    s = _quantise_plane(plane, out, 2, 10, 3, 11, w, True)
+    assert s == np.float32(np.abs(np.delete(plane[2:10, 3:11].ravel(), 3 * 8 + 3)).max() / np.float32(32767))
+    assert out[5, 6] == 32767
+
+
 def test_passes_on_box_view_arrays(scene, rng):
     """The solver keeps its per-ray work arrays over the valid box's views only (eq5's view
     origin): the IRLS pass sums and the sampled residuals from such arrays equal those from
-    arrays over every view."""
-    from polycam.eq5 import _pass_kernel, _sample_residuals, _view_origin
+    arrays over every view (both as the solver stores derivatives: int16 scaled views)."""
+    from polycam.eq5 import _pass_kernel, _sample_residuals, _scaled_views, _view_origin
 
     grid = make_grid(("+z", "-x"), views=5, directions=20)
     M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
     der = plenoptic_derivatives(scene.render(grid, np.eye(4)), scene.render(grid, M), grid,
                                 filters=MotionOptions().filters)
-    full = [np.ascontiguousarray(a, dtype=np.float32) for a in (der.Lx, der.Ly, der.Lu, der.Lv, der.Lt)]
-    full.append(rng.random(grid.shape).astype(np.float32))                  # base weights
     F, Ny, Nx, Nv, Nu = grid.shape
     box = np.array([1, Ny - 1, 2, Nx - 2, 2, Nv - 2, 2, Nu - 2], np.int64)
+    full, dsc = _scaled_views([der.Lx, der.Ly, der.Lu, der.Lv, der.Lt], box)
+    full += [dsc, rng.random(grid.shape).astype(np.float32)]                 # scales, base weights
     inner = [np.ascontiguousarray(a[:, 1:Ny - 1, 2:Nx - 2]) for a in full]
     vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
     zs = np.array([face.z_pi for face in grid.faces])
@@ -900,7 +928,7 @@ def test_depth_regressors_only_where_less_noisy(kernel):
     quiet, none when ρ̂² var_u exceeds var_x, and a ray whose |L_u| dominates its window
     (there ρ̂'s pooled noise is that ray's own L_x noise, amplified) keeps its measured L_x
     while its neighbours are replaced."""
-    from polycam.eq5 import depth_regularise, depth_rho
+    from polycam.eq5 import _scaled_views, depth_regularise, depth_rho
 
     rng = np.random.default_rng(11)
     shape = (1, 3, 3, 24, 24)
@@ -915,9 +943,10 @@ def test_depth_regressors_only_where_less_noisy(kernel):
     def used(var):
         # L_x = ρ L_u + 0.1: within the noise of var_x = 1e-2, and ρ̂ L_u differs from it
         der = [(rho * Lu + 0.1).astype(np.float32), rho * Lv, Lu, Lv, np.zeros(shape, np.float32)]
-        if kernel:
+        if kernel:                                         # as the solver stores them
             out = np.empty(shape, np.float32)
-            depth_rho(der, base, box, np.asarray(var, float), out)
+            q, dsc = _scaled_views(der, box)
+            depth_rho(q, base, box, np.asarray(var, float), out, dsc=dsc)
             return np.isfinite(out)
         before = der[0].copy()
         depth_regularise(der, valid, np.asarray(var, float))
@@ -932,22 +961,24 @@ def test_depth_regressors_only_where_less_noisy(kernel):
 
 @pytest.mark.parametrize("gate", [0.0, 0.5])
 def test_depth_rho_kernel_matches_numpy(scene, gate):
-    """The Eq. 6 kernel (depth_rho, used by the solver) gives the ρ̂ and the keep / replace
-    decisions of the numpy reference depth_regularise, with holes in the base weight, and
-    the same noise variances of the replaced regressors; with the disparity gate
-    (``rho_max``, here ``gate`` x the median |L_x| / |L_u|) more rays are replaced where the
-    misfit is far above the noise (here: var 1000x smaller than without the gate)."""
-    from polycam.eq5 import _apply_rho, _view_origin, depth_regularise, depth_rho
+    """The Eq. 6 kernel (depth_rho, used by the solver, on its int16 scaled views) gives the
+    ρ̂ and the keep / replace decisions of the numpy reference depth_regularise (on the
+    views' values), with holes in the base weight, and the same noise variances of the
+    replaced regressors; with the disparity gate (``rho_max``, here ``gate`` x the median
+    |L_x| / |L_u|) more rays are replaced where the misfit is far above the noise (here: var
+    1000x smaller than without the gate). _apply_rho re-quantises each view image."""
+    from polycam.eq5 import _apply_rho, _scaled_views, _unscaled, _view_origin, depth_regularise, depth_rho
 
     grid = make_grid(("+z", "-x"), views=7, directions=32, spacing=0.01)
     M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
     rng = np.random.default_rng(5)
     L0, L1 = (scene.render(grid, T) + rng.normal(0, 0.01, grid.shape) for T in (np.eye(4), M))
     noisy = plenoptic_derivatives(L0.astype(np.float32), L1.astype(np.float32), grid, filters=MotionOptions().filters)
-    der = [np.ascontiguousarray(a, dtype=np.float32) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
     base = (rng.random(grid.shape) > 0.1).astype(np.float32) * rng.random(grid.shape).astype(np.float32)
     F, Ny, Nx, Nv, Nu = grid.shape
     box = np.array([1, Ny - 1, 1, Nx - 1, 2, Nv - 2, 2, Nu - 2], np.int64)
+    q, dsc = _scaled_views([noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt], box)
+    der = [_unscaled(a, dsc, k) for k, a in enumerate(q)]
     valid = np.zeros(grid.shape, bool)
     valid[:, 1:Ny - 1, 1:Nx - 1, 2:Nv - 2, 2:Nu - 2] = True
     valid &= base > 0
@@ -956,17 +987,17 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     ref = [a.copy() for a in der]
     var_ref = depth_regularise(ref, valid, var, rho_max)
     rho = np.empty(grid.shape, np.float32)
-    var_k = depth_rho(der, base, box, var, rho, rho_max)
+    var_k = depth_rho(q, base, box, var, rho, rho_max, dsc=dsc)
     # rays marked ``near`` (extrapolated samples in their support) count as base <= 0
     near = (rng.random(grid.shape) < 0.2).astype(np.uint8)
     with_near, zeroed = np.empty(grid.shape, np.float32), np.empty(grid.shape, np.float32)
-    var_near = depth_rho(der, base, box, var, with_near, rho_max, near=near)
-    var_zeroed = depth_rho(der, base * (near == 0), box, var, zeroed, rho_max)
+    var_near = depth_rho(q, base, box, var, with_near, rho_max, near=near, dsc=dsc)
+    var_zeroed = depth_rho(q, base * (near == 0), box, var, zeroed, rho_max, dsc=dsc)
     assert np.array_equal(with_near, zeroed, equal_nan=True) and np.array_equal(var_near, var_zeroed)
     assert np.isfinite(with_near).sum() < np.isfinite(rho).sum()
     if gate > 0:
         ungated = np.empty(grid.shape, np.float32)
-        depth_rho(der, base, box, var, ungated)
+        depth_rho(q, base, box, var, ungated, dsc=dsc)
         assert np.isfinite(rho).sum() > np.isfinite(ungated).sum()
     replaced = valid & ((ref[0] != der[0]) | (ref[1] != der[1]))
     used = np.isfinite(rho)
@@ -977,19 +1008,20 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     vo = _view_origin(Ny, Nx, box)
     inner = np.s_[:, 1:Ny - 1, 1:Nx - 1]
     compact = np.empty(rho[inner].shape, np.float32)
-    var_c = depth_rho([np.ascontiguousarray(a[inner]) for a in der], np.ascontiguousarray(base[inner]), box, var,
-                      compact, rho_max, near=np.ascontiguousarray(near[inner]), vo=vo)
+    var_c = depth_rho([np.ascontiguousarray(a[inner]) for a in q], np.ascontiguousarray(base[inner]), box, var,
+                      compact, rho_max, near=np.ascontiguousarray(near[inner]), vo=vo,
+                      dsc=np.ascontiguousarray(dsc[inner]))
     assert np.array_equal(compact, with_near[inner], equal_nan=True) and np.array_equal(var_c, var_near)
-    gx = np.ascontiguousarray(der[0][inner])
-    _apply_rho(gx, np.ascontiguousarray(der[1][inner]), *(np.ascontiguousarray(a[inner]) for a in der[2:4]),
-               np.ascontiguousarray(base[inner]), np.ascontiguousarray(rho[inner]), box, vo)
-    _apply_rho(*der[:4], base, rho, box, _view_origin(Ny, Nx))
-    assert np.array_equal(gx, der[0][inner])
-    both = used & replaced
+    q_c = [np.ascontiguousarray(a[inner]) for a in q[:4]]
+    dsc_c = np.ascontiguousarray(dsc[inner])
+    _apply_rho(*q_c, dsc_c, np.ascontiguousarray(base[inner]), np.ascontiguousarray(rho[inner]), box, vo, 2)
+    _apply_rho(*q[:4], dsc, base, rho, box, _view_origin(Ny, Nx), 3)
+    assert np.array_equal(q_c[0], q[0][inner]) and np.array_equal(dsc_c, dsc[inner])
     for k in (0, 1):
         scale = np.abs(ref[k][valid]).max()
-        assert np.abs(der[k] - ref[k])[both].max() <= MOTION_DEPTH_RHO_RTOL * scale
-        assert np.array_equal(der[k][~used], ref[k][~used])
+        err = np.abs(_unscaled(q[k], dsc, k) - ref[k])[valid]
+        # ρ̂ L_u from the float32 sums, then each view re-quantised (half a step of its scale)
+        assert err.max() <= (MOTION_DEPTH_RHO_RTOL + MOTION_SCALED_VIEWS_RTOL) * scale
     np.testing.assert_allclose(var_k, var_ref, rtol=MOTION_DEPTH_RHO_RTOL)
 
 
