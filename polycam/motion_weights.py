@@ -168,11 +168,15 @@ def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
 
 
 @numba.njit(parallel=True, cache=True)
-def _discontinuity_energy(L0, L1, W0, has_w, r, out):
+def _discontinuity_energy(L0, L1, W0, has_w, r, out, y0, x0, stride, samples):
     """out = |∂²S/∂u²| + |∂²S/∂v²| (second differences, clamped borders) of the mean
     S = (L0 + L1) / 2 (times W0 > 0 with ``has_w``) maximised over ±r samples in (u, v)
-    (windows clipped at the borders), per view image of (F, Ny, Nx, Nv, Nu) arrays."""
+    (windows clipped at the borders), per view image of (F, Ny, Nx, Nv, Nu) arrays; out
+    (F, ny, nx, Nv, Nu) holds the views y0:y0 + ny, x0:x0 + nx only. With ``stride`` > 0,
+    samples[k] (k = 0, 1, ...; (n, Nu)) gets row k x stride of the energy of *every* view
+    (rows in C order over (F, Ny, Nx, Nv)), as if out held them all."""
     F, Ny, Nx, Nv, Nu = L0.shape
+    ny, nx = out.shape[1], out.shape[2]
     two = np.float32(2.0)
     half = np.float32(0.5)
     zero = np.float32(0.0)
@@ -191,7 +195,8 @@ def _discontinuity_energy(L0, L1, W0, has_w, r, out):
             a0 = L0[fc, j, i]
             a1 = L1[fc, j, i]
             wv = W0[fc, j, i]
-            o = out[fc, j, i]
+            kept = y0 <= j < y0 + ny and x0 <= i < x0 + nx
+            o = out[fc, j - y0, i - x0] if kept else e     # e is free after the row maxima
             for v in range(Nv):
                 ir = img[v]
                 r0 = a0[v]
@@ -243,6 +248,10 @@ def _discontinuity_energy(L0, L1, W0, has_w, r, out):
                     for d in range(max(u - r, 0) + 1, min(u + r, Nu - 1) + 1):
                         m = max(m, ir[d])
                     orow[u] = m
+            if stride > 0:
+                g0 = idx * Nv                            # the view's first row (C order)
+                for v in range(-(-g0 // stride) * stride - g0, Nv, stride):
+                    samples[(g0 + v) // stride] = o[v]
 
 
 _NOISE_ENERGY_Q = 0.99
@@ -256,7 +265,7 @@ def _noise_energy_quantile(radius: int) -> float:
     Computed once per radius from a seeded 128 x 128 noise image."""
     n = np.random.default_rng(1234).standard_normal((1, 1, 1, 128, 128)).astype(np.float32)
     e = np.empty_like(n)
-    _discontinuity_energy(n, n, n, False, radius, e)
+    _discontinuity_energy(n, n, n, False, radius, e, 0, 0, 0, n[0, 0, 0])
     return float(np.quantile(e, _NOISE_ENERGY_Q))
 
 
@@ -267,12 +276,14 @@ def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None,
     per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e).
     ``box`` (8,): return only the weights of its views (F, box y, box x, Nv, Nu), as the
     solver keeps them (the median is still that of every view)."""
-    e = np.empty_like(L0)
-    _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e)
-    rows = e.reshape(-1, e.shape[-1])
-    m = _median(rows[:: max(1, e.size // samples)])
-    if box is not None:
-        e = np.ascontiguousarray(e[:, box[0]:box[1], box[2]:box[3]])
+    F, Ny, Nx, Nv, Nu = L0.shape
+    y0, y1, x0, x1 = (0, Ny, 0, Nx) if box is None else (int(b) for b in box[:4])
+    e = np.empty((F, y1 - y0, x1 - x0, Nv, Nu), np.float32)       # the kept views only
+    stride = max(1, L0.size // samples)
+    rows = np.empty((-(-(F * Ny * Nx * Nv) // stride), Nu), np.float32)   # every stride-th row of all views
+    _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e,
+                          y0, x0, stride, rows)
+    m = _median(rows)
     if not m > 0:
         return np.ones_like(e)
     if opts.smooth_noise and noise_var > 0:
