@@ -20,7 +20,9 @@ Per-ray work arrays (derivatives, base weights, ρ̂) may hold only the views of
 valid box (the solver's: the views whose (x, y) filter support lies inside the grid; the
 others would never be read). The kernels take their *view origin* ``vo`` (4,) int64
 ``[y0, x0, Ny, Nx]``: such an array's view (j − y0, i − x0) is view (j, i) of the Ny x Nx
-grid; ``(0, 0, Ny, Nx)`` for arrays over every view (``_view_origin``).
+grid; ``(0, 0, Ny, Nx)`` for arrays over every view (``_view_origin``). Every kernel counts
+a base weight <= 0 as weight 0: the solver keeps the discontinuity weight in the magnitude
+of negative base weights (``_prepare_kernel``'s smooth mode 2).
 
 The solver stores its derivatives as int16 with one scale per view image and
 derivative (*scaled views*): value = q × ``dsc[f, j, i, c]``, ``dsc`` (F, ny, nx, 5)
@@ -439,17 +441,19 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, pv, dv, pu, du,
+def _prepare_kernel(L0, L1, conf, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
                     var, final, acc, st, chunks, rho, has_rho, sums):
     """Per valid view image, in cache: the base weight = confidence ``conf`` minimised over the
-    filter support (``need_min``) × valid × ``smooth``, the plenoptic derivatives of the
+    filter support (``need_min``) × valid × the discontinuity weight (``smooth_mode`` 0: none,
+    1: the array ``smooth``, 2: |base|, with a 0 / 1 confidence minimum kept in base's sign:
+    base = ±weight, and every kernel counts base <= 0 as weight 0), the plenoptic derivatives of the
     (warped) pair (L0, L1) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
     docstring), with ``has_rho`` the Eq. 6 regressors L_x, L_y ← ρ̂ L_u, ρ̂ L_v where ``rho``
     (same dims) is a number and the base weight > 0 (:func:`depth_rho`), and with ``sums``
     the unit-IRLS-weight normal sums (:func:`_accumulate_view`; else acc and st are left as
     they are). box as in :func:`_pass_kernel` (the filter radii). L0, L1, conf: every view;
-    Lx .. Lt, dsc, base, ``smooth`` (with ``has_smooth``) and ``rho`` (with ``has_rho``): view
+    Lx .. Lt, dsc, base, ``smooth`` (mode 1) and ``rho`` (with ``has_rho``): view
     origin ``vo`` (module docstring)."""
     F, Ny, Nx, Nv, Nu = L0.shape
     ry = box[0]
@@ -505,10 +509,18 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, has_smooth, py, dy, px, dx, 
                         for u in range(n_in):
                             cr[u] = min(cr[u], sr[u])
             b = base[fc, ja, ia]
-            b[:, :] = 0.0
-            for v in range(rv, Nv - rv):
-                for u in range(ru, Nu - ru):
-                    b[v, u] = cm[v, u] * smooth[fc, ja, ia, v, u] if has_smooth else cm[v, u]
+            if smooth_mode == 2:                 # the samples outside the box are never read
+                for v in range(rv, Nv - rv):
+                    br = b[v]
+                    cr = cm[v]
+                    for u in range(numba.uint64(ru), numba.uint64(Nu - ru)):
+                        a = abs(br[u])
+                        br[u] = a if cr[u] > np.float32(0.0) else -a
+            else:
+                b[:, :] = 0.0
+                for v in range(rv, Nv - rv):
+                    for u in range(ru, Nu - ru):
+                        b[v, u] = cm[v, u] * smooth[fc, ja, ia, v, u] if smooth_mode == 1 else cm[v, u]
             # the (u, v) stage one derivative at a time into o (cm is no longer needed), each
             # quantised into its scaled view: L_u, L_v first (the Eq. 6 regressors use them)
             tmp = buf[4]

@@ -376,7 +376,6 @@ class _Solver:
         # are never read (their (x, y) filter support leaves the grid)
         self.vo = _view_origin(Ny, Nx, self.box)
         self.cshape = _box_views(self.shape, self.box)
-        self.smooth = _level_discontinuity_weight(lev, opts, self.box) if opts.smooth_c > 0 else None
         self.var: np.ndarray | None = None
         self.src1, K = _warp_source(lev.L1, lev.W1, "src1")
         self.src0, self.K0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else (None, 0)
@@ -412,6 +411,15 @@ class _Solver:
         binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
         self.conf = _work_array("conf", self.shape, np.uint8 if binary else np.float32)
         self.base = _work_array("base", self.cshape)
+        # the discontinuity weight (fixed per level): with a 0 / 1 confidence it lives in the
+        # base weights' memory, as |base| with base's sign the confidence (eq5._prepare_kernel,
+        # smooth mode 2: a frame's 0.6 less); else an array of its own (mode 1)
+        self.smooth: np.ndarray | None = None
+        self.smooth_mode = 0 if opts.smooth_c <= 0 else (2 if binary else 1)
+        if self.smooth_mode == 2:
+            _level_discontinuity_weight(lev, opts, self.box, out=self.base)
+        elif self.smooth_mode == 1:
+            self.smooth = _level_discontinuity_weight(lev, opts, self.box)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
@@ -513,7 +521,7 @@ class _Solver:
             floors = (opts.depth_gate_misfit,)
         check = first_dr and len(floors) > 1
         tile = self.tile if check else self._tile(final)     # the check's covariance needs the tiles
-        derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth is not None, *self.taps,
+        derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth_mode, *self.taps,
                        Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, *self.vals, self.zs, self.fs,
                        np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),

@@ -270,22 +270,25 @@ def _noise_energy_quantile(radius: int) -> float:
 
 
 def _discontinuity_weight(L0: np.ndarray, L1: np.ndarray, W0: np.ndarray | None, opts: MotionOptions,
-                          samples: int = 50_000, noise_var: float = 0.0, box: np.ndarray | None = None) -> np.ndarray:
+                          samples: int = 50_000, noise_var: float = 0.0, box: np.ndarray | None = None,
+                          out: np.ndarray | None = None) -> np.ndarray:
     """:func:`discontinuity_weight` of S = (L0 + L1) / 2 (zero where W0 <= 0); the median
     from about ``samples`` values in whole rows. ``noise_var``: sensor-noise variance of S
     per sample (``smooth_noise``: the energy noise alone reaches is subtracted from e).
     ``box`` (8,): return only the weights of its views (F, box y, box x, Nv, Nu), as the
-    solver keeps them (the median is still that of every view)."""
+    solver keeps them (the median is still that of every view). ``out``: into this float32
+    C array of the returned dims."""
     F, Ny, Nx, Nv, Nu = L0.shape
     y0, y1, x0, x1 = (0, Ny, 0, Nx) if box is None else (int(b) for b in box[:4])
-    e = np.empty((F, y1 - y0, x1 - x0, Nv, Nu), np.float32)       # the kept views only
+    e = np.empty((F, y1 - y0, x1 - x0, Nv, Nu), np.float32) if out is None else out   # the kept views only
     stride = max(1, L0.size // samples)
     rows = np.empty((-(-(F * Ny * Nx * Nv) // stride), Nu), np.float32)   # every stride-th row of all views
     _discontinuity_energy(L0, L1, L0 if W0 is None else W0, W0 is not None, max(int(opts.smooth_radius), 0), e,
                           y0, x0, stride, rows)
     m = _median(rows)
     if not m > 0:
-        return np.ones_like(e)
+        e.fill(1.0)
+        return e
     if opts.smooth_noise and noise_var > 0:
         # noise-aware: only energy above what noise alone reaches counts as a discontinuity
         e -= np.float32(_noise_energy_quantile(max(int(opts.smooth_radius), 0)) * math.sqrt(noise_var))
@@ -312,12 +315,13 @@ def discontinuity_weight(S: np.ndarray, opts: MotionOptions, noise_var: float = 
     return _discontinuity_weight(S, S, None, opts, noise_var=noise_var)
 
 
-def _level_discontinuity_weight(lev: _Level, opts: MotionOptions, box: np.ndarray | None = None) -> np.ndarray:
+def _level_discontinuity_weight(lev: _Level, opts: MotionOptions, box: np.ndarray | None = None,
+                                out: np.ndarray | None = None) -> np.ndarray:
     """:func:`discontinuity_weight` of a level's frame mean (where frame 1 has data); the
     mean of two frames has half the per-frame noise variance (:func:`_noise_variance`).
-    ``box``: only its views (:func:`_discontinuity_weight`)."""
+    ``box``: only its views, ``out``: into that array (:func:`_discontinuity_weight`)."""
     var_S = 0.5 * _noise_variance(lev) if opts.smooth_noise else 0.0
-    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts, noise_var=var_S, box=box)
+    return _discontinuity_weight(lev.L0, lev.L1, lev.W0, opts, noise_var=var_S, box=box, out=out)
 
 
 def solver_filter_pairs(grid: LightFieldGrid, opts: MotionOptions) -> dict:

@@ -470,6 +470,49 @@ def test_extrapolation_marks_share_the_derivatives_memory(scene, monkeypatch, wi
     assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
 
 
+@pytest.mark.parametrize("options", [{}, {"whiten": "on"}, {"depth_regressors": False}],
+                         ids=["default", "whitened", "measured"])
+def test_discontinuity_weight_in_the_base_weights_sign(scene, monkeypatch, options):
+    """With a 0 / 1 confidence (no W) the solver keeps the discontinuity weight as |base|, the
+    confidence in base's sign (eq5._prepare_kernel, smooth mode 2; every kernel counts base
+    <= 0 as 0): the estimate is the same to the last bit as with the weight in an array of its
+    own (mode 1), here with rays that leave the grid (confidence 0)."""
+    from polycam.motion_weights import _level_discontinuity_weight
+
+    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
+    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])       # 1.4 views
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(3)
+    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
+    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    opts = MotionOptions(**options)
+    negative = []
+    prepare = pm._Solver.prepare
+
+    def spy(self, M, final):
+        out = prepare(self, M, final)
+        negative.append(bool((self.base < 0).any()))
+        return out
+
+    monkeypatch.setattr(pm._Solver, "prepare", spy)
+    a = estimate_motion(L0, L1, grid, options=opts)
+    assert any(negative)
+    own = pm._Solver.__init__
+    modes = []
+
+    def separate(self, *args, **kwargs):
+        own(self, *args, **kwargs)
+        modes.append(self.smooth_mode)
+        self.smooth = _level_discontinuity_weight(self.lev, self.opts, self.box)
+        self.smooth_mode = 1
+
+    monkeypatch.setattr(pm._Solver, "__init__", separate)
+    negative.clear()
+    b = estimate_motion(L0, L1, grid, options=opts)
+    assert modes and set(modes) == {2} and not any(negative)
+    assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
+
+
 def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
     # spy on the solves: (level, warp change of the increment in that level's samples)
     seen = []
