@@ -101,8 +101,9 @@ takes ~130 ms wall on 2 threads (~97 ms without the extrapolation beyond the vie
 240 ms before session 5's).
 Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, then a branch-free blend across views),
-one fused kernel (derivatives, base weights, normal sums per view image in cache, valid
-views only) and ``irls_steps`` passes that compute residual, IRLS weight and sums
+one fused kernel (derivatives, stored as int16 with a scale per view image (eq5's
+"scaled views"), base weights, normal sums per view image in cache, valid views only)
+and ``irls_steps`` passes that compute residual, IRLS weight and sums
 together; the covariance's scores and Σ w r² follow from per-tile sums (the residual is
 linear in the increment) and the noise energy from per-row weight moments. The ray loops
 are branch-free with unsigned indices and re-associated sums (``_FASTMATH``) so that LLVM
@@ -345,7 +346,7 @@ def _work_array(name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
 
 def free_work_buffers() -> None:
     """Release the work arrays that :func:`estimate_motion` keeps on the calling thread for
-    its next call (about eight frames' worth: those of the finest pyramid level, docs/motion.md "Speed")."""
+    its next call (about five frames' worth: those of the finest pyramid level, docs/motion.md "Speed")."""
     _WORK.__dict__.pop("arrays", None)
 
 
