@@ -27,7 +27,8 @@ of negative base weights (``_prepare_kernel``'s smooth mode 2).
 The solver stores its derivatives as int16 with one scale per view image and
 derivative (*scaled views*): value = q × ``dsc[f, j, i, c]``, ``dsc`` (F, ny, nx, 5)
 float32 over the same views, c = 0..4 for L_x, L_y, L_u, L_v, L_t, the scale =
-max |value| of the view image / 32767 (``_quantise_plane``): half the memory of float32,
+max |value| over the view image's rays with base weight > 0, / 32767 (``_quantise_plane``;
+the others are clipped: they are never used): half the memory of float32,
 with a rounding error of at most 1.5e-5 of the view's largest value (docs/motion.md,
 "Speed"). The kernels that read derivatives take such ``dsc``; float32 derivatives (the
 public :func:`~polycam.motion.solve_ray_motion`, the tests' references) pass unit scales
@@ -38,8 +39,6 @@ The ray loops are branch-free with unsigned indices and re-associated sums
 """
 
 from __future__ import annotations
-
-import math
 
 import numba
 import numpy as np
@@ -127,6 +126,8 @@ def _quantise_plane(a, q, v_lo, v_hi, u_lo, u_hi, w, has_w):
 
 @numba.njit(parallel=True, cache=True)
 def _quantise_views_kernel(a, q, dsc, k, box):
+    """:func:`_quantise_plane` of every view image of a (F, ny, nx, Nv, Nu) into q (int16, same
+    dims), the scales into dsc[..., k] (F, ny, nx, 5); the box's (v, u) samples (box (8,))."""
     ny, nx = a.shape[1], a.shape[2]
     for idx in numba.prange(a.shape[0] * ny * nx):
         fc = idx // (ny * nx)
@@ -893,9 +894,10 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
 @numba.njit(cache=True, inline="always")
 def _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, j, i, w, out):
     """out[c] += w × the masked Eq. 6 products of view image (fc, j, i) (indices already
-    clamped; arrays with view origin ``vo``, derivatives with scales ``dsc``): c = 0 Σ-terms L_u² + L_v², 1 L_x L_u + L_y L_v,
-    2 L_x² + L_y², 3 the mask, all 0 outside the valid box, where base <= 0 and (with
-    ``has_near``) where ``near`` is nonzero (a view outside the box adds nothing)."""
+    clamped; arrays with view origin ``vo``, derivatives with scales ``dsc``): c = 0 Σ-terms
+    L_u² + L_v², 1 L_x L_u + L_y L_v, 2 L_x² + L_y², 3 the mask, all 0 outside the valid box,
+    where base <= 0 and (with ``has_near``) where ``near`` is nonzero (a view outside the box
+    adds nothing)."""
     if j < box[0] or j >= box[1] or i < box[2] or i >= box[3] or w == 0.0:
         return
     ja = j - vo[0]

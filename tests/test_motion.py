@@ -648,7 +648,8 @@ def test_scaled_views_round_within_half_a_step(rng):
     scale (garbage there must not change the rest) nor overflow (clipped)."""
     from polycam.eq5 import _quantise_plane, _scaled_views, _unscaled
 
-    a = rng.normal(0, 1, (2, 3, 2, 12, 14)).astype(np.float32) * rng.uniform(1e-6, 1e3, (2, 3, 2, 1, 1)).astype(np.float32)
+    size = rng.uniform(1e-6, 1e3, (2, 3, 2, 1, 1)).astype(np.float32)        # per view image
+    a = rng.normal(0, 1, (2, 3, 2, 12, 14)).astype(np.float32) * size
     a[1, 2, 1] = 0.0                                      # an all-zero view: scale 0
     box = np.array([0, 3, 0, 2, 2, 10, 3, 11], np.int64)
     q, dsc = _scaled_views([a] * 5, box)
