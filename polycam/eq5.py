@@ -442,11 +442,12 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _prepare_kernel(L0, L1, conf, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
+def _prepare_kernel(L0, L1, conf, conf_unit, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
                     var, final, acc, st, chunks, rho, has_rho, sums):
-    """Per valid view image, in cache: the base weight = confidence ``conf`` minimised over the
-    filter support (``need_min``) × valid × the discontinuity weight (``smooth_mode`` 0: none,
+    """Per valid view image, in cache: the base weight = confidence ``conf`` (in units of
+    ``conf_unit``: 1 / 65535 for uint16) minimised over the filter support (``need_min``)
+    × valid × the discontinuity weight (``smooth_mode`` 0: none,
     1: the array ``smooth``, 2: |base|, with a 0 / 1 confidence minimum kept in base's sign:
     base = ±weight, and every kernel counts base <= 0 as weight 0), the plenoptic derivatives of the
     (warped) pair (L0, L1) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
@@ -521,7 +522,8 @@ def _prepare_kernel(L0, L1, conf, need_min, smooth, smooth_mode, py, dy, px, dx,
                 b[:, :] = 0.0
                 for v in range(rv, Nv - rv):
                     for u in range(ru, Nu - ru):
-                        b[v, u] = cm[v, u] * smooth[fc, ja, ia, v, u] if smooth_mode == 1 else cm[v, u]
+                        c = cm[v, u] * conf_unit
+                        b[v, u] = c * smooth[fc, ja, ia, v, u] if smooth_mode == 1 else c
             # the (u, v) stage one derivative at a time into o (cm is no longer needed), each
             # quantised into its scaled view: L_u, L_v first (the Eq. 6 regressors use them)
             tmp = buf[4]

@@ -408,9 +408,12 @@ class _Solver:
         self.warp_scratch = dmem[free:tail] if tail >= free else dmem[free:]
         self.marks_memory = dmem[tail:] if tail >= free else None
         # the warp's confidence: 0 / 1 without W (uint8: a quarter of the memory), else
-        # multiplied by the (warped) confidences
+        # multiplied by the (warped) confidences, in units of 1 / 65535 (uint16: half;
+        # warp._apply_warped_confidence); float32 when both frames are warped (symmetric)
         binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
-        self.conf = _work_array("conf", self.shape, np.uint8 if binary else np.float32)
+        dtype = np.uint8 if binary else (np.float32 if opts.symmetric else np.uint16)
+        self.conf = _work_array("conf", self.shape, dtype)
+        self.conf_unit = np.float32(1.0 / 65535.0) if dtype == np.uint16 else np.float32(1.0)
         self.base = _work_array("base", self.cshape)
         # the discontinuity weight (fixed per level): with a 0 / 1 confidence it lives in the
         # base weights' memory, as |base| with base's sign the confidence (eq5._prepare_kernel,
@@ -522,7 +525,7 @@ class _Solver:
             floors = (opts.depth_gate_misfit,)
         check = first_dr and len(floors) > 1
         tile = self.tile if check else self._tile(final)     # the check's covariance needs the tiles
-        derivatives = (L0, self.out1[0], conf, need_min, smooth, self.smooth_mode, *self.taps,
+        derivatives = (L0, self.out1[0], conf, self.conf_unit, need_min, smooth, self.smooth_mode, *self.taps,
                        Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, *self.vals, self.zs, self.fs,
                        np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),

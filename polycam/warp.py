@@ -703,14 +703,20 @@ def _weight_confidence(w):
 
 
 @numba.njit(parallel=True, cache=True)
-def _warped_confidence_kernel(conf, W, nodata, has_nodata, W0, has_w0):
+def _warped_confidence_kernel(conf, W, nodata, has_nodata, W0, has_w0, q, rnd):
     n = conf.shape[0]
     rows = max(1, n // 16384)
     for r in numba.prange(rows):
         for k in range(r * n // rows, (r + 1) * n // rows):
             w = min(max(W[k], np.float32(0.0)), np.float32(1.0))
             c = conf[k] * (w * (np.float32(1.0) if not has_nodata or abs(nodata[k]) < 1e-6 else np.float32(0.0)))
-            conf[k] = c * _weight_confidence(W0[k]) if has_w0 else c
+            conf[k] = (c * _weight_confidence(W0[k]) if has_w0 else c) * q + rnd
+
+
+def _confidence_units(conf: np.ndarray) -> tuple[float, float]:
+    """(q, rnd): a confidence c is stored in ``conf`` as c q + rnd (truncated): float32 as it
+    is, uint16 as round(c x 65535) (:func:`_apply_warped_confidence`)."""
+    return (65535.0, 0.5) if conf.dtype == np.uint16 else (1.0, 0.0)
 
 
 def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray, W0: np.ndarray | None = None) -> None:
@@ -718,26 +724,30 @@ def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray, W0: np.ndarray |
     Nu) of the motion solver's source with W (``polycam.motion._warp_source``: L, W and, K = 3,
     the "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
     indicator is not 0; then, with ``W0`` (same dims as conf), by :func:`_apply_weight_confidence`'s
-    factor in the same pass (in place, no frame-sized temporaries)."""
+    factor in the same pass (in place, no frame-sized temporaries). conf float32, or uint16
+    holding the warp's 0 / 1 and then the product in units of 1 / 65535
+    (:func:`_confidence_units`; the motion solver's, half the memory)."""
     flat = conf.reshape(-1)
     _warped_confidence_kernel(flat, out[1].reshape(-1), out[-1].reshape(-1), out.shape[0] > 2,
                               flat if W0 is None else np.ascontiguousarray(W0, dtype=np.float32).reshape(-1),
-                              W0 is not None)
+                              W0 is not None, *_confidence_units(conf))
 
 
 @numba.njit(parallel=True, cache=True)
-def _weight_confidence_kernel(conf, W):
+def _weight_confidence_kernel(conf, W, q, rnd):
     n = conf.shape[0]
     rows = max(1, n // 16384)
     for r in numba.prange(rows):
         for k in range(r * n // rows, (r + 1) * n // rows):
-            conf[k] *= _weight_confidence(W[k])
+            conf[k] = conf[k] * _weight_confidence(W[k]) * q + rnd
 
 
 def _apply_weight_confidence(conf: np.ndarray, W: np.ndarray) -> None:
     """conf (F, Ny, Nx, Nv, Nu) *= W (same dims, float32) clipped to [0, 1], zero where W <= 0
-    (the confidence of an unwarped frame; in place, no frame-sized temporaries)."""
-    _weight_confidence_kernel(conf.reshape(-1), np.ascontiguousarray(W, dtype=np.float32).reshape(-1))
+    (the confidence of an unwarped frame; in place, no frame-sized temporaries); conf float32,
+    or uint16 as :func:`_apply_warped_confidence`'s."""
+    _weight_confidence_kernel(conf.reshape(-1), np.ascontiguousarray(W, dtype=np.float32).reshape(-1),
+                              *_confidence_units(conf))
 
 
 _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.uint8)

@@ -570,7 +570,8 @@ def test_near_marks_dilate_across_views():
 def test_warped_confidence_in_place(rng):
     """conf *= clip(warped W, 0, 1) x (warped "no data" indicator == 0), as the numpy formula;
     without the indicator channel (W had no samples without data) the clipped W alone; with
-    frame 1's W0 also x clip(W0, 0, 1) x (W0 > 0) in the same pass, or alone."""
+    frame 1's W0 also x clip(W0, 0, 1) x (W0 > 0) in the same pass, or alone. The solver's
+    uint16 confidence (the warp's 0 / 1 in, the product out in units of 1 / 65535) rounds it."""
     from polycam.warp import _apply_warped_confidence, _apply_weight_confidence
 
     shape = (2, 3, 3, 8, 8)
@@ -586,9 +587,15 @@ def test_warped_confidence_in_place(rng):
             expected = expected * factor0
         _apply_warped_confidence(conf, out[:channels], W0 if with_w0 else None)
         assert np.array_equal(conf, expected.astype(np.float32))
+        q = conf0.astype(np.uint16)
+        _apply_warped_confidence(q, out[:channels], W0 if with_w0 else None)
+        assert np.all(np.abs(q - expected.astype(np.float64) * 65535) <= 0.5 + 1e-3) and q.max() > 60000
     conf = conf0.copy()
     _apply_weight_confidence(conf, W0)
     assert np.array_equal(conf, (conf0 * factor0).astype(np.float32))
+    q = conf0.astype(np.uint16)
+    _apply_weight_confidence(q, W0)
+    assert np.all(np.abs(q - conf0 * factor0.astype(np.float64) * 65535) <= 0.5 + 1e-3)
 
 
 @pytest.mark.parametrize("n", [1, 5, 50_000])
