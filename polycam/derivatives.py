@@ -324,19 +324,44 @@ sums let the ray loops vectorise (results change by float rounding only); no ``n
 # ---------------------------------------------------------------------------- fused kernels
 
 
+@numba.njit(cache=True, inline="always")
+def _units(y):
+    """y (float32, in units) rounded to the nearest integer (float32 rint: vectorises),
+    clipped to ±32767: an int16 frame's value (polycam.warp._store)."""
+    hi = np.float32(32767.0)
+    return np.rint(min(max(y, -hi), hi))
+
+
+@numba.njit(cache=True, inline="always")
+def _on_grid(x, inv, unit):
+    """x (float32) rounded to the nearest multiple of ``unit`` (``inv`` = 1 / unit, both float32),
+    clipped to ±32767 units: the value an int16 frame in those units holds (:func:`_units`)."""
+    return _units(x * inv) * unit
+
+
+@numba.njit(cache=True)
+def _on_grid_row(row, inv, unit, out):
+    for u in range(row.shape[0]):
+        out[u] = _on_grid(row[u], inv, unit)
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def xy_view(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
+def xy_view(L0, L1, g0, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """(x, y) stage of one output view image (f, j, i) from the frames' mean S and
     difference D: a1 = Px Py S, a2 = Dx Py S, a3 = Px Dy S, a4 = Px Py D, each (Nv, Nu)
-    (clamped borders). Shared with the motion solver's fused kernels."""
+    (clamped borders). With ``g0`` > 0 (float32) frame 1 is read rounded to multiples of g0
+    (:func:`_on_grid`): the motion solver's warp source is int16 in those units
+    (polycam.warp._warp_into), so that two frames holding the same values have a difference
+    of exactly 0 (rounding only frame 2 would leave a difference that is a function of the
+    image: a bias). Shared with the motion solver's fused kernels."""
     if py.shape[0] == 3 and px.shape[0] == 3:
-        _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
+        _xy_view3(L0, L1, g0, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
     else:
-        _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
+        _xy_view_taps(L0, L1, g0, f, j, i, py, dy, px, dx, a1, a2, a3, a4)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
+def _xy_view3(L0, L1, g0, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """:func:`xy_view` for 3-tap filters along x and y (fs3, the solver's default), in one
     pass per (v) row: the 18 neighbouring rows of both frames are combined in registers
     (separably: x first), each output row is written once."""
@@ -352,10 +377,19 @@ def _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     q0, q1, q2 = py[0] * half, py[1] * half, py[2] * half
     e0, e1, e2 = dy[0] * half, dy[1] * half, dy[2] * half
     r0, r1, r2 = py[0], py[1], py[2]
+    on_grid = g0 > 0.0
+    g = np.empty((9 if on_grid else 0, Nu), np.float32)
+    inv = np.float32(1.0) / g0 if on_grid else np.float32(0.0)
     for v in range(Nv):
         A0, A1, A2 = L0[f, j0, i0, v], L0[f, j0, i, v], L0[f, j0, i2, v]
         B0, B1, B2 = L0[f, j, i0, v], L0[f, j, i, v], L0[f, j, i2, v]
         C0, C1, C2 = L0[f, j2, i0, v], L0[f, j2, i, v], L0[f, j2, i2, v]
+        if on_grid:
+            k = 0
+            for row in (A0, A1, A2, B0, B1, B2, C0, C1, C2):
+                _on_grid_row(row, inv, g0, g[k])
+                k += 1
+            A0, A1, A2, B0, B1, B2, C0, C1, C2 = g[0], g[1], g[2], g[3], g[4], g[5], g[6], g[7], g[8]
         X0, X1, X2 = L1[f, j0, i0, v], L1[f, j0, i, v], L1[f, j0, i2, v]
         Y0, Y1, Y2 = L1[f, j, i0, v], L1[f, j, i, v], L1[f, j, i2, v]
         Z0, Z1, Z2 = L1[f, j2, i0, v], L1[f, j2, i, v], L1[f, j2, i2, v]
@@ -380,7 +414,7 @@ def _xy_view3(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
+def _xy_view_taps(L0, L1, g0, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     """:func:`xy_view` for any tap counts: one accumulating pass per (x, y) tap."""
     Ny, Nx, Nv, Nu = L0.shape[1:]
     ry = py.shape[0] // 2
@@ -389,6 +423,9 @@ def _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
     a2[:, :] = 0.0
     a3[:, :] = 0.0
     a4[:, :] = 0.0
+    on_grid = g0 > 0.0
+    g = np.empty(Nu if on_grid else 0, np.float32)
+    inv = np.float32(1.0) / g0 if on_grid else np.float32(0.0)
     for a in range(py.shape[0]):
         jj = min(max(j + a - ry, 0), Ny - 1)
         for b in range(px.shape[0]):
@@ -398,15 +435,18 @@ def _xy_view_taps(L0, L1, f, j, i, py, dy, px, dx, a1, a2, a3, a4):
             w3 = dy[a] * px[b]
             if w1 == 0.0 and w2 == 0.0 and w3 == 0.0:
                 continue
-            s0 = L0[f, jj, ii]
-            s1 = L1[f, jj, ii]
+            t0 = L0[f, jj, ii]
+            t1 = L1[f, jj, ii]
             h1 = np.float32(0.5 * w1)
             h2 = np.float32(0.5 * w2)
             h3 = np.float32(0.5 * w3)
             d1 = np.float32(w1)
             for v in range(Nv):
-                r0 = s0[v]
-                r1 = s1[v]
+                r0 = t0[v]
+                if on_grid:
+                    _on_grid_row(r0, inv, g0, g)
+                    r0 = g
+                r1 = t1[v]
                 o1 = a1[v]
                 o2 = a2[v]
                 o3 = a3[v]
@@ -528,7 +568,7 @@ def _derivatives_kernel(L0, L1, py, dy, px, dx, pv, dv, pu, du, sx, sy, su, sv, 
             rem = idx - f * Ny * Nx
             j = rem // Nx
             i = rem - j * Nx
-            xy_view(L0, L1, f, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
+            xy_view(L0, L1, np.float32(0.0), f, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
             uv_view(buf[0], buf[1], buf[2], buf[3], pv, dv, pu, du, sx, sy, su, sv, buf[4],
                     Lx[f, j, i], Ly[f, j, i], Lu[f, j, i], Lv[f, j, i], Lt[f, j, i])
 

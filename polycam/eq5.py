@@ -442,7 +442,7 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _prepare_kernel(L0, L1, conf, conf_unit, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
+def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
                     var, final, acc, st, chunks, rho, has_rho, sums):
     """Per valid view image, in cache: the base weight = confidence ``conf`` (in units of
@@ -450,7 +450,8 @@ def _prepare_kernel(L0, L1, conf, conf_unit, need_min, smooth, smooth_mode, py, 
     × valid × the discontinuity weight (``smooth_mode`` 0: none,
     1: the array ``smooth``, 2: |base|, with a 0 / 1 confidence minimum kept in base's sign:
     base = ±weight, and every kernel counts base <= 0 as weight 0), the plenoptic derivatives of the
-    (warped) pair (L0, L1) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
+    (warped) pair (L0, L1; L0 read rounded to multiples of l0g[face] where > 0, l0g (F,)
+    float32: :func:`~polycam.derivatives.xy_view`) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
     docstring), with ``has_rho`` the Eq. 6 regressors L_x, L_y ← ρ̂ L_u, ρ̂ L_v where ``rho``
     (same dims) is a number and the base weight > 0 (:func:`depth_rho`), and with ``sums``
     the unit-IRLS-weight normal sums (:func:`_accumulate_view`; else acc and st are left as
@@ -480,7 +481,7 @@ def _prepare_kernel(L0, L1, conf, conf_unit, need_min, smooth, smooth_mode, py, 
             gv = Lv[fc, ja, ia]
             lt = Lt[fc, ja, ia]
             sc = dsc[fc, ja, ia]
-            xy_view(L0, L1, fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
+            xy_view(L0, L1, l0g[fc], fc, j, i, py, dy, px, dx, buf[0], buf[1], buf[2], buf[3])
             cm = buf[5]
             t2 = buf[6]
             cm[:, :] = conf[fc, j, i]

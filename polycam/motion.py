@@ -133,7 +133,7 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho, _pass_kernel,
+from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho, _pass_kernel,
                   _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _view_origin, _weighted_median, depth_rho,
                   ray_motion_coefficients)
 from .errors import InputError
@@ -144,8 +144,9 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _apply_weight_confidence, _near_marks, _padded,
-                   _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield, warp_lightfield_reference)
+from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _apply_weight_confidence, _face_abs_max,
+                   _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
+                   warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -289,22 +290,37 @@ def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarra
 # ============================================================================ the solver
 
 
-def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None) -> tuple[np.ndarray, int]:
-    """Channels warped together, (F, Nv, Nu, M) (:func:`~polycam.warp._views_inner`): L,
-    and with a confidence W also W and, where W has samples without data (W <= 0), the "no
-    data" indicator W <= 0, which must not be interpolated into usable samples (any stencil
-    tap on it makes the sample unusable; without such samples it would warp to 0
-    everywhere, so it is left out: a third less warping). ``name``: into that per-thread
-    work array (:func:`_work_array`). Returns the source and its channel count (1, 2 or 3)."""
+def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None,
+                 L_other: np.ndarray | None = None, W_other: np.ndarray | None = None) -> tuple[np.ndarray, int, np.ndarray]:
+    """Channels warped together, (F, Nv, Nu, M) int16 (:func:`~polycam.warp._views_inner`
+    layout; scaled warp, :func:`~polycam.warp._warp_into`): L, and with a confidence W also W
+    and, where W has samples without data (W <= 0), the "no data" indicator W <= 0, which
+    must not be interpolated into usable samples (any stencil tap on it makes the sample
+    unusable; without such samples it would warp to 0 everywhere, so it is left out: a third
+    less warping). ``name``: into that per-thread work array (:func:`_work_array`). Returns
+    the source, its channel count K (1, 2 or 3) and the units (F, K) float64 of its channels
+    per face: max |channel| / 32767 (1 for an all-zero channel; for L the maximum over L and
+    ``L_other`` too, the other frame of the pair, which the derivatives read rounded to the
+    same units), 1 / 32767 for the indicator. L's maxima leave out the samples whose confidence
+    (W, ``W_other``) is <= 0: they are never used and must not change the rest (they are clipped)."""
     F, Ny, Nx, Nv, Nu = L.shape
     flat = (F, Ny * Nx, Nv, Nu)
     L = np.ascontiguousarray(L, dtype=np.float32).reshape(flat)
     W = L if W is None else np.ascontiguousarray(W, dtype=np.float32).reshape(flat)
     channels = 1 if W is L else (3 if _any_at_most_zero(W.reshape(-1)) else 2)
+    units = np.full((F, 3), 1.0 / _QMAX)
+    units[:, 0] = _face_abs_max(L, None if W is L else W) / _QMAX
+    if L_other is not None:
+        w = None if W_other is None else np.ascontiguousarray(W_other, dtype=np.float32)
+        units[:, 0] = np.maximum(units[:, 0], _face_abs_max(np.ascontiguousarray(L_other, dtype=np.float32), w) / _QMAX)
+    if channels > 1:
+        units[:, 1] = _face_abs_max(W) / _QMAX
+    units[units <= 0] = 1.0
+    units = units.astype(np.float32).astype(np.float64)     # float32 values: the same in every kernel
     shape = (F, Nv, Nu, _padded(channels * Ny * Nx))
-    out = np.empty(shape, np.float32) if name is None else _work_array(name, shape)
-    _views_inner_lw_kernel(L, W, channels, out)
-    return out, channels
+    out = np.empty(shape, np.int16) if name is None else _work_array(name, shape, np.int16)
+    _views_inner_lw_kernel(L, W, channels, (1.0 / units).astype(np.float32), out)
+    return out, channels, units[:, :channels]
 
 
 _RHO_SETTLED = 0.05
@@ -378,8 +394,13 @@ class _Solver:
         self.vo = _view_origin(Ny, Nx, self.box)
         self.cshape = _box_views(self.shape, self.box)
         self.var: np.ndarray | None = None
-        self.src1, K = _warp_source(lev.L1, lev.W1, "src1")
-        self.src0, self.K0 = _warp_source(lev.L0, lev.W0) if opts.symmetric else (None, 0)
+        # the warp sources are int16 in units (F, K) per face and channel (warp._warp_into's
+        # scaled warp: the warped frames are float32), L's common to both frames: the fused
+        # kernel reads frame 1 rounded to them (l0g), so equal samples give L_t = 0 exactly
+        self.src1, K, self.units1 = _warp_source(lev.L1, lev.W1, "src1", lev.L0, lev.W0)
+        self.l0g = self.units1[:, 0].astype(np.float32)
+        self.src0, self.K0, self.units0 = _warp_source(lev.L0, lev.W0, None, lev.L1, lev.W1) if opts.symmetric \
+            else (None, 0, None)
         # the derivatives are int16 scaled views (polycam.eq5's docstring: a scale per view
         # image and derivative in self.dsc), five in one block of float32 slots; with W the
         # warped frame 2 comes first in the same buffer: warped[0] is L, and the warped W and
@@ -485,7 +506,7 @@ class _Solver:
         marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    self.rho_bar if extrapolate else None, opts.extrapolate_views, marks=marks,
-                   scratch=self.warp_scratch)
+                   scratch=self.warp_scratch, ratio=self.units1)
         # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an
         # earlier ρ̂) would pull the new ρ̂ back towards it. Taken now: the marks lie in the
         # derivatives' memory, which the fused kernel rewrites
@@ -500,7 +521,7 @@ class _Solver:
         if opts.symmetric:
             out0 = np.empty((self.K0,) + self.shape, np.float32)
             ok0 = np.empty(self.shape, np.float32)
-            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0)
+            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0, ratio=self.units0)
             conf *= ok0
             if lev.W0 is not None:
                 _apply_warped_confidence(conf, out0)
@@ -525,7 +546,7 @@ class _Solver:
             floors = (opts.depth_gate_misfit,)
         check = first_dr and len(floors) > 1
         tile = self.tile if check else self._tile(final)     # the check's covariance needs the tiles
-        derivatives = (L0, self.out1[0], conf, self.conf_unit, need_min, smooth, self.smooth_mode, *self.taps,
+        derivatives = (L0, self.out1[0], self.l0g, conf, self.conf_unit, need_min, smooth, self.smooth_mode, *self.taps,
                        Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, *self.vals, self.zs, self.fs,
                        np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),

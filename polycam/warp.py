@@ -35,6 +35,12 @@ vectorised multiply-add over all view images, followed by a branch-free blend ac
 views, one direction row at a time (:func:`_warp_rows_kernel`: the row's (u, v)-warped
 images stay in a per-thread scratch); :func:`warp_lightfield_reference` does all taps per ray in one kernel (speed
 figures: docs/motion.md).
+
+The motion solver's source is int16 (half the memory; :func:`_warp_into`, ``ratio``): each
+channel of each face in units of its largest magnitude / 32767 (for L over both frames of
+the pair), rounded by :func:`_store`; the warped frame is float32 in the frames' own units.
+The solver's derivative kernel reads the other frame rounded to the same units
+(:func:`polycam.derivatives.xy_view`), so that equal samples still give L_t = 0 exactly.
 """
 
 from __future__ import annotations
@@ -43,12 +49,33 @@ import math
 
 import numba
 import numpy as np
+from numba.extending import overload
 
+from .derivatives import _units
 from .eq5 import _FASTMATH
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R
 from .lightfield import LightFieldGrid
 
 __all__ = ["warp_lightfield", "warp_lightfield_reference"]
+
+
+def _store(a, idx, val):
+    """a[idx] = val: as it is into a float array; rounded to the nearest integer and clipped
+    to ±32767 into an int16 array (val float32: :func:`~polycam.derivatives._units`; the
+    motion solver's int16 warp source, :func:`_warp_into`)."""
+    a[idx] = val
+
+
+@overload(_store, inline="always")
+def _store_typed(a, idx, val):
+    if isinstance(a.dtype, numba.types.Integer):
+        def store_int(a, idx, val):
+            a[idx] = np.int16(_units(val))
+        return store_int
+
+    def store(a, idx, val):
+        a[idx] = val
+    return store
 
 
 @numba.njit(cache=True, inline="always")
@@ -326,7 +353,8 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 
 @numba.njit(cache=True, inline="always")
 def _uv_row(srcT, wv, iv, wu, iu, Ur):
-    """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m]: one direction row of
+    """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m] (srcT float32, or int16
+    in its channels' units: :func:`_warp_into`): one direction row of
     the (u, v) part of the warp (6 x 6 taps; stencils (Nu, 6) of :func:`_uv_stencil_row`),
     shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
     and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
@@ -346,17 +374,18 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur):
                     continue
                 s = row[iu[u, r]]
                 for m in range(M):
-                    o[m] += w * s[m]
+                    o[m] += w * np.float32(s[m])
 
 
 @numba.njit(cache=True, inline="always")
-def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, ok):
+def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok):
     """Row jv of every view of ``out`` (K, F, Ny, Nx, Nv, Nu): bilinear interpolation across
     viewpoints of the row's (u, v)-warped images Uv (Nu M,) ((Nu, M) flattened, M >= K Ny Nx:
     (K, Ny, Nx) flattened, then padding) at each moved ray's focal-plane point in grid units,
     fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view from its
-    moved origin; slopes (Nv, Nu) per direction); ok[face] (F, Ny, Nx, Nv, Nu; float32 or
-    uint8) is 1 where the moved ray lies inside the grid, else 0 (and out 0)."""
+    moved origin; slopes (Nv, Nu) per direction), times ``ratio[k]`` (K,) for channel k
+    (:func:`_warp_into`; out float32 or int16: :func:`_store`); ok[face] (F, Ny, Nx, Nv, Nu;
+    float32 or uint8) is 1 where the moved ray lies inside the grid, else 0 (and out 0)."""
     K, _, Ny, Nx = out.shape[:4]
     Nu = out.shape[5]
     eps = 1e-6
@@ -383,6 +412,7 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, o
             okrow = ok[face, jy, ix, jv]
             for k in range(K):
                 orow = out[k, face, jy, ix, jv]
+                rk = ratio[k]
                 # branch-free with unsigned indices, so that the loop vectorises (gathers)
                 for iu in range(numba.uint64(Nu)):
                     fx = a_x + b_x * sxr[iu]
@@ -396,13 +426,13 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, o
                     wy = min(fy - by, 1.0)
                     o = iu * nm + numba.uint64(k) * nxy + by * unx + bx
                     val = ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
-                           + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1]))
-                    orow[iu] = val if good else 0.0
+                           + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1])) * rk
+                    _store(orow, iu, val if good else 0.0)
                     okrow[iu] = 1.0 if good else 0.0
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, out, ok,
+def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out, ok,
                       slot, E, edges):
     """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
     time: the row's (u, v) stencils (:func:`_uv_stencil_row`; us (Nu,), vs (Nv,) the sample
@@ -412,7 +442,7 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     across viewpoints (no (Nv, Nu, M) intermediate: 1.2 frames less memory, and read from
     cache). With ``edges`` the edge views' rows are copied to E (Nv, K, P, Nu), directions
     innermost, at their ``slot`` (Ny Nx,) (:func:`_perimeter`), for
-    :func:`_extrapolate_xy_kernel`."""
+    :func:`_extrapolate_xy_kernel` (in srcT's units: ``ratio`` (K,) as :func:`_xy_row`)."""
     K, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
     nxy = Ny * Nx
@@ -437,7 +467,7 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
                         row = E[jv, k, p]
                         for u in range(Nu):
                             row[u] = Ur[u, k * nxy + view]
-            _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, out, ok)
+            _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok)
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
@@ -453,7 +483,7 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
-                           e_max, out, ok, marks, has_marks):
+                           e_max, ratio, out, ok, marks, has_marks):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
@@ -466,7 +496,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     ``E`` (Nv, K, P, Nu): the edge views' (u, v)-warped images (:func:`_warp_rows_kernel`),
     ``slot`` (Ny Nx,) each view's index in E (:func:`_perimeter`). ``rho`` (Nv, Nu): the
     disparity per direction of face ``face`` (NaN: unknown, the ray stays empty). Other
-    arguments as :func:`_xy_row`; ``ok`` gets 1 where filled, and with
+    arguments (``ratio`` included) as :func:`_xy_row`; ``ok`` gets 1 where filled, and with
     ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
     K, _, Ny, Nx = out.shape[:4]
     Nv, _, P, Nu = E.shape
@@ -527,18 +557,18 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                        + wu[3] * (w0 * Ef[o0 + 3] + w1 * Ef[o1 + 3]))
                             else:
                                 val = w0 * Ef[o0] + w1 * Ef[o1]
-                            out[k, face, jy, ix, jv, iu] = val
+                            _store(out, (k, face, jy, ix, jv, iu), val * ratio[k])
                     elif tu == 1:                        # along v only
                         if not (ok_uv[ov, ou] and ok_uv[ov + 1, ou] and ok_uv[ov + 2, ou] and ok_uv[ov + 3, ou]):
                             continue
                         for k in range(K):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
-                            out[k, face, jy, ix, jv, iu] = (
+                            _store(out, (k, face, jy, ix, jv, iu), ratio[k] * (
                                 wv[0] * (w0 * Ef[o0] + w1 * Ef[o1])
                                 + wv[1] * (w0 * Ef[o0 + KPN] + w1 * Ef[o1 + KPN])
                                 + wv[2] * (w0 * Ef[o0 + 2 * KPN] + w1 * Ef[o1 + 2 * KPN])
-                                + wv[3] * (w0 * Ef[o0 + 3 * KPN] + w1 * Ef[o1 + 3 * KPN]))
+                                + wv[3] * (w0 * Ef[o0 + 3 * KPN] + w1 * Ef[o1 + 3 * KPN])))
                     else:                                # both axes (a corner's diagonal)
                         good = True
                         for q in range(4):
@@ -555,7 +585,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 for t in range(4):
                                     acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
                                 val += wv[q] * acc
-                            out[k, face, jy, ix, jv, iu] = val
+                            _store(out, (k, face, jy, ix, jv, iu), val * ratio[k])
                     okrow[iu] = 1.0
                     if has_marks:
                         marks[face, jy, ix, jv, iu] = 1
@@ -623,12 +653,12 @@ def _view_mean(rho: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, inline="always")
-def _put_views(o, a, f, v, m0):
-    """o[u, m0 + m] = a[f, m, v, u] for every m of a (F, M, Nv, Nu) and u."""
+def _put_views(o, a, f, v, m0, s):
+    """o[u, m0 + m] = a[f, m, v, u] s (:func:`_store`) for every m of a (F, M, Nv, Nu) and u."""
     for m in range(a.shape[1]):
         row = a[f, m, v]
         for u in range(a.shape[3]):
-            o[u, m0 + m] = row[u]
+            _store(o, (u, m0 + m), row[u] * s)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -642,15 +672,17 @@ def _views_inner_kernel(a, out):
         f = fv // Nv
         v = fv - f * Nv
         o = out[f, v]
-        _put_views(o, a, f, v, 0)
+        _put_views(o, a, f, v, 0, np.float32(1.0))
         for u in range(Nu):
             o[u, M:Mp] = 0.0
 
 
 @numba.njit(parallel=True, cache=True)
-def _views_inner_lw_kernel(L, W, channels, out):
+def _views_inner_lw_kernel(L, W, channels, inv, out):
     """:func:`_views_inner_kernel` of the first ``channels`` (1, 2 or 3) of L, W and the "no
-    data" indicator W <= 0 (1 / 0) from L, W (F, Ny Nx, Nv, Nu): no stacked copy."""
+    data" indicator W <= 0 (1 / 0) from L, W (F, Ny Nx, Nv, Nu): no stacked copy. Channel k
+    of face f is multiplied by inv[f, k] (F, 3) float32 and stored by :func:`_store` (out
+    float32 or int16)."""
     F, V, Nv, Nu = L.shape
     M = channels * V
     Mp = out.shape[3]
@@ -658,16 +690,49 @@ def _views_inner_lw_kernel(L, W, channels, out):
         f = fv // Nv
         v = fv - f * Nv
         o = out[f, v]
-        _put_views(o, L, f, v, 0)
+        _put_views(o, L, f, v, 0, inv[f, 0])
         if channels > 1:
-            _put_views(o, W, f, v, V)
+            _put_views(o, W, f, v, V, inv[f, 1])
         if channels > 2:
+            one = inv[f, 2]
             for m in range(V):
                 row = W[f, m, v]
                 for u in range(Nu):
-                    o[u, 2 * V + m] = np.float32(1.0) if row[u] <= 0.0 else np.float32(0.0)
+                    _store(o, (u, 2 * V + m), one if row[u] <= 0.0 else np.float32(0.0))
         for u in range(Nu):
-            o[u, M:Mp] = 0.0
+            o[u, M:Mp] = 0
+
+
+@numba.njit(parallel=True, cache=True)
+def _view_abs_max_kernel(a, w, has_w, out):
+    """out[n] = max |a[n]| over each view image of a (N, Nv, Nu), with ``has_w`` over the
+    samples whose w (a's dims; a itself otherwise) is > 0 only (column maxima first: a running maximum over one
+    loop does not vectorise)."""
+    N, Nv, Nu = a.shape
+    z = np.float32(0.0)
+    for n in numba.prange(N):
+        cmax = np.zeros(Nu, np.float32)
+        for v in range(Nv):
+            r = a[n, v]
+            wr = w[n, v]                                     # (a itself without has_w)
+            for u in range(Nu):
+                x = abs(r[u]) if (not has_w) or wr[u] > z else z
+                cmax[u] = x if x > cmax[u] else cmax[u]
+        m = z
+        for u in range(Nu):
+            m = max(m, cmax[u])
+        out[n] = m
+
+
+def _face_abs_max(a: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+    """(F,) float64: max |a| over each face of a (F, Ny, Nx, Nv, Nu) or (F, Ny Nx, Nv, Nu)
+    float32 C, over the samples where ``w`` (a's dims, float32 C) is > 0 if given (no
+    frame-sized temporary)."""
+    F, Nv, Nu = a.shape[0], a.shape[-2], a.shape[-1]
+    flat = a.reshape(-1, Nv, Nu)
+    m = np.empty(flat.shape[0], np.float32)
+    _view_abs_max_kernel(flat, flat if w is None else w.reshape(-1, Nv, Nu), w is not None, m)
+    return m.reshape(F, -1).max(axis=1).astype(np.float64)
 
 
 @numba.njit(cache=True)
@@ -756,10 +821,15 @@ _NO_MARKS = np.zeros((1, 1, 1, 1, 1), np.uint8)
 def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_taps: int,
                out: np.ndarray, ok: np.ndarray, rho: np.ndarray | None = None,
                extrapolate_views: float = 0.0,
-               marks: np.ndarray | None = None, scratch: np.ndarray | None = None) -> None:
+               marks: np.ndarray | None = None, scratch: np.ndarray | None = None,
+               ratio: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
+    Scaled warp (the motion solver's, half the memory): srcT and out may also be int16,
+    each channel k of face f in units of its own scale (s_src, s_out), and ``ratio`` (F, K)
+    = s_src / s_out (float out: s_out = 1; None: all 1): out gets the interpolated srcT
+    times ratio, rounded and clipped to ±32767 when int16 (:func:`_store`).
     With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per direction, u per unit x; NaN
     unknown) and ``extrapolate_views`` > 0, rays up to that many view steps outside the
     viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`); ``marks`` (F, Ny, Nx,
@@ -781,6 +851,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     flat = None if scratch is None else scratch.reshape(-1)
     E = flat[:n_e].reshape(e_shape) if flat is not None and flat.dtype == np.float32 and flat.size >= n_e \
         else np.empty(e_shape, np.float32)
+    ratio = np.ones((F, K)) if ratio is None else np.ascontiguousarray(ratio, dtype=np.float64)
     for k, face in enumerate(grid.faces):
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
@@ -795,12 +866,12 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
-                          out, ok, slot, E, extrapolate)
+                          ratio[k], out, ok, slot, E, extrapolate)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
-                                   float(extrapolate_views), out, ok,
+                                   float(extrapolate_views), ratio[k], out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None)
 
 

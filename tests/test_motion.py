@@ -24,7 +24,7 @@ from tolerances import (MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL, MOTION_COMB
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL,
-                        MOTION_SCALED_VIEWS_RTOL, MOTION_WHITEN_GLS_RTOL,
+                        MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
 
 ROOM_RADIUS = 6.0
@@ -321,6 +321,43 @@ def test_no_data_channel_left_out_only_when_empty(scene, monkeypatch):
     full = estimate_motion(L0, L1, grid, W0=W, W1=W)
     assert lean and np.array_equal(lean.T_prev_next, full.T_prev_next)
     assert np.array_equal(lean.covariance, full.covariance)
+
+
+def test_warp_source_is_int16_within_half_a_unit(scene):
+    """The solver warps frame 2 from an int16 source in units of max |L| / 32767 per face, over
+    both frames: dequantised it is within half a unit of the float32 one, and its warp within
+    MOTION_WARP_SOURCE_UNITS units of the float32 warp, with the same rays inside."""
+    from polycam.warp import _views_inner, _warp_into, warp_lightfield
+    grid = make_grid(("+z", "-x"), directions=24)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    L0[1] *= 3.0                                      # frame 1 sets the second face's units
+    src, K, units = pm._warp_source(L1, None, None, L0)
+    assert src.dtype == np.int16 and K == 1 and units.shape == (2, 1)
+    expected = np.maximum(np.abs(L0).max(axis=(1, 2, 3, 4)), np.abs(L1).max(axis=(1, 2, 3, 4))) / 32767
+    assert np.allclose(units[:, 0], expected, rtol=1e-6)
+    ref = _views_inner(L1[:, None])
+    u = units[:, 0, None, None, None]
+    assert np.all(np.abs(src * u - ref) <= (0.5 + 2 ** -8) * u)     # + float32 rounding of L / unit
+    M = T_inverse(T_from_rt(rt))
+    out_ref, ok_ref = warp_lightfield(L1[None], grid, M)
+    out, ok = np.empty((1,) + L1.shape, np.float32), np.empty(L1.shape, np.float32)
+    _warp_into(src, grid, M, 6, out, ok, ratio=units)
+    assert np.array_equal(ok > 0, ok_ref)
+    err = np.abs(out[0] - out_ref[0]) / units[:, 0, None, None, None, None]
+    assert err[ok_ref].max() <= MOTION_WARP_SOURCE_UNITS
+
+
+def test_equal_frames_give_exactly_no_motion(scene):
+    """The fused kernel reads frame 1 rounded to the int16 warp source's units, so two equal
+    frames have L_t = 0 exactly and the estimate is exactly no motion (rounding frame 2
+    alone leaves a temporal difference that is a function of the image: ~2 µm here)."""
+    for faces in (("+z",), ALL):
+        grid = make_grid(faces, directions=24 if len(faces) == 1 else 16)
+        L = scene.render(grid, np.eye(4))
+        res = estimate_motion(L, L.copy(), grid)
+        assert res, res.reason
+        assert np.abs(res.t).max() < 1e-12 and np.abs(res.r).max() < 1e-12
 
 
 def test_covariance_matches_scatter_under_noise(scene):
