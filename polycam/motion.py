@@ -319,7 +319,8 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None,
     units = units.astype(np.float32).astype(np.float64)     # float32 values: the same in every kernel
     shape = (F, Nv, Nu, _padded(channels * Ny * Nx))
     out = np.empty(shape, np.int16) if name is None else _work_array(name, shape, np.int16)
-    _views_inner_lw_kernel(L, W, channels, (1.0 / units).astype(np.float32), out)
+    inv = np.float32(1.0) / units.astype(np.float32)      # as derivatives._on_grid's (float32 division)
+    _views_inner_lw_kernel(L, W, channels, inv, out)
     return out, channels, units[:, :channels]
 
 
