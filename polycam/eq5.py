@@ -85,6 +85,26 @@ def _unit_scales(shape: tuple) -> np.ndarray:
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
+def _abs_max_where(a, v_lo, v_hi, u_lo, u_hi, w, has_w):
+    """max |a| (float32) over the samples v_lo:v_hi x u_lo:u_hi of a (Nv, Nu) float32; with
+    ``has_w`` over those whose w (a's dims either way) is > 0 only."""
+    z = np.float32(0.0)
+    n = numba.uint64(u_hi - u_lo)
+    # column-wise maxima first: a running max over one loop does not vectorise (~7x slower)
+    cmax = np.zeros(u_hi - u_lo, np.float32)
+    for v in range(v_lo, v_hi):
+        r = a[v, u_lo:u_hi]
+        wr = w[v if has_w else 0, u_lo:u_hi]                 # (unread without has_w)
+        for u in range(n):
+            x = abs(r[u]) if (not has_w) or wr[u] > z else z
+            cmax[u] = x if x > cmax[u] else cmax[u]
+    m = z
+    for u in range(n):
+        m = max(m, cmax[u])
+    return m
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH)
 def _quantise_plane(a, q, v_lo, v_hi, u_lo, u_hi, w, has_w):
     """q (Nv, Nu) int16 ← a (Nv, Nu) float32 / s rounded to the nearest integer on the samples
     v_lo:v_hi x u_lo:u_hi (0 elsewhere: never read), with the scale s = max |a| / 32767 there
@@ -95,17 +115,7 @@ def _quantise_plane(a, q, v_lo, v_hi, u_lo, u_hi, w, has_w):
     Nv, Nu = a.shape
     z = np.float32(0.0)
     n = numba.uint64(u_hi - u_lo)
-    # column-wise maxima first: a running max over one loop does not vectorise (~7x slower)
-    cmax = np.zeros(u_hi - u_lo, np.float32)
-    for v in range(v_lo, v_hi):
-        r = a[v, u_lo:u_hi]
-        wr = w[v if has_w else 0, u_lo:u_hi]                 # (w has a's dims; unread without has_w)
-        for u in range(n):
-            x = abs(r[u]) if (not has_w) or wr[u] > z else z
-            cmax[u] = x if x > cmax[u] else cmax[u]
-    m = z
-    for u in range(n):
-        m = max(m, cmax[u])
+    m = _abs_max_where(a, v_lo, v_hi, u_lo, u_hi, w, has_w)
     inv = np.float32(_QMAX) / m if m > z else z
     hi = np.float32(_QMAX)
     off = np.float32(32768.5)

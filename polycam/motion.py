@@ -133,9 +133,9 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho, _pass_kernel,
-                  _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _view_origin, _weighted_median, depth_rho,
-                  ray_motion_coefficients)
+from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
+                  _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _view_origin, _weighted_median,
+                  depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
@@ -290,8 +290,8 @@ def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarra
 # ============================================================================ the solver
 
 
-def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None,
-                 L_other: np.ndarray | None = None, W_other: np.ndarray | None = None) -> tuple[np.ndarray, int, np.ndarray]:
+def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None, L_other: np.ndarray | None = None,
+                 W_other: np.ndarray | None = None) -> tuple[np.ndarray, int, np.ndarray]:
     """Channels warped together, (F, Nv, Nu, M) int16 (:func:`~polycam.warp._views_inner`
     layout; scaled warp, :func:`~polycam.warp._warp_into`): L, and with a confidence W also W
     and, where W has samples without data (W <= 0), the "no data" indicator W <= 0, which

@@ -52,7 +52,7 @@ import numpy as np
 from numba.extending import overload
 
 from .derivatives import _units
-from .eq5 import _FASTMATH
+from .eq5 import _FASTMATH, _abs_max_where
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R
 from .lightfield import LightFieldGrid
 
@@ -706,22 +706,10 @@ def _views_inner_lw_kernel(L, W, channels, inv, out):
 @numba.njit(parallel=True, cache=True)
 def _view_abs_max_kernel(a, w, has_w, out):
     """out[n] = max |a[n]| over each view image of a (N, Nv, Nu), with ``has_w`` over the
-    samples whose w (a's dims; a itself otherwise) is > 0 only (column maxima first: a running maximum over one
-    loop does not vectorise)."""
+    samples whose w (a's dims; a itself otherwise) is > 0 only (:func:`~polycam.eq5._abs_max_where`)."""
     N, Nv, Nu = a.shape
-    z = np.float32(0.0)
     for n in numba.prange(N):
-        cmax = np.zeros(Nu, np.float32)
-        for v in range(Nv):
-            r = a[n, v]
-            wr = w[n, v]                                     # (a itself without has_w)
-            for u in range(Nu):
-                x = abs(r[u]) if (not has_w) or wr[u] > z else z
-                cmax[u] = x if x > cmax[u] else cmax[u]
-        m = z
-        for u in range(Nu):
-            m = max(m, cmax[u])
-        out[n] = m
+        out[n] = _abs_max_where(a[n], 0, Nv, 0, Nu, w[n], has_w)
 
 
 def _face_abs_max(a: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
