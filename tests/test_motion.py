@@ -350,14 +350,15 @@ def test_warp_source_is_int16_within_half_a_unit(scene):
 
 def test_equal_frames_give_exactly_no_motion(scene):
     """The fused kernel reads frame 1 rounded to the int16 warp source's units, so two equal
-    frames have L_t = 0 exactly and the estimate is exactly no motion (rounding frame 2
-    alone leaves a temporal difference that is a function of the image: ~2 µm here)."""
+    frames have L_t = 0 exactly and the estimate is no motion up to float rounding (~1e-13 m
+    on six faces; rounding frame 2 alone leaves a temporal difference that is a function of
+    the image: ~2e-6 m here)."""
     for faces in (("+z",), ALL):
         grid = make_grid(faces, directions=24 if len(faces) == 1 else 16)
         L = scene.render(grid, np.eye(4))
         res = estimate_motion(L, L.copy(), grid)
         assert res, res.reason
-        assert np.abs(res.t).max() < 1e-12 and np.abs(res.r).max() < 1e-12
+        assert np.abs(res.t).max() < 1e-9 and np.abs(res.r).max() < 1e-9
 
 
 def test_covariance_matches_scatter_under_noise(scene):
