@@ -981,17 +981,14 @@ def _window_uv_row(A, Brow, Crow, t9, box, v):
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                    rho, st, fc, i, ja, jb):
-    """One work unit of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds
-    its statistics to st (4,). A function of its own, called from the parallel loop (a
-    body this large inside the prange compiled ~2x slower)."""
-    Nv, Nu = Lx.shape[3], Lx.shape[4]
+                    rho, st, fc, i, ja, jb, px, A, Brow, Crow):
+    """One run of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds its
+    statistics to st (4,). Scratch (float32): px (3, 4, Nv, Nu) the products of three view
+    rows, A (4, Nv + 8, Nu + 8) and Brow (4, Nu + 8) zero outside the box's (v, u) range
+    (only its inside is written here), Crow (4, Nu). A function of its own, called from the
+    parallel loop (a body this large inside the prange compiled ~2x slower)."""
     Ny, Nx = vo[2], vo[3]
-    px = np.zeros((3, 4, Nv, Nu), np.float32)     # rows r = j-1, j, j+1 at slot (r + 3) % 3
-    A = np.zeros((4, Nv + 8, Nu + 8), np.float32)
-    Brow = np.zeros((4, Nu + 8), np.float32)       # one window row at a time (:func:`_window_uv_row`)
-    Crow = np.empty((4, Nu), np.float32)
-    for r in range(ja - 1, jb + 1):
+    for r in range(ja - 1, jb + 1):              # rows r = j-1, j, j+1 at slot (r + 3) % 3 of px
         s = px[(r + 3) % 3]
         s[:, :, :] = 0.0
         rc = min(max(r, 0), Ny - 1)
@@ -1059,7 +1056,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                      rho, stats, parts):
+                      rho, stats, scratch):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho float32 (all arrays with
     view origin ``vo``, derivatives with scales ``dsc``, module docstring),
     NaN where the measured L_x, L_y are kept (inside the box: base <= 0, ``near`` nonzero
@@ -1068,28 +1065,46 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
     are separable: fs3 across x (per view row, rolling over y), fs3 across y, then t9 =
     fs5 ∗ fs5 along v and u with zeros outside the box (= :func:`depth_regularise`'s two fs5
     passes with "nearest" borders on every ray at least 2 samples inside the (u, v) border).
-    Work units: columns (face, x) of view images, each cut into ``parts`` runs of y. A ray
-    is replaced where ``ρ̂² na + (L_u² + L_v²) nb / S_uu ≤ 1`` (:func:`_depth_rho_noise`) and
-    its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
-    and the misfit at least ``thr_gate`` x the weight. stats (units, 4): valid rays, used
-    rays, Σ ρ̂² and Σ (L_u² + L_v²) nb / S_uu over the used ones."""
-    F = Lx.shape[0]
+    A ray is replaced where ``ρ̂² na + (L_u² + L_v²) nb / S_uu ≤ 1`` (:func:`_depth_rho_noise`)
+    and its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
+    and the misfit at least ``thr_gate`` x the weight.
+    Work: the box's view rows, column (face, x) after column, cut into one equal share per
+    chunk; a chunk takes its share as runs of one column each (each run recomputes the
+    products of the two view rows around it). scratch (chunks, _depth_rho_scratch(Nv, Nu))
+    float32: each chunk's work memory. stats (chunks, 4): valid rays, used rays, Σ ρ̂² and
+    Σ (L_u² + L_v²) nb / S_uu over the used ones."""
+    F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
     nx = box[3] - box[2]
     ny = box[1] - box[0]
-    n_units = F * nx * parts
-    for k in numba.prange(n_units):
-        col = k // parts
-        part = k - col * parts
-        fc = col // nx
-        i = box[2] + col - fc * nx
-        ja = box[0] + ny * part // parts
-        jb = box[0] + ny * (part + 1) // parts
-        st = stats[k]
+    rows = F * nx * ny
+    chunks = stats.shape[0]
+    n_px = 12 * Nv * Nu
+    n_a = 4 * (Nv + 8) * (Nu + 8)
+    for c in numba.prange(chunks):
+        w = scratch[c]
+        px = w[:n_px].reshape((3, 4, Nv, Nu))
+        A = w[n_px:n_px + n_a].reshape((4, Nv + 8, Nu + 8))
+        Brow = w[n_px + n_a:n_px + n_a + 4 * (Nu + 8)].reshape((4, Nu + 8))
+        Crow = w[n_px + n_a + 4 * (Nu + 8):n_px + n_a + 8 * Nu + 32].reshape((4, Nu))
+        A[:] = 0.0
+        Brow[:] = 0.0
+        st = stats[c]
         st[:] = 0.0
-        if jb <= ja:
-            continue
-        _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                        rho, st, fc, i, ja, jb)
+        r = rows * c // chunks
+        r_end = rows * (c + 1) // chunks
+        while r < r_end:
+            col = r // ny
+            jb = min(r_end - col * ny, ny)
+            fc = col // nx
+            _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb,
+                            rho_max, rho, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny, box[0] + jb, px, A,
+                            Brow, Crow)
+            r = col * ny + jb
+
+
+def _depth_rho_scratch(Nv: int, Nu: int) -> int:
+    """float32 work memory of one chunk of :func:`_depth_rho_kernel` on (Nv, Nu) view images."""
+    return 12 * Nv * Nu + 4 * (Nv + 8) * (Nu + 8) + 8 * Nu + 32
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
@@ -1154,7 +1169,7 @@ def _fill_rho(rho, near, base, rho_bar, box, vo):
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
               near: np.ndarray | None = None, vo: np.ndarray | None = None,
-              dsc: np.ndarray | None = None) -> np.ndarray:
+              dsc: np.ndarray | None = None, scratch: np.ndarray | None = None) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
@@ -1162,8 +1177,10 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     (module docstring) (unchanged); var (4,): noise variances of (L_x, L_y,
     L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`; ``near`` (same dims
     as out, uint8): rays where it is nonzero count as base <= 0. ``vo``: the arrays' view
-    origin (module docstring; None: they hold every view). Returns (4,) the variances for
-    the replaced regressors, as depth_regularise."""
+    origin (module docstring; None: they hold every view). ``scratch``: optional float32
+    memory the kernel may use as its work arrays (about 16 view images per thread:
+    the solver lends it the warped frame, dead by then), allocated when None or too small.
+    Returns (4,) the variances for the replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
@@ -1171,9 +1188,12 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     F = Lx.shape[0]
     vo = _view_origin(*Lx.shape[1:3]) if vo is None else np.asarray(vo, np.int64)
     dsc = _unit_scales(Lx.shape) if dsc is None else dsc
-    # about two units per thread (each unit recomputes the products of two extra view rows)
-    parts = max(1, min(int(box[1] - box[0]), -(-2 * numba.get_num_threads() // max(1, F * int(box[3] - box[2])))))
-    stats = np.empty((F * max(int(box[3] - box[2]), 0) * parts, 4))
+    chunks = numba.get_num_threads()                 # one equal share of the rows each
+    stats = np.zeros((chunks, 4))
+    n = _depth_rho_scratch(*Lx.shape[3:])
+    if scratch is None or scratch.dtype != np.float32 or scratch.size < chunks * n:
+        scratch = np.empty(chunks * n, np.float32)
+    scratch = scratch.reshape(-1)[:chunks * n].reshape(chunks, n)
     box = np.asarray(box, np.int64)
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
         y0, y1, x0, x1 = box[0] - vo[0], box[1] - vo[0], box[2] - vo[1], box[3] - vo[1]
@@ -1184,10 +1204,9 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
         has_near = near is not None
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
         _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
-                          float(gate_misfit) * vxy, na, nb, float(rho_max), out, stats, parts)
+                          float(gate_misfit) * vxy, na, nb, float(rho_max), out, stats, scratch)
     else:
         out[...] = np.nan
-        stats[:] = 0.0
     n_valid, n_use, r2, er = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0, 0.0)
     res = np.asarray(var, float).copy()
     if n_valid and n_use:

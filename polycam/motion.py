@@ -503,32 +503,16 @@ class _Solver:
                       "fresh" if first_dr else "reused")
         if first_dr:
             self.M_rho = np.array(M, float)
-        extrapolate = self.rho_bar is not None and not opts.symmetric
+        rho_bar = self.rho_bar if not opts.symmetric else None     # the extrapolation's (None: none)
+        extrapolate = rho_bar is not None
         marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
-        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
-                   self.rho_bar if extrapolate else None, opts.extrapolate_views, marks=marks,
-                   scratch=self.warp_scratch, ratio=self.units1)
+        L0 = self._warp(H, H1, rho_bar, marks)
         # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an
         # earlier ρ̂) would pull the new ρ̂ back towards it. Taken now: the marks lie in the
         # derivatives' memory, which the fused kernel rewrites
         near = None if marks is None else _near_marks(marks, self.radius["y"], self.radius["x"],
                                                       _work_array("near", self.cshape, np.uint8), *self.vo[:2])
         conf = self.conf
-        W0 = lev.W0 if not opts.symmetric else None          # frame 1's confidence, unwarped
-        if lev.W1 is not None:
-            _apply_warped_confidence(conf, self.out1, W0)     # both factors in one pass
-        elif W0 is not None:
-            _apply_weight_confidence(conf, W0)
-        if opts.symmetric:
-            out0 = np.empty((self.K0,) + self.shape, np.float32)
-            ok0 = np.empty(self.shape, np.float32)
-            _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0, ratio=self.units0)
-            conf *= ok0
-            if lev.W0 is not None:
-                _apply_warped_confidence(conf, out0)
-            L0 = out0[0]
-        else:
-            L0 = lev.L0
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
         smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
         Lx, Ly, Lu, Lv, Lt = self.der
@@ -559,6 +543,7 @@ class _Solver:
             self.rho = _work_array("rho", self.cshape)
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
+                    self._warp(H, H1, rho_bar, None)      # ρ̂'s windows used the warped frame's memory
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, False, False)
                 self.var = self.var_dr = self._depth_rho(var, rho_max, floor, near)
@@ -583,6 +568,31 @@ class _Solver:
         self.n_base = int(sums[1][..., 1].sum())
         return sums
 
+    def _warp(self, H: np.ndarray, H1: np.ndarray, rho_bar: np.ndarray | None, marks: np.ndarray | None) -> np.ndarray:
+        """Frame 2 warped by H1 into self.out1 (frame 1 by H too with ``symmetric``), the
+        warp's confidence times the confidences W into self.conf; ``rho_bar`` (the views'
+        extrapolation; None: none) and ``marks`` as :func:`~polycam.warp._warp_into`.
+        Returns frame 1 as the fused kernel reads it."""
+        lev, opts = self.lev, self.opts
+        _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
+                   rho_bar, opts.extrapolate_views, marks=marks,
+                   scratch=self.warp_scratch, ratio=self.units1)
+        conf = self.conf
+        W0 = lev.W0 if not opts.symmetric else None          # frame 1's confidence, unwarped
+        if lev.W1 is not None:
+            _apply_warped_confidence(conf, self.out1, W0)     # both factors in one pass
+        elif W0 is not None:
+            _apply_weight_confidence(conf, W0)
+        if not opts.symmetric:
+            return lev.L0
+        out0 = np.empty((self.K0,) + self.shape, np.float32)
+        ok0 = np.empty(self.shape, np.float32)
+        _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0, ratio=self.units0)
+        conf *= ok0
+        if lev.W0 is not None:
+            _apply_warped_confidence(conf, out0)
+        return out0[0]
+
     def _depth_rho(self, var: np.ndarray, rho_max: float, floor: float, near: np.ndarray | None) -> np.ndarray:
         """:func:`polycam.eq5.depth_rho` into ``self.rho`` from the measured regressors; with
         ``near`` (F, Ny, Nx, Nv, Nu uint8: 1 where an extrapolated sample lies within the
@@ -590,7 +600,7 @@ class _Solver:
         becomes their view mean and the near rays get it (their measured L_x, L_y mix the
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
         var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near,
-                           self.vo, self.dsc)
+                           self.vo, self.dsc, scratch=self.out1[0])    # the warped frame is read by now
         if near is not None:
             self.rho_bar = _view_mean(self.rho)
             _fill_rho(self.rho, near, self.base, self.rho_bar, self.box, self.vo)

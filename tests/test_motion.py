@@ -1101,6 +1101,14 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
                       compact, rho_max, near=np.ascontiguousarray(near[inner]), vo=vo,
                       dsc=np.ascontiguousarray(dsc[inner]))
     assert np.array_equal(compact, with_near[inner], equal_nan=True) and np.array_equal(var_c, var_near)
+    # work memory lent by the caller (the solver's warped frame) holding garbage changes nothing
+    lent = np.full(rho.size, np.nan, np.float32)
+    again = np.empty_like(compact)
+    var_l = depth_rho([np.ascontiguousarray(a[inner]) for a in q], np.ascontiguousarray(base[inner]), box, var,
+                      again, rho_max, near=np.ascontiguousarray(near[inner]), vo=vo,
+                      dsc=np.ascontiguousarray(dsc[inner]), scratch=lent)
+    assert np.array_equal(again, compact, equal_nan=True) and np.array_equal(var_l, var_c)
+    assert not np.isnan(lent).all()                                    # it was used
     q_c = [np.ascontiguousarray(a[inner]) for a in q[:4]]
     dsc_c = np.ascontiguousarray(dsc[inner])
     _apply_rho(*q_c, dsc_c, np.ascontiguousarray(base[inner]), np.ascontiguousarray(rho[inner]), box, vo, 2)
