@@ -198,6 +198,7 @@ class OracleDepth:
 
     def __enter__(self):
         import polycam.motion as pm
+        from polycam.eq5 import _rho_store, rho_values
 
         self._pm, self._orig = pm, pm.depth_rho
         rho_true, orig = self.rho_true, self._orig
@@ -208,8 +209,13 @@ class OracleDepth:
             vo = kw.get("vo", args[3] if len(args) > 3 else None)
             truth = rho_true if vo is None else rho_true[:, vo[0]:vo[0] + out.shape[1], vo[1]:vo[1] + out.shape[2]]
             if out.shape == truth.shape:
-                use = np.isfinite(out)
-                out[use] = truth[use]
+                # the solver's ρ̂ is int16 in units of a scale per view image (out_scale)
+                packed = out.dtype == np.int16
+                vals = rho_values(out, kw["out_scale"]) if packed else out
+                use = np.isfinite(vals)
+                vals[use] = truth[use]
+                if packed:
+                    _rho_store(vals, out, kw["out_scale"], box)
             return res
 
         pm.depth_rho = depth_rho

@@ -22,7 +22,10 @@ others would never be read). The kernels take their *view origin* ``vo`` (4,) in
 ``[y0, x0, Ny, Nx]``: such an array's view (j − y0, i − x0) is view (j, i) of the Ny x Nx
 grid; ``(0, 0, Ny, Nx)`` for arrays over every view (``_view_origin``). Every kernel counts
 a base weight <= 0 as weight 0: the solver keeps the discontinuity weight in the magnitude
-of negative base weights (``_prepare_kernel``'s smooth mode 2).
+of negative base weights (``_prepare_kernel``'s smooth mode 2). The kernels take base
+weights as float32 or, as the solver keeps them (weights in [−1, 1]: a confidence times
+a discontinuity weight), as int16 in units of 1 / 32767 (``_weight_unit``, ``_store_weight``:
+a weight > 0 keeps at least one unit), half the memory.
 
 The solver stores its derivatives as int16 with one scale per view image and
 derivative (*scaled views*): value = q × ``dsc[f, j, i, c]``, ``dsc`` (F, ny, nx, 5)
@@ -42,11 +45,12 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba.extending import overload
 
 from .derivatives import _FASTMATH, FILTERS, Derivatives, _filt_u, _filt_v, correlate_axis, parallel_chunks, xy_view
 from .lightfield import LightFieldGrid
 
-__all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho"]
+__all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho", "rho_values"]
 
 
 _NACC = 29
@@ -76,6 +80,100 @@ def _box_views(shape: tuple, box: np.ndarray) -> tuple:
 
 _QMAX = 32767.0
 """The largest stored magnitude of a scaled view (int16)."""
+
+
+_WEIGHT_UNITS = _QMAX
+"""int16 base weights hold w × this (module docstring)."""
+
+
+def _weight_unit(w: np.ndarray) -> np.float32:
+    """The weight one unit of base weights ``w`` stands for (float32): 1 / 32767 for int16
+    (module docstring), 1 for float arrays."""
+    return np.float32(1.0 / _WEIGHT_UNITS) if np.issubdtype(w.dtype, np.integer) else np.float32(1.0)
+
+
+@overload(_weight_unit, inline="always")
+def _weight_unit_typed(w):
+    if isinstance(w.dtype, numba.types.Integer):
+        return lambda w: np.float32(1.0 / _WEIGHT_UNITS)
+    return lambda w: np.float32(1.0)
+
+
+def _store_weight(w, idx, x):
+    """w[idx] = x, a weight in [−1, 1] (numba): as it is into a float array; into an int16
+    array in units of 1 / 32767, rounded to the nearest unit but at least one unit away
+    from 0 when x is not 0 (the sign marks validity: every kernel counts a weight <= 0 as 0)."""
+    w[idx] = x
+
+
+@overload(_store_weight, inline="always")
+def _store_weight_typed(w, idx, x):
+    if isinstance(w.dtype, numba.types.Integer):
+        def store_int(w, idx, x):
+            y = np.float32(x) * np.float32(_WEIGHT_UNITS)
+            q = np.rint(min(max(y, np.float32(-_WEIGHT_UNITS)), np.float32(_WEIGHT_UNITS)))
+            one = np.float32(1.0)
+            q = q if (q != 0) | (y == 0) else (one if y > 0 else -one)
+            w[idx] = np.int16(q)
+        return store_int
+
+    def store(w, idx, x):
+        w[idx] = x
+    return store
+
+
+_RHO_NONE = -32768
+"""int16 ρ̂ (the solver's, :func:`depth_rho`): the measured regressors are kept (NaN in a
+float32 ρ̂)."""
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _put_rho_view(a, q, v_lo, v_hi, u_lo, u_hi):
+    """q (Nv, Nu) int16 ← ρ̂ a (Nv, Nu) float32, NaN where the measured regressors are kept,
+    on the samples v_lo:v_hi x u_lo:u_hi (``_RHO_NONE`` elsewhere and for NaN): rounded to
+    units of s = max |a| / 32767 over the numbers there, which it returns (float32; 0 when
+    there are none)."""
+    z = np.float32(0.0)
+    n = numba.uint64(u_hi - u_lo)
+    m = _abs_max_where(a, v_lo, v_hi, u_lo, u_hi, a, False)     # NaN compares false: skipped
+    inv = np.float32(_QMAX) / m if m > z else z
+    none = np.int16(_RHO_NONE)
+    q[:, :] = none
+    for v in range(v_lo, v_hi):
+        r = a[v, u_lo:u_hi]
+        o = q[v, u_lo:u_hi]
+        for u in range(n):
+            o[u] = np.int16(np.rint(r[u] * inv)) if r[u] == r[u] else none
+    return m / np.float32(_QMAX)
+
+
+def rho_values(rho: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """float32 ρ̂ (NaN where the measured regressors are kept) of the solver's int16 ρ̂
+    (F, ny, nx, Nv, Nu) with its scales (F, ny, nx) (:func:`depth_rho`)."""
+    out = rho.astype(np.float32) * scales[..., None, None]
+    out[rho == _RHO_NONE] = np.nan
+    return out
+
+
+def _rho_store(a: np.ndarray, rho: np.ndarray, scales: np.ndarray, box: np.ndarray) -> None:
+    """rho (int16), scales ← float32 ρ̂ a (same dims, NaN: kept) per view image, quantised on
+    the (v, u) samples of box (8,) (:func:`_put_rho_view`)."""
+    a = np.ascontiguousarray(a, np.float32).reshape((-1,) + a.shape[3:])
+    q = rho.reshape((-1,) + rho.shape[3:])
+    sc = scales.reshape(-1)
+    for k in range(a.shape[0]):
+        sc[k] = _put_rho_view(a[k], q[k], box[4], box[5], box[6], box[7])
+
+
+@numba.njit(parallel=True, cache=True)
+def _store_weights(x, w):
+    """w ← x (both (n, ...), same dims) by :func:`_store_weight`: float weights into base
+    weights of w's type."""
+    for k in numba.prange(x.shape[0]):
+        a = x[k].reshape(-1)
+        o = w[k].reshape(-1)
+        for m in range(a.size):
+            _store_weight(o, m, a[m])
 
 
 def _unit_scales(shape: tuple) -> np.ndarray:
@@ -244,6 +342,7 @@ def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind,
     # the rounding is that of the float32 derivatives); they are added to float64 sums
     one = np.float32(1.0)
     z32 = np.float32(0.0)
+    wu = _weight_unit(wb)
     inv_f = np.float32(1.0 / f)
     f32 = np.float32(f)
     z32_pi = np.float32(z_pi)
@@ -296,7 +395,7 @@ def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind,
             for iu in range(numba.uint64(max(tu * tile, u_lo)), numba.uint64(min((tu + 1) * tile, u_hi))):
                 wraw = rw[iu]
                 pos = wraw > z32
-                wi = wraw if pos else z32
+                wi = np.float32(wraw) * wu if pos else z32
                 c_base += one if pos else z32
                 u = np.float32(us[iu])
                 g0 = np.float32(rx[iu]) * qx
@@ -436,7 +535,8 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs
     for c in numba.prange(chunks):
         poly = np.empty((3, 6))
         S = np.empty(5)
-        ones = np.ones((Nv if not has_base else 1, Nu if not has_base else 1), np.float32)
+        ones = np.empty((Nv if not has_base else 1, Nu if not has_base else 1), base.dtype)
+        ones.fill(np.rint(np.float32(1.0) / _weight_unit(base)))          # weight 1 in base's units
         for idx in range(c * n // chunks, (c + 1) * n // chunks):
             fc, j, i = _box_view(idx, box, ny, nx)
             ja = j - vo[0]
@@ -454,7 +554,7 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
-                    var, final, acc, st, chunks, rho, has_rho, sums):
+                    var, final, acc, st, chunks, rho, rho_sc, has_rho, sums):
     """Per valid view image, in cache: the base weight = confidence ``conf`` (in units of
     ``conf_unit``: 1 / 65535 for uint16) minimised over the filter support (``need_min``)
     × valid × the discontinuity weight (``smooth_mode`` 0: none,
@@ -463,7 +563,8 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
     (warped) pair (L0, L1; L0 read rounded to multiples of l0g[face] where > 0, l0g (F,)
     float32: :func:`~polycam.derivatives.xy_view`) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
     docstring), with ``has_rho`` the Eq. 6 regressors L_x, L_y ← ρ̂ L_u, ρ̂ L_v where ``rho``
-    (same dims) is a number and the base weight > 0 (:func:`depth_rho`), and with ``sums``
+    (same dims, int16 in units of ``rho_sc`` per view image: :func:`depth_rho`) is given and
+    the base weight > 0, and with ``sums``
     the unit-IRLS-weight normal sums (:func:`_accumulate_view`; else acc and st are left as
     they are). box as in :func:`_pass_kernel` (the filter radii). L0, L1, conf: every view;
     Lx .. Lt, dsc, base, ``smooth`` (mode 1) and ``rho`` (with ``has_rho``): view
@@ -534,7 +635,7 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
                 for v in range(rv, Nv - rv):
                     for u in range(ru, Nu - ru):
                         c = cm[v, u] * conf_unit
-                        b[v, u] = c * smooth[fc, ja, ia, v, u] if smooth_mode == 1 else c
+                        _store_weight(b, (v, u), c * smooth[fc, ja, ia, v, u] if smooth_mode == 1 else c)
             # the (u, v) stage one derivative at a time into o (cm is no longer needed), each
             # quantised into its scaled view: L_u, L_v first (the Eq. 6 regressors use them)
             tmp = buf[4]
@@ -549,7 +650,8 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
                 _filt_v(buf[1 + k], pv, tmp)
                 _filt_u(tmp, pu, sx if k == 0 else sy, o)
                 if has_rho:
-                    _rho_times(o, rho[fc, ja, ia], b, gu if k == 0 else gv, sc[2 + k], rv, Nv - rv, ru, Nu - ru)
+                    _rho_times(o, rho[fc, ja, ia], rho_sc[fc, ja, ia], b, gu if k == 0 else gv, sc[2 + k], rv, Nv - rv,
+                               ru, Nu - ru)
                 sc[k] = _quantise_plane(o, gx if k == 0 else gy, rv, Nv - rv, ru, Nu - ru, b, True)
             _filt_v(buf[3], pv, tmp)
             _filt_u(tmp, pu, np.float32(1.0), o)
@@ -565,18 +667,21 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def _rho_times(o, q, b, g, s, v_lo, v_hi, u_lo, u_hi):
-    """o[v, u] ← q[v, u] × g[v, u] s (a scaled view's value: module docstring) where ρ̂ = q
-    is a number and the base weight b > 0, on the samples v_lo:v_hi x u_lo:u_hi; all (Nv, Nu)."""
+def _rho_times(o, q, qs, b, g, s, v_lo, v_hi, u_lo, u_hi):
+    """o[v, u] ← ρ̂ × g[v, u] s (a scaled view's value: module docstring) where ρ̂ = q[v, u] qs
+    (int16 ρ̂ in units of qs: :func:`depth_rho`) is given (q ≠ ``_RHO_NONE``) and the base
+    weight b > 0, on the samples v_lo:v_hi x u_lo:u_hi; all (Nv, Nu)."""
     s32 = np.float32(s)
+    qs32 = np.float32(qs)
+    none = np.int16(_RHO_NONE)
     for v in range(v_lo, v_hi):
         qr = q[v]
         br = b[v]
         gr = g[v]
         orow = o[v]
         for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
-            ok = (br[u] > np.float32(0.0)) & (qr[u] == qr[u])
-            orow[u] = qr[u] * (np.float32(gr[u]) * s32) if ok else orow[u]
+            ok = (br[u] > np.float32(0.0)) & (qr[u] != none)
+            orow[u] = (np.float32(qr[u]) * qs32) * (np.float32(gr[u]) * s32) if ok else orow[u]
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
@@ -612,6 +717,7 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, 
         rv = Lv[fc, ja, ia, jv]
         rt = Lt[fc, ja, ia, jv]
         rw = base[fc, ja, ia, jv]
+        wu = _weight_unit(base)
         sc = dsc[fc, ja, ia]
         qx, qy, qu, qv, qt = sc[0], sc[1], sc[2], sc[3], sc[4]
         oa = out_a[k]
@@ -628,7 +734,7 @@ def _sample_residuals(Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, 
             c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, u, v, z_pi, f, inv_f)
             r = np.float64(np.float32(rt[iu]) * qt) + g0 * p0 + g1 * p1 + c2 * p2 + c3 * p3 + c4 * p4 + c5 * p5
             oa[m] = abs(r) if pos else 0.0
-            ow[m] = wb if pos else 0.0
+            ow[m] = np.float64(wb) * wu if pos else 0.0
 
 
 _BIN_SORT_MAX = 2048
@@ -981,12 +1087,13 @@ def _window_uv_row(A, Brow, Crow, t9, box, v):
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                    rho, st, fc, i, ja, jb, px, A, Brow, Crow):
+                    rho, rho_sc, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
     """One run of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds its
     statistics to st (4,). Scratch (float32): px (3, 4, Nv, Nu) the products of three view
     rows, A (4, Nv + 8, Nu + 8) and Brow (4, Nu + 8) zero outside the box's (v, u) range
-    (only its inside is written here), Crow (4, Nu). A function of its own, called from the
-    parallel loop (a body this large inside the prange compiled ~2x slower)."""
+    (only its inside is written here), Crow (4, Nu), vb (Nv, Nu) a view's ρ̂ before rounding.
+    A function of its own, called from the parallel loop (a body this large inside the
+    prange compiled ~2x slower)."""
     Ny, Nx = vo[2], vo[3]
     for r in range(ja - 1, jb + 1):              # rows r = j-1, j, j+1 at slot (r + 3) % 3 of px
         s = px[(r + 3) % 3]
@@ -1011,8 +1118,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
                     o[u] = t3[0] * s0[u] + t3[1] * s1[u] + t3[2] * s2[u]
         jw = j - vo[0]                              # the view in the work arrays
         iw = i - vo[1]
-        out = rho[fc, jw, iw]
-        out[:, :] = np.nan
+        out = vb
         bw = base[fc, jw, iw]
         su = dsc[fc, jw, iw, 2]
         sv = dsc[fc, jw, iw, 3]
@@ -1048,6 +1154,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
                 n_use += 1.0 if use else 0.0
                 r2 += np.float64(q) * np.float64(q) if use else 0.0
                 er += np.float64(e) if use else 0.0
+        rho_sc[fc, jw, iw] = _put_rho_view(vb, rho[fc, jw, iw], box[4], box[5], box[6], box[7])
         st[0] += n_valid
         st[1] += n_use
         st[2] += r2
@@ -1056,11 +1163,11 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                      rho, stats, scratch):
-    """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho float32 (all arrays with
-    view origin ``vo``, derivatives with scales ``dsc``, module docstring),
-    NaN where the measured L_x, L_y are kept (inside the box: base <= 0, ``near`` nonzero
-    with ``has_near`` (else a (1, 1, 1, 1, Nu) row of zeros), or the window is not
+                      rho, rho_sc, stats, scratch):
+    """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho int16 in units of rho_sc
+    per view image (all arrays with view origin ``vo``, derivatives with scales ``dsc``, module
+    docstring), ``_RHO_NONE`` where the measured L_x, L_y are kept (inside the box: base <= 0,
+    ``near`` nonzero with ``has_near`` (else a (1, 1, 1, 1, Nu) row of zeros), or the window is not
     explained by one depth; the caller fills the views outside the box). The window sums
     are separable: fs3 across x (per view row, rolling over y), fs3 across y, then t9 =
     fs5 ∗ fs5 along v and u with zeros outside the box (= :func:`depth_regularise`'s two fs5
@@ -1086,6 +1193,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
         A = w[n_px:n_px + n_a].reshape((4, Nv + 8, Nu + 8))
         Brow = w[n_px + n_a:n_px + n_a + 4 * (Nu + 8)].reshape((4, Nu + 8))
         Crow = w[n_px + n_a + 4 * (Nu + 8):n_px + n_a + 8 * Nu + 32].reshape((4, Nu))
+        vb = w[n_px + n_a + 8 * Nu + 32:n_px + n_a + 8 * Nu + 32 + Nv * Nu].reshape((Nv, Nu))
         A[:] = 0.0
         Brow[:] = 0.0
         st = stats[c]
@@ -1097,20 +1205,21 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
             jb = min(r_end - col * ny, ny)
             fc = col // nx
             _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb,
-                            rho_max, rho, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny, box[0] + jb, px, A,
-                            Brow, Crow)
+                            rho_max, rho, rho_sc, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny, box[0] + jb,
+                            px, A, Brow, Crow, vb)
             r = col * ny + jb
 
 
 def _depth_rho_scratch(Nv: int, Nu: int) -> int:
     """float32 work memory of one chunk of :func:`_depth_rho_kernel` on (Nv, Nu) view images."""
-    return 12 * Nv * Nu + 4 * (Nv + 8) * (Nu + 8) + 8 * Nu + 32
+    return 13 * Nv * Nu + 4 * (Nv + 8) * (Nu + 8) + 8 * Nu + 32
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, box, vo, chunks):
-    """L_x, L_y ← ρ̂ L_u, ρ̂ L_v in place where ρ̂ is a number and base > 0 (inside box (8,),
-    as :func:`depth_rho`; rho is NaN elsewhere; arrays with view origin ``vo``): scaled views
+def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, rho_sc, box, vo, chunks):
+    """L_x, L_y ← ρ̂ L_u, ρ̂ L_v in place where ρ̂ is given and base > 0 (inside box (8,), as
+    :func:`depth_rho`: rho int16 in units of rho_sc per view image, ``_RHO_NONE`` where the
+    measured regressors are kept; arrays with view origin ``vo``): scaled views
     (int16 with scales ``dsc``, module docstring), each view image re-quantised with the
     scale of its new values (``chunks``: :func:`~polycam.derivatives.parallel_chunks`)."""
     ny = box[1] - box[0]
@@ -1127,6 +1236,7 @@ def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, box, vo, chunks):
             sc = dsc[fc, ja, ia]
             b = base[fc, ja, ia]
             q = rho[fc, ja, ia]
+            qs = np.float32(rho_sc[fc, ja, ia])
             for k in range(2):
                 g = Lx[fc, ja, ia] if k == 0 else Ly[fc, ja, ia]
                 d = Lu[fc, ja, ia] if k == 0 else Lv[fc, ja, ia]
@@ -1139,40 +1249,52 @@ def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, box, vo, chunks):
                     br = b[v]
                     orow = o[v]
                     for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
-                        ok = (br[u] > np.float32(0.0)) & (qr[u] == qr[u])
-                        orow[u] = qr[u] * (np.float32(dr[u]) * sd) if ok else np.float32(gr[u]) * s
+                        ok = (br[u] > np.float32(0.0)) & (qr[u] != np.int16(_RHO_NONE))
+                        orow[u] = (np.float32(qr[u]) * qs) * (np.float32(dr[u]) * sd) if ok else np.float32(gr[u]) * s
                 sc[k] = _quantise_plane(o, g, box[4], box[5], box[6], box[7], b, True)
 
 
 @numba.njit(parallel=True, cache=True)
-def _fill_rho(rho, near, base, rho_bar, box, vo):
+def _fill_rho(rho, rho_sc, near, base, rho_bar, box, vo):
     """ρ̂ ← rho_bar[f, v, u] (F, Nv, Nu) where rho_bar is a number, base > 0 and ``near``
     (uint8, same dims as rho) is nonzero (rays whose filter support holds extrapolated
-    samples; inside box (8,), as :func:`depth_rho`; arrays with view origin ``vo``)."""
+    samples; inside box (8,), as :func:`depth_rho`: int16 in units of rho_sc, each view image
+    re-quantised; arrays with view origin ``vo``)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
-    F = rho.shape[0]
+    F, Nv, Nu = rho.shape[0], rho.shape[3], rho.shape[4]
+    nan = np.float32(np.nan)
+    none = np.int16(_RHO_NONE)
     for idx in numba.prange(F * ny * nx):
         fc, j, i = _box_view(idx, box, ny, nx)
         ja = j - vo[0]
         ia = i - vo[1]
+        a = np.empty((Nv, Nu), np.float32)
+        qs = np.float32(rho_sc[fc, ja, ia])
         for v in range(box[4], box[5]):
             q = rho[fc, ja, ia, v]
             r = near[fc, ja, ia, v]
             b = base[fc, ja, ia, v]
             rb = rho_bar[fc, v]
+            o = a[v]
             for u in range(numba.uint64(box[6]), numba.uint64(box[7])):     # branch-free: vectorises
                 fill = (r[u] != 0) & (b[u] > 0.0) & (rb[u] == rb[u])
-                q[u] = np.float32(rb[u]) if fill else q[u]
+                o[u] = np.float32(rb[u]) if fill else (np.float32(q[u]) * qs if q[u] != none else nan)
+        rho_sc[fc, ja, ia] = _put_rho_view(a, rho[fc, ja, ia], box[4], box[5], box[6], box[7])
 
 
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
               near: np.ndarray | None = None, vo: np.ndarray | None = None,
-              dsc: np.ndarray | None = None, scratch: np.ndarray | None = None) -> np.ndarray:
+              dsc: np.ndarray | None = None, scratch: np.ndarray | None = None,
+              out_scale: np.ndarray | None = None) -> np.ndarray:
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
+    The kernel stores ρ̂ as the solver keeps it, int16 in units of a scale per view image
+    (max |ρ̂| / 32767; ``_RHO_NONE`` where kept): with an int16 ``out`` the scales go into
+    ``out_scale`` (F, Ny, Nx) float32, a float32 ``out`` gets those values
+    (:func:`rho_values`: within 1.5e-5 of the view's max |ρ̂|).
     der = [Lx, Ly, Lu, Lv, ...] float32, or int16 scaled views with their scales ``dsc``
     (module docstring) (unchanged); var (4,): noise variances of (L_x, L_y,
     L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`; ``near`` (same dims
@@ -1195,18 +1317,25 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
         scratch = np.empty(chunks * n, np.float32)
     scratch = scratch.reshape(-1)[:chunks * n].reshape(chunks, n)
     box = np.asarray(box, np.int64)
+    if out.dtype != np.int16:
+        rho, rho_sc = np.empty(out.shape, np.int16), np.empty(out.shape[:3], np.float32)
+        res = depth_rho(der, base, box, var, rho, rho_max, gate_misfit, near, vo, dsc, scratch, rho_sc)
+        out[...] = rho_values(rho, rho_sc)
+        return res
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
         y0, y1, x0, x1 = box[0] - vo[0], box[1] - vo[0], box[2] - vo[1], box[3] - vo[1]
         for sl in (np.s_[:, :y0], np.s_[:, y1:], np.s_[:, :, :x0], np.s_[:, :, x1:]):
-            out[sl] = np.nan                            # views outside the box (the kernel does the rest)
+            out[sl] = _RHO_NONE                         # views outside the box (the kernel does the rest)
+            out_scale[sl[:3]] = 0.0
         vxy = float(var[0] + var[1])
         na, nb = _depth_rho_noise(var)
         has_near = near is not None
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
         _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
-                          float(gate_misfit) * vxy, na, nb, float(rho_max), out, stats, scratch)
+                          float(gate_misfit) * vxy, na, nb, float(rho_max), out, out_scale, stats, scratch)
     else:
-        out[...] = np.nan
+        out[...] = _RHO_NONE
+        out_scale[...] = 0.0
     n_valid, n_use, r2, er = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0, 0.0)
     res = np.asarray(var, float).copy()
     if n_valid and n_use:

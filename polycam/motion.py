@@ -134,7 +134,8 @@ import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
-                  _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _unpack_sym, _view_origin, _weighted_median,
+                  _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights, _unpack_sym, _view_origin,
+                  _weighted_median,
                   depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
@@ -340,8 +341,10 @@ _DR_LEVELS = 1
 it changes nothing measurable (bench_noise.py as above, ρ̂ at the first two preparations: t
 0.443 / 0.598 mm at all levels, 0.447 / 0.605 at the finest only) and would cost ~8 ms per estimate."""
 
-_NO_RHO = np.zeros((1,) * 5, np.float32)
+_NO_RHO = np.zeros((1,) * 5, np.int16)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
+_NO_RHO_SC = np.zeros((1,) * 3, np.float32)
+"""Its scales."""
 
 _WORK = threading.local()
 """Per-thread flat work arrays of the last estimate, by name: see :func:`free_work_buffers`."""
@@ -436,21 +439,23 @@ class _Solver:
         dtype = np.uint8 if binary else (np.float32 if opts.symmetric else np.uint16)
         self.conf = _work_array("conf", self.shape, dtype)
         self.conf_unit = np.float32(1.0 / 65535.0) if dtype == np.uint16 else np.float32(1.0)
-        self.base = _work_array("base", self.cshape)
+        self.base = _work_array("base", self.cshape, np.int16)     # int16 units (polycam.eq5's docstring)
         # the discontinuity weight (fixed per level): with a 0 / 1 confidence it lives in the
         # base weights' memory, as |base| with base's sign the confidence (eq5._prepare_kernel,
         # smooth mode 2: a frame's 0.6 less); else an array of its own (mode 1)
         self.smooth: np.ndarray | None = None
         self.smooth_mode = 0 if opts.smooth_c <= 0 else (2 if binary else 1)
-        if self.smooth_mode == 2:
-            _level_discontinuity_weight(lev, opts, self.box, out=self.base)
+        if self.smooth_mode == 2:                     # computed in the warped frame's memory, free now
+            w = self.out1[0].reshape(-1)[:C].reshape(self.cshape)
+            _store_weights(_level_discontinuity_weight(lev, opts, self.box, out=w), self.base)
         elif self.smooth_mode == 1:
             self.smooth = _level_discontinuity_weight(lev, opts, self.box)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
         self.st = _work_array("st", (nviews, _NSTAT), np.float64)
-        self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors; NaN: kept)
+        self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors): int16
+        self.rho_sc: np.ndarray | None = None  # in units of these per view image (polycam.eq5.depth_rho)
         self.var_dr: np.ndarray | None = None
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
@@ -535,19 +540,22 @@ class _Solver:
                        Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, *self.vals, self.zs, self.fs,
                        np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
-                        self.rho if has_rho else _NO_RHO, has_rho, not first_dr or check)
+                        self.rho if has_rho else _NO_RHO, self.rho_sc if has_rho else _NO_RHO_SC, has_rho,
+                        not first_dr or check)
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
             if check:
                 p_measured, sigma_measured, cond_measured = self._increment_and_sigma()
-            self.rho = _work_array("rho", self.cshape)
+            self.rho = _work_array("rho", self.cshape, np.int16)      # in units of rho_sc per view image
+            self.rho_sc = _work_array("rho_sc", self.cshape[:3])
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
                     self._warp(H, H1, rho_bar, None)      # ρ̂'s windows used the warped frame's memory
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
-                                    _NO_RHO, False, False)
+                                    _NO_RHO, _NO_RHO_SC, False, False)
                 self.var = self.var_dr = self._depth_rho(var, rho_max, floor, near)
-                _apply_rho(Lx, Ly, Lu, Lv, self.dsc, self.base, self.rho, self.box, self.vo, parallel_chunks())
+                _apply_rho(Lx, Ly, Lu, Lv, self.dsc, self.base, self.rho, self.rho_sc, self.box, self.vo,
+                           parallel_chunks())
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
                              np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
                              self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
@@ -563,7 +571,7 @@ class _Solver:
                     if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
         if first_dr and opts.extrapolate_views > 0 and not extrapolate:
-            self.rho_bar = _view_mean(self.rho)
+            self.rho_bar = _view_mean(self.rho, self.rho_sc)
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
@@ -600,10 +608,10 @@ class _Solver:
         becomes their view mean and the near rays get it (their measured L_x, L_y mix the
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
         var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near,
-                           self.vo, self.dsc, scratch=self.out1[0])    # the warped frame is read by now
+                           self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc)   # out1: read by now
         if near is not None:
-            self.rho_bar = _view_mean(self.rho)
-            _fill_rho(self.rho, near, self.base, self.rho_bar, self.box, self.vo)
+            self.rho_bar = _view_mean(self.rho, self.rho_sc)
+            _fill_rho(self.rho, self.rho_sc, near, self.base, self.rho_bar, self.box, self.vo)
         return var_dr
 
     def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:

@@ -52,7 +52,7 @@ import numpy as np
 from numba.extending import overload
 
 from .derivatives import _units
-from .eq5 import _FASTMATH, _abs_max_where
+from .eq5 import _FASTMATH, _RHO_NONE, _abs_max_where
 from .geometry import R_from_r, T_from_Rt, T_inverse, r_from_R
 from .lightfield import LightFieldGrid
 
@@ -624,8 +624,9 @@ def _near_marks(marks: np.ndarray, ry: int, rx: int, out: np.ndarray, oy: int = 
 
 
 @numba.njit(parallel=True, cache=True)
-def _view_mean_kernel(rho, out):
+def _view_mean_kernel(rho, scales, out):
     F, Ny, Nx, Nv, Nu = rho.shape
+    none = np.int16(_RHO_NONE)
     for fv in numba.prange(F * Nv):
         f = fv // Nv
         v = fv - f * Nv
@@ -635,20 +636,22 @@ def _view_mean_kernel(rho, out):
         for j in range(Ny):
             for i in range(Nx):
                 row = rho[f, j, i, v]
+                s = np.float32(scales[f, j, i])
                 for u in range(Nu):
-                    if row[u] == row[u]:
-                        o[u] += row[u]
+                    if row[u] != none:
+                        o[u] += np.float32(row[u]) * s
                         n[u] += 1.0
         for u in range(Nu):
             o[u] = o[u] / n[u] if n[u] > 0 else np.nan
 
 
-def _view_mean(rho: np.ndarray) -> np.ndarray:
-    """(F, Nv, Nu) float64: the mean over the views of rho (F, Ny, Nx, Nv, Nu), ignoring NaN
-    (NaN where every view's is)."""
+def _view_mean(rho: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """(F, Nv, Nu) float64: the mean over the views of the solver's int16 ρ̂ (F, Ny, Nx, Nv, Nu)
+    in units of scales (F, Ny, Nx) (:func:`~polycam.eq5.depth_rho`), ignoring the rays that keep
+    the measured regressors (NaN where every view's does)."""
     F, Ny, Nx, Nv, Nu = rho.shape
     out = np.empty((F, Nv, Nu))
-    _view_mean_kernel(rho, out)
+    _view_mean_kernel(rho, scales, out)
     return out
 
 

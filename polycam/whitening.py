@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from .derivatives import FilterPair
-from .eq5 import _NACC, _eq5_coefficients, _unit_scales, _view_origin
+from .eq5 import _NACC, _eq5_coefficients, _unit_scales, _view_origin, _weight_unit
 
 __all__: list[str] = []
 
@@ -98,7 +98,7 @@ def _weighted_rows(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, f, p
             for qu in range(nu):
                 iu = box[6] + qu
                 z = Z[jj, ii, qv, qu]
-                wi = np.float64(base[fc, ja, ia, jv, iu])
+                wi = np.float64(base[fc, ja, ia, jv, iu]) * np.float64(_weight_unit(base))
                 g0 = np.float64(np.float32(Lx[fc, ja, ia, jv, iu]) * sc[0])
                 g1 = np.float64(np.float32(Ly[fc, ja, ia, jv, iu]) * sc[1])
                 g2 = np.float64(np.float32(Lu[fc, ja, ia, jv, iu]) * sc[2])
@@ -175,7 +175,8 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     rows: per face, z = (⊗ₐ C_a)⁻¹ sqrt(w) (c, b) over the box (C_a C_aᵀ = K_a K_aᵀ, the noise
     covariance of the prefiltered temporal difference up to 2σ²), so that Σ z_c z_cᵀ =
     Aᵀ W^½ Σ⁻¹ W^½ A: generalised least squares. der: (Lx, Ly, Lu, Lv, Lt) (F, Ny, Nx, Nv, Nu);
-    base: base weights of the same dims; P (F, 6): p in each face's frame (IRLS residuals);
+    base: base weights of the same dims (float32, or int16 units: :mod:`polycam.eq5`); P (F, 6): p
+    in each face's frame (IRLS residuals);
     ``vo``: the arrays' view origin (:mod:`polycam.eq5`; None: they hold every view); ``dsc``:
     the derivatives' scales when they are int16 scaled views (:mod:`polycam.eq5`; None: float32)."""
     F, Nv, Nu = base.shape[0], base.shape[3], base.shape[4]

@@ -20,7 +20,8 @@ from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate
 from polycam.derivatives import plenoptic_derivatives
 from polycam.trajectory import Trajectory
 
-from tolerances import (MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL, MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
+from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
+                        MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL,
@@ -747,6 +748,56 @@ def test_passes_on_box_view_arrays(scene, rng):
     assert out[0][0].any() and out[0][2].any()
 
 
+def test_int16_base_weights(scene, rng):
+    """The solver keeps its base weights as int16 in units of 1 / 32767 (polycam.eq5): a
+    weight is rounded to the nearest unit, but one that is not 0 keeps at least one unit
+    of its sign (the sign marks validity); the IRLS pass, the sampled residuals and the
+    whitened sums weight the rays as with the float32 weights, within the rounding."""
+    from polycam.derivatives import FILTERS
+    from polycam.eq5 import _pass_kernel, _sample_residuals, _scaled_views, _store_weights, _view_origin
+    from polycam.whitening import _whitened_sums, _whitening_factors
+
+    x = np.array([[0.0, 1.0, -1.0, 0.5, 1e-7, -1e-7, 3.1e-5, 2.0]], np.float32)
+    q = np.empty(x.shape, np.int16)
+    _store_weights(x, q)
+    assert q.tolist() == [[0, 32767, -32767, 16384, 1, -1, 1, 32767]]
+
+    grid = make_grid(("+z", "-x"), views=5, directions=20)
+    M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
+    der = plenoptic_derivatives(scene.render(grid, np.eye(4)), scene.render(grid, M), grid,
+                                filters=MotionOptions().filters)
+    F, Ny, Nx, Nv, Nu = grid.shape
+    box = np.array([1, Ny - 1, 2, Nx - 2, 2, Nv - 2, 2, Nu - 2], np.int64)
+    arrays, dsc = _scaled_views([der.Lx, der.Ly, der.Lu, der.Lv, der.Lt], box)
+    w = (rng.random(grid.shape) * (rng.random(grid.shape) > 0.2)).astype(np.float32)
+    w16 = np.empty(grid.shape, np.int16)
+    _store_weights(w, w16)
+    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
+    zs = np.array([face.z_pi for face in grid.faces])
+    fs = np.array([face.f for face in grid.faces])
+    P = rng.normal(0, 1e-3, (F, 6))
+    h = np.array([grid.x.step, grid.y.step, grid.u.step, grid.v.step])
+    vo = _view_origin(Ny, Nx)
+    filters = {k: FILTERS[v] for k, v in MotionOptions().filters.items()}
+    n_views = F * (Ny - 2) * (Nx - 4)
+    out = []
+    for base in (w, w16):
+        acc, st = np.empty((n_views, 3, 3, 29)), np.empty((n_views, 25))
+        _pass_kernel(*arrays, dsc, base, True, *vals, zs, fs, P, 1, 50.0, 8, box, vo, h, np.full(4, 1e-4), True,
+                     acc, st, 2)
+        a, wa = (np.empty((-(-n_views * (Nv - 4) // 3), Nu - 4), np.float32) for _ in range(2))
+        _sample_residuals(*arrays, dsc, base, *vals, zs, fs, P, box, vo, 3, a, wa)
+        whitened = _whitened_sums(tuple(arrays), base, vals, zs, fs, P, 1, 50.0, box,
+                                  _whitening_factors(filters, {k: fp.radius for k, fp in filters.items()}, box, 0.3),
+                                  8, dsc=dsc)
+        out.append((acc, st, wa, whitened))
+    (acc, st, wa, wh), (acc16, st16, wa16, wh16) = out
+    assert np.array_equal(st[:, :3], st16[:, :3])                   # the same rays count (base > 0, inliers)
+    for x, y in ((acc, acc16), (wa, wa16), (wh, wh16)):
+        assert np.abs(x - y).max() <= MOTION_INT16_WEIGHTS_REL * np.abs(x).max()
+        assert not np.array_equal(x, y)                            # the int16 weights were read
+
+
 def test_row_wide_passes_give_the_tiled_totals(scene):
     """The passes whose per-tile sums are not used accumulate whole view rows
     (``_Solver._tile``): their totals (N, rhs, Σ w b², Σ w) and counts equal those of the
@@ -1056,7 +1107,7 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
     replaced regressors; with the disparity gate (``rho_max``, here ``gate`` x the median
     |L_x| / |L_u|) more rays are replaced where the misfit is far above the noise (here: var
     1000x smaller than without the gate). _apply_rho re-quantises each view image."""
-    from polycam.eq5 import _apply_rho, _scaled_views, _unscaled, _view_origin, depth_regularise, depth_rho
+    from polycam.eq5 import _apply_rho, _scaled_views, _unscaled, _view_origin, depth_regularise, depth_rho, rho_values
 
     grid = make_grid(("+z", "-x"), views=7, directions=32, spacing=0.01)
     M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
@@ -1109,10 +1160,15 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
                       dsc=np.ascontiguousarray(dsc[inner]), scratch=lent)
     assert np.array_equal(again, compact, equal_nan=True) and np.array_equal(var_l, var_c)
     assert not np.isnan(lent).all()                                    # it was used
+    # the solver's form: int16 in units of a scale per view image, the float32 ρ̂ its values
+    rho16, rho_sc = np.empty(grid.shape, np.int16), np.empty(grid.shape[:3], np.float32)
+    assert np.array_equal(depth_rho(q, base, box, var, rho16, rho_max, dsc=dsc, out_scale=rho_sc), var_k)
+    assert np.array_equal(rho_values(rho16, rho_sc), rho, equal_nan=True)
     q_c = [np.ascontiguousarray(a[inner]) for a in q[:4]]
     dsc_c = np.ascontiguousarray(dsc[inner])
-    _apply_rho(*q_c, dsc_c, np.ascontiguousarray(base[inner]), np.ascontiguousarray(rho[inner]), box, vo, 2)
-    _apply_rho(*q[:4], dsc, base, rho, box, _view_origin(Ny, Nx), 3)
+    _apply_rho(*q_c, dsc_c, np.ascontiguousarray(base[inner]), np.ascontiguousarray(rho16[inner]),
+               np.ascontiguousarray(rho_sc[inner]), box, vo, 2)
+    _apply_rho(*q[:4], dsc, base, rho16, rho_sc, box, _view_origin(Ny, Nx), 3)
     assert np.array_equal(q_c[0], q[0][inner]) and np.array_equal(dsc_c, dsc[inner])
     for k in (0, 1):
         scale = np.abs(ref[k][valid]).max()

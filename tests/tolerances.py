@@ -94,5 +94,6 @@ MOTION_DEPTH_RHO_RTOL = 1e-5     # ρ̂ L_u of the Eq. 6 kernel (depth_rho) vs t
 MOTION_DEPTH_RHO_FLIPS = 1e-3    # share of valid rays whose keep / replace decision differs between the two (threshold ties in float32; measured 0)
 MOTION_WARP_SOURCE_UNITS = 1.0   # warp of the int16 warp source vs the float32 warp, in source units (half a unit x the stencil gain, <= 1.93 for 6 x 6 Lagrange taps; measured 0.48)
 MOTION_SCALED_VIEWS_RTOL = 1.6e-5  # int16 scaled views (polycam.eq5): rounding error relative to the view's max |value| (half a step of 1/32767, plus float32 rounding)
+MOTION_INT16_WEIGHTS_REL = 1e-4  # normal sums with int16 base weights (units of 1/32767) vs float32 weights, relative to the largest |sum| (measured: see the test)
 RESAMPLE_VIEWFILL_OFFGRID_GAIN = 2.0   # view fill from cameras ~0.15 view steps off their views (textured plane): RMS error with offsets from the grid indices / from the camera centres, at least (measured 0.0142 / 0.0046 = 3.1)
 MOTION_NOISE_SIGMA_REL = 0.05  # sensor-noise sigma from second differences of 3x3 or 5x5 cameras x 32x32 directions (two frames; 0.5-1.5 % expected)
