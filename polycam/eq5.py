@@ -35,7 +35,8 @@ the others are clipped: they are never used): half the memory of float32,
 with a rounding error of at most 1.5e-5 of the view's largest value (docs/motion.md,
 "Speed"). The kernels that read derivatives take such ``dsc``; float32 derivatives (the
 public :func:`~polycam.motion.solve_ray_motion`, the tests' references) pass unit scales
-(``_unit_scales``): the products are then exact.
+(``_unit_scales``): the products are then exact. The solver keeps ρ̂ of the Eq. 6
+regressors the same way, one scale per view image (:func:`depth_rho`).
 
 The ray loops are branch-free with unsigned indices and re-associated sums
 (``_FASTMATH``) so that LLVM vectorises them (speed figures: docs/motion.md).

@@ -366,7 +366,7 @@ def _work_array(name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
 
 def free_work_buffers() -> None:
     """Release the work arrays that :func:`estimate_motion` keeps on the calling thread for
-    its next call (about five frames' worth: those of the finest pyramid level, docs/motion.md "Speed")."""
+    its next call (about four frames' worth: those of the finest pyramid level, docs/motion.md "Speed")."""
     _WORK.__dict__.pop("arrays", None)
 
 
