@@ -559,7 +559,7 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
     """Per valid view image, in cache: the base weight = confidence ``conf`` (in units of
     ``conf_unit``: 1 / 65535 for uint16) minimised over the filter support (``need_min``)
     × valid × the discontinuity weight (``smooth_mode`` 0: none,
-    1: the array ``smooth``, 2: |base|, with a 0 / 1 confidence minimum kept in base's sign:
+    1: the array ``smooth`` (weights as base: module docstring), 2: |base|, with a 0 / 1 confidence minimum kept in base's sign:
     base = ±weight, and every kernel counts base <= 0 as weight 0), the plenoptic derivatives of the
     (warped) pair (L0, L1; L0 read rounded to multiples of l0g[face] where > 0, l0g (F,)
     float32: :func:`~polycam.derivatives.xy_view`) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
@@ -636,7 +636,12 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
                 for v in range(rv, Nv - rv):
                     for u in range(ru, Nu - ru):
                         c = cm[v, u] * conf_unit
-                        _store_weight(b, (v, u), c * smooth[fc, ja, ia, v, u] if smooth_mode == 1 else c)
+                        # (the weight first, then the store: with a conditional product as the
+                        # inlined store's argument numba 0.68 stored 0s)
+                        x = c
+                        if smooth_mode == 1:
+                            x = c * (np.float32(smooth[fc, ja, ia, v, u]) * _weight_unit(smooth))
+                        _store_weight(b, (v, u), x)
             # the (u, v) stage one derivative at a time into o (cm is no longer needed), each
             # quantised into its scaled view: L_u, L_v first (the Eq. 6 regressors use them)
             tmp = buf[4]

@@ -345,6 +345,8 @@ _NO_RHO = np.zeros((1,) * 5, np.int16)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
 _NO_RHO_SC = np.zeros((1,) * 3, np.float32)
 """Its scales."""
+_NO_SMOOTH = np.ones((1,) * 5, np.int16)
+"""Placeholder discontinuity weight for :func:`~polycam.eq5._prepare_kernel` (smooth modes 0, 2: never read)."""
 
 _WORK = threading.local()
 """Per-thread flat work arrays of the last estimate, by name: see :func:`free_work_buffers`."""
@@ -440,16 +442,18 @@ class _Solver:
         self.conf = _work_array("conf", self.shape, dtype)
         self.conf_unit = np.float32(1.0 / 65535.0) if dtype == np.uint16 else np.float32(1.0)
         self.base = _work_array("base", self.cshape, np.int16)     # int16 units (polycam.eq5's docstring)
-        # the discontinuity weight (fixed per level): with a 0 / 1 confidence it lives in the
-        # base weights' memory, as |base| with base's sign the confidence (eq5._prepare_kernel,
-        # smooth mode 2: a frame's 0.6 less); else an array of its own (mode 1)
+        # the discontinuity weight (fixed per level; int16 weights as base): with a 0 / 1
+        # confidence it lives in the base weights' memory, as |base| with base's sign the
+        # confidence (eq5._prepare_kernel, smooth mode 2: 0.3 frames less); else an array of
+        # its own (mode 1). Computed in the warped frame's memory, free now
         self.smooth: np.ndarray | None = None
         self.smooth_mode = 0 if opts.smooth_c <= 0 else (2 if binary else 1)
-        if self.smooth_mode == 2:                     # computed in the warped frame's memory, free now
-            w = self.out1[0].reshape(-1)[:C].reshape(self.cshape)
-            _store_weights(_level_discontinuity_weight(lev, opts, self.box, out=w), self.base)
-        elif self.smooth_mode == 1:
-            self.smooth = _level_discontinuity_weight(lev, opts, self.box)
+        if self.smooth_mode:
+            w = _level_discontinuity_weight(lev, opts, self.box,
+                                            out=self.out1[0].reshape(-1)[:C].reshape(self.cshape))
+            if self.smooth_mode == 1:
+                self.smooth = _work_array("smooth", self.cshape, np.int16)
+            _store_weights(w, self.base if self.smooth_mode == 2 else self.smooth)
         nviews = F * (self.box[1] - self.box[0]) * (self.box[3] - self.box[2])
         nt = (-(-Nv // self.tile), -(-Nu // self.tile))
         self.acc = _work_array("acc", (nviews,) + nt + (_NACC,), np.float64)
@@ -519,7 +523,7 @@ class _Solver:
                                                       _work_array("near", self.cshape, np.uint8), *self.vo[:2])
         conf = self.conf
         need_min = not (lev.W0 is None and lev.W1 is None and conf.min() > 0)
-        smooth = self.smooth if self.smooth is not None else np.ones((1,) * 5, np.float32)
+        smooth = self.smooth if self.smooth is not None else _NO_SMOOTH
         Lx, Ly, Lu, Lv, Lt = self.der
         has_rho = dr and not first_dr
         if has_rho:

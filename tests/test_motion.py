@@ -516,6 +516,7 @@ def test_discontinuity_weight_in_the_base_weights_sign(scene, monkeypatch, optio
     confidence in base's sign (eq5._prepare_kernel, smooth mode 2; every kernel counts base
     <= 0 as 0): the estimate is the same to the last bit as with the weight in an array of its
     own (mode 1), here with rays that leave the grid (confidence 0)."""
+    from polycam.eq5 import _store_weights
     from polycam.motion_weights import _level_discontinuity_weight
 
     grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
@@ -542,7 +543,8 @@ def test_discontinuity_weight_in_the_base_weights_sign(scene, monkeypatch, optio
     def separate(self, *args, **kwargs):
         own(self, *args, **kwargs)
         modes.append(self.smooth_mode)
-        self.smooth = _level_discontinuity_weight(self.lev, self.opts, self.box)
+        self.smooth = np.empty(self.base.shape, np.int16)         # as the solver's mode 1: int16 weights
+        _store_weights(_level_discontinuity_weight(self.lev, self.opts, self.box), self.smooth)
         self.smooth_mode = 1
 
     monkeypatch.setattr(pm._Solver, "__init__", separate)
