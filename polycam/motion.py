@@ -135,8 +135,7 @@ import numpy as np
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
                   _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights, _unpack_sym, _view_origin,
-                  _weighted_median,
-                  depth_rho, ray_motion_coefficients)
+                  _weighted_median, depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
