@@ -717,11 +717,11 @@ def test_scaled_views_round_within_half_a_step(rng):
     assert out[5, 6] == 32767
 
 
-def test_passes_on_box_view_arrays(scene, rng):
-    """The solver keeps its per-ray work arrays over the valid box's views only (eq5's view
-    origin): the IRLS pass sums and the sampled residuals from such arrays equal those from
-    arrays over every view (both as the solver stores derivatives: int16 scaled views)."""
-    from polycam.eq5 import _pass_kernel, _sample_residuals, _scaled_views, _view_origin
+def _pass_inputs(scene, rng):
+    """A two-face pair's derivatives as the solver stores them (int16 scaled views with their
+    scales, over every view) and the pass kernels' other arguments: (grid, box, der, dsc,
+    vals, zs, fs, P, h)."""
+    from polycam.eq5 import _scaled_views
 
     grid = make_grid(("+z", "-x"), views=5, directions=20)
     M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
@@ -729,14 +729,25 @@ def test_passes_on_box_view_arrays(scene, rng):
                                 filters=MotionOptions().filters)
     F, Ny, Nx, Nv, Nu = grid.shape
     box = np.array([1, Ny - 1, 2, Nx - 2, 2, Nv - 2, 2, Nu - 2], np.int64)
-    full, dsc = _scaled_views([der.Lx, der.Ly, der.Lu, der.Lv, der.Lt], box)
-    full += [dsc, rng.random(grid.shape).astype(np.float32)]                 # scales, base weights
-    inner = [np.ascontiguousarray(a[:, 1:Ny - 1, 2:Nx - 2]) for a in full]
+    q, dsc = _scaled_views([der.Lx, der.Ly, der.Lu, der.Lv, der.Lt], box)
     vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
     zs = np.array([face.z_pi for face in grid.faces])
     fs = np.array([face.f for face in grid.faces])
     P = rng.normal(0, 1e-3, (F, 6))
     h = np.array([grid.x.step, grid.y.step, grid.u.step, grid.v.step])
+    return grid, box, q, dsc, vals, zs, fs, P, h
+
+
+def test_passes_on_box_view_arrays(scene, rng):
+    """The solver keeps its per-ray work arrays over the valid box's views only (eq5's view
+    origin): the IRLS pass sums and the sampled residuals from such arrays equal those from
+    arrays over every view (both as the solver stores derivatives: int16 scaled views)."""
+    from polycam.eq5 import _pass_kernel, _sample_residuals, _view_origin
+
+    grid, box, full, dsc, vals, zs, fs, P, h = _pass_inputs(scene, rng)
+    F, Ny, Nx, Nv, Nu = grid.shape
+    full += [dsc, rng.random(grid.shape).astype(np.float32)]                 # scales, base weights
+    inner = [np.ascontiguousarray(a[:, 1:Ny - 1, 2:Nx - 2]) for a in full]
     n_views = F * (Ny - 2) * (Nx - 4)
     out = []
     for arrays, vo in ((full, _view_origin(Ny, Nx)), (inner, _view_origin(Ny, Nx, box))):
@@ -756,7 +767,7 @@ def test_int16_base_weights(scene, rng):
     of its sign (the sign marks validity); the IRLS pass, the sampled residuals and the
     whitened sums weight the rays as with the float32 weights, within the rounding."""
     from polycam.derivatives import FILTERS
-    from polycam.eq5 import _pass_kernel, _sample_residuals, _scaled_views, _store_weights, _view_origin
+    from polycam.eq5 import _pass_kernel, _sample_residuals, _store_weights, _view_origin
     from polycam.whitening import _whitened_sums, _whitening_factors
 
     x = np.array([[0.0, 1.0, -1.0, 0.5, 1e-7, -1e-7, 3.1e-5, 2.0]], np.float32)
@@ -764,21 +775,11 @@ def test_int16_base_weights(scene, rng):
     _store_weights(x, q)
     assert q.tolist() == [[0, 32767, -32767, 16384, 1, -1, 1, 32767]]
 
-    grid = make_grid(("+z", "-x"), views=5, directions=20)
-    M = T_from_rt(np.array([0.002, -0.001, 0.001, 0.003, 0.002, -0.002]))
-    der = plenoptic_derivatives(scene.render(grid, np.eye(4)), scene.render(grid, M), grid,
-                                filters=MotionOptions().filters)
+    grid, box, arrays, dsc, vals, zs, fs, P, h = _pass_inputs(scene, rng)
     F, Ny, Nx, Nv, Nu = grid.shape
-    box = np.array([1, Ny - 1, 2, Nx - 2, 2, Nv - 2, 2, Nu - 2], np.int64)
-    arrays, dsc = _scaled_views([der.Lx, der.Ly, der.Lu, der.Lv, der.Lt], box)
     w = (rng.random(grid.shape) * (rng.random(grid.shape) > 0.2)).astype(np.float32)
     w16 = np.empty(grid.shape, np.int16)
     _store_weights(w, w16)
-    vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (grid.x, grid.y, grid.u, grid.v)]
-    zs = np.array([face.z_pi for face in grid.faces])
-    fs = np.array([face.f for face in grid.faces])
-    P = rng.normal(0, 1e-3, (F, 6))
-    h = np.array([grid.x.step, grid.y.step, grid.u.step, grid.v.step])
     vo = _view_origin(Ny, Nx)
     filters = {k: FILTERS[v] for k, v in MotionOptions().filters.items()}
     n_views = F * (Ny - 2) * (Nx - 4)
