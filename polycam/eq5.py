@@ -1299,14 +1299,14 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
     The kernel stores ρ̂ as the solver keeps it, int16 in units of a scale per view image
     (max |ρ̂| / 32767; ``_RHO_NONE`` where kept): with an int16 ``out`` the scales go into
-    ``out_scale`` (F, Ny, Nx) float32, a float32 ``out`` gets those values
+    ``out_scale`` (F, Ny, Nx) float32 (required then), a float32 ``out`` gets those values
     (:func:`rho_values`: within 1.5e-5 of the view's max |ρ̂|).
     der = [Lx, Ly, Lu, Lv, ...] float32, or int16 scaled views with their scales ``dsc``
     (module docstring) (unchanged); var (4,): noise variances of (L_x, L_y,
     L_u, L_v); ``rho_max``, ``gate_misfit``: as :func:`depth_regularise`; ``near`` (same dims
     as out, uint8): rays where it is nonzero count as base <= 0. ``vo``: the arrays' view
     origin (module docstring; None: they hold every view). ``scratch``: optional float32
-    memory the kernel may use as its work arrays (about 16 view images per thread:
+    memory the kernel may use as its work arrays (about 17 view images per thread:
     the solver lends it the warped frame, dead by then), allocated when None or too small.
     Returns (4,) the variances for the replaced regressors, as depth_regularise."""
     Lx, Ly, Lu, Lv = der[:4]
