@@ -474,6 +474,57 @@ def test_solver_extrapolates_beyond_the_views(scene):
 
 
 @pytest.mark.parametrize("with_w", [False, True])
+def test_rho_windows_in_the_warped_frames_memory(scene, monkeypatch, with_w):
+    """ρ̂'s window buffers use the warped frame's memory (eq5.depth_rho's scratch), dead after
+    the fused kernel; where the disparity gate's check falls back to the measured
+    regressors (forced here), the fused kernel runs again, so the warp is redone first: the
+    estimate is the same to the last bit as with buffers of their own."""
+    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
+    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(4)
+    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
+    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    W = {"W0": np.ones_like(L0), "W1": np.ones_like(L1)} if with_w else {}
+    increment = pm._Solver._increment_and_sigma
+    calls = {"check": 0, "warp": 0, "lent": 0}
+
+    def fall_back(self):
+        # the measured regressors' σ huge (the two agree), the gate's condition number huge
+        p, sigma, cond = increment(self)
+        calls["check"] += 1
+        return (p, sigma * 1e12, cond) if calls["check"] % 2 else (p, sigma, cond * 1e12)
+
+    warp = pm._Solver._warp
+
+    def count(self, *args):
+        calls["warp"] += 1
+        return warp(self, *args)
+
+    rho = pm.depth_rho
+
+    def lent(*args, **kwargs):
+        calls["lent"] += kwargs.get("scratch") is not None
+        return rho(*args, **kwargs)
+
+    monkeypatch.setattr(pm._Solver, "_increment_and_sigma", fall_back)
+    monkeypatch.setattr(pm._Solver, "_warp", count)
+    monkeypatch.setattr(pm, "depth_rho", lent)
+    a = estimate_motion(L0, L1, grid, **W)
+    assert calls["check"] >= 2 and calls["lent"] >= 2
+    n_warps = calls["warp"]
+
+    def own(*args, scratch=None, **kwargs):
+        return rho(*args, **kwargs)
+
+    monkeypatch.setattr(pm, "depth_rho", own)
+    calls.update(check=0, warp=0)
+    b = estimate_motion(L0, L1, grid, **W)
+    assert calls["warp"] == n_warps                    # the same path, the warps redone alike
+    assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
+
+
+@pytest.mark.parametrize("with_w", [False, True])
 def test_extrapolation_marks_share_the_derivatives_memory(scene, monkeypatch, with_w):
     """The warp's marks of extrapolated samples live in the derivatives' memory (free from the
     warp to the fused kernel, which follows the marks' only use): the estimate is the same
