@@ -403,6 +403,8 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
     sxr = slope_x[jv]
     syr = slope_y[jv]
     okr = ok_uv[jv]
+    lim = (eps, hi_x, hi_y, cx, cy)
+    ib_max = (bx_max, by_max)
     for jy in range(Ny):
         for ix in range(Nx):
             a_x = ax_[jy, ix]
@@ -410,25 +412,73 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
             a_y = ay_[jy, ix]
             b_y = by_[jy, ix]
             okrow = ok[face, jy, ix, jv]
-            for k in range(K):
-                orow = out[k, face, jy, ix, jv]
-                rk = ratio[k]
-                # branch-free with unsigned indices, so that the loop vectorises (gathers)
-                for iu in range(numba.uint64(Nu)):
-                    fx = a_x + b_x * sxr[iu]
-                    fy = a_y + b_y * syr[iu]
-                    good = okr[iu] & (fx > -eps) & (fx < hi_x) & (fy > -eps) & (fy < hi_y)
-                    fx = min(max(fx, 0.0), cx)
-                    fy = min(max(fy, 0.0), cy)
-                    bx = min(numba.uint64(fx), bx_max)
-                    by = min(numba.uint64(fy), by_max)
-                    wx = min(fx - bx, 1.0)
-                    wy = min(fy - by, 1.0)
-                    o = iu * nm + numba.uint64(k) * nxy + by * unx + bx
-                    val = ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
-                           + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1])) * rk
-                    _store(orow, iu, val if good else 0.0)
-                    okrow[iu] = 1.0 if good else 0.0
+            # up to three channels (L, W, "no data": the motion solver's) share each ray's
+            # position and weights in one pass; more (warp_lightfield's stacks) one at a time
+            for k0 in range(0, K, 3):
+                nk = min(K - k0, 3)
+                o0 = out[k0, face, jy, ix, jv]
+                o1 = out[k0 + min(1, nk - 1), face, jy, ix, jv]
+                o2 = out[k0 + min(2, nk - 1), face, jy, ix, jv]
+                r0 = ratio[k0]
+                r1 = ratio[k0 + min(1, nk - 1)]
+                r2 = ratio[k0 + min(2, nk - 1)]
+                c0 = numba.uint64(k0) * nxy
+                c1 = c0 + nxy
+                c2 = c1 + nxy
+                # one loop per channel count: a branch inside would stop the vectorisation.
+                # Each value is computed before the _store call: numba 0.68 stored zeros for
+                # the second channel when the conditional expression was _store's argument
+                if nk == 1:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o + c0, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        okrow[iu] = 1.0 if good else 0.0
+                elif nk == 2:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o + c0, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        x1 = _bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1 if good else 0.0
+                        _store(o1, iu, x1)
+                        okrow[iu] = 1.0 if good else 0.0
+                else:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o + c0, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        x1 = _bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1 if good else 0.0
+                        _store(o1, iu, x1)
+                        x2 = _bilinear(Uv, o + c2, dx1, dy1, wx, wy) * r2 if good else 0.0
+                        _store(o2, iu, x2)
+                        okrow[iu] = 1.0 if good else 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm):
+    """Where the moved ray of direction iu of a view falls among the viewpoints
+    (:func:`_xy_row`): its offset in the (u, v)-warped row Uv of channel 0 (lower-left view
+    by, bx), the bilinear weights wx, wy and whether it lies inside (and ``okr[iu]``).
+    ``lim`` = (eps, hi_x, hi_y, cx, cy); ``ib_max`` = (bx_max, by_max). Branch-free with
+    unsigned indices, so that the caller's loop vectorises (gathers)."""
+    eps, hi_x, hi_y, cx, cy = lim
+    fx = a_x + b_x * sxr[iu]
+    fy = a_y + b_y * syr[iu]
+    good = okr[iu] & (fx > -eps) & (fx < hi_x) & (fy > -eps) & (fy < hi_y)
+    fx = min(max(fx, 0.0), cx)
+    fy = min(max(fy, 0.0), cy)
+    bx = min(numba.uint64(fx), ib_max[0])
+    by = min(numba.uint64(fy), ib_max[1])
+    wx = min(fx - bx, 1.0)
+    wy = min(fy - by, 1.0)
+    return iu * nm + by * unx + bx, wx, wy, good
+
+
+@numba.njit(cache=True, inline="always")
+def _bilinear(Uv, o, dx1, dy1, wx, wy):
+    """The bilinear blend of Uv at o, o + dx1, o + dy1, o + dy1 + dx1 (weights wx along dx1, wy along dy1)."""
+    return ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
+            + wy * ((1.0 - wx) * Uv[o + dy1] + wx * Uv[o + dy1 + dx1]))
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
