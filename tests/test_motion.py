@@ -952,11 +952,13 @@ def test_depth_inside_textured_sphere(scene, with_motion):
 @pytest.mark.parametrize("faces,views,directions", [(("+z", "-y"), 5, 24), (("+x",), 1, 16),
                                                      (("+z",), 9, 7)])
 @pytest.mark.parametrize("taps", [2, 4, 6])
-def test_two_stage_warp_matches_reference(rng, faces, views, directions, taps):
+@pytest.mark.parametrize("channels", [1, 3, 5])
+def test_two_stage_warp_matches_reference(rng, faces, views, directions, taps, channels):
+    """Any number of stacked channels: the (x, y) blend takes up to three in one pass."""
     from polycam.motion import warp_lightfield_reference
 
     grid = make_grid(faces, views=views, directions=directions)
-    A = rng.random((2,) + grid.shape).astype(np.float32)
+    A = rng.random((channels,) + grid.shape).astype(np.float32)
     M = T_from_rt(np.array([0.01, -0.02, 0.015, 0.004, -0.003, 0.002]))
     a, ok_a = warp_lightfield(A, grid, M, uv_taps=taps)
     b, ok_b = warp_lightfield_reference(A, grid, M, uv_taps=taps)
