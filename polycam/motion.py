@@ -144,7 +144,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _apply_weight_confidence, _face_abs_max,
+from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _face_abs_max,
                    _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
                    warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
@@ -402,20 +402,23 @@ class _Solver:
         # the warp sources are int16 in units (F, K) per face and channel (warp._warp_into's
         # scaled warp: the warped frames are float32), L's common to both frames: the fused
         # kernel reads frame 1 rounded to them (l0g), so equal samples give L_t = 0 exactly
-        self.src1, K, self.units1 = _warp_source(lev.L1, lev.W1, "src1", lev.L0, lev.W0)
+        self.src1, self.K1, self.units1 = _warp_source(lev.L1, lev.W1, "src1", lev.L0, lev.W0)
         self.l0g = self.units1[:, 0].astype(np.float32)
         self.src0, self.K0, self.units0 = _warp_source(lev.L0, lev.W0, None, lev.L1, lev.W1) if opts.symmetric \
             else (None, 0, None)
         # the derivatives are int16 scaled views (polycam.eq5's docstring: a scale per view
-        # image and derivative in self.dsc), five in one block of float32 slots; with W the
-        # warped frame 2 comes first in the same buffer: warped[0] is L, and the warped W and
-        # "no data" channels share the derivatives' memory — they are read (folded into conf)
-        # before the fused kernel writes the derivatives. (Without W separate arrays: one
-        # block measured ~1 frame more resident for the same live arrays, session 8: the
-        # allocator's heap keeps freed temporaries then.)
+        # image and derivative in self.dsc), five in one block of float32 slots. The warp
+        # stores only L of frame 2: it folds the warped W and "no data" channels into the
+        # confidence (warp._warp_into's confidence_channels). With ``symmetric`` (both frames
+        # warped) they are stored: the warped frame 2 comes first in one buffer with the
+        # derivatives, warped[0] is L, and the other channels share the derivatives' memory —
+        # they are read (folded into conf) before the fused kernel writes the derivatives.
+        # (Otherwise separate arrays: one block measured ~1 frame more resident for the same
+        # live arrays, session 8: the allocator's heap keeps freed temporaries then.)
         S, C = math.prod(self.shape), math.prod(self.cshape)
         nd = -(-5 * C // 2)                            # float32 slots of 5 C int16
-        if lev.W1 is None:
+        K = self.K1
+        if lev.W1 is None or not opts.symmetric:
             self.out1 = _work_array("out1", (1,) + self.shape)
             dmem = _work_array("derivatives", (nd,))
             free = 0                                    # dmem[free:] is free during a warp
@@ -435,7 +438,7 @@ class _Solver:
         self.marks_memory = dmem[tail:] if tail >= free else None
         # the warp's confidence: 0 / 1 without W (uint8: a quarter of the memory), else
         # multiplied by the (warped) confidences, in units of 1 / 65535 (uint16: half;
-        # warp._apply_warped_confidence); float32 when both frames are warped (symmetric)
+        # warp._folded_confidence); float32 when both frames are warped (symmetric)
         binary = lev.W0 is None and lev.W1 is None and not opts.symmetric
         dtype = np.uint8 if binary else (np.float32 if opts.symmetric else np.uint16)
         self.conf = _work_array("conf", self.shape, dtype)
@@ -585,17 +588,18 @@ class _Solver:
         extrapolation; None: none) and ``marks`` as :func:`~polycam.warp._warp_into`.
         Returns frame 1 as the fused kernel reads it."""
         lev, opts = self.lev, self.opts
+        # with confidences (not symmetric) the warp folds them into conf: the warped W and
+        # frame 1's (unwarped) W0 in the same pass (warp._folded_confidence)
+        fold = not opts.symmetric and (lev.W0 is not None or lev.W1 is not None)
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    rho_bar, opts.extrapolate_views, marks=marks,
-                   scratch=self.warp_scratch, ratio=self.units1)
-        conf = self.conf
-        W0 = lev.W0 if not opts.symmetric else None          # frame 1's confidence, unwarped
-        if lev.W1 is not None:
-            _apply_warped_confidence(conf, self.out1, W0)     # both factors in one pass
-        elif W0 is not None:
-            _apply_weight_confidence(conf, W0)
+                   scratch=self.warp_scratch, ratio=self.units1,
+                   confidence_channels=self.K1 if fold else 0, W0=lev.W0 if fold else None)
         if not opts.symmetric:
             return lev.L0
+        conf = self.conf
+        if lev.W1 is not None:
+            _apply_warped_confidence(conf, self.out1)
         out0 = np.empty((self.K0,) + self.shape, np.float32)
         ok0 = np.empty(self.shape, np.float32)
         _warp_into(self.src0, self.g, H, opts.uv_taps, out0, ok0, ratio=self.units0)

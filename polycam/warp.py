@@ -378,15 +378,20 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur):
 
 
 @numba.njit(cache=True, inline="always")
-def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok):
+def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0, cq, crnd):
     """Row jv of every view of ``out`` (K, F, Ny, Nx, Nv, Nu): bilinear interpolation across
     viewpoints of the row's (u, v)-warped images Uv (Nu M,) ((Nu, M) flattened, M >= K Ny Nx:
     (K, Ny, Nx) flattened, then padding) at each moved ray's focal-plane point in grid units,
     fx = ax_ + bx_ slope_x, fy = ay_ + by_ slope_y (ax_ .. by_: (Ny, Nx) per view from its
     moved origin; slopes (Nv, Nu) per direction), times ``ratio[k]`` (K,) for channel k
     (:func:`_warp_into`; out float32 or int16: :func:`_store`); ok[face] (F, Ny, Nx, Nv, Nu;
-    float32 or uint8) is 1 where the moved ray lies inside the grid, else 0 (and out 0)."""
-    K, _, Ny, Nx = out.shape[:4]
+    float32 or uint8) is 1 where the moved ray lies inside the grid, else 0 (and out 0).
+    K = len(ratio) channels; with ``fold`` out holds channel 0 only and the others (a
+    confidence W, and a "no data" indicator with K = 3) are folded into ok[face] (uint16)
+    with the unwarped frame's ``W0`` (F, Ny, Nx, Nv, Nu, if ``has_w0``) by
+    :func:`_folded_confidence` (``cq``, ``crnd``: its q, rnd, :func:`_confidence_units`)."""
+    K = ratio.shape[0]
+    _, _, Ny, Nx = out.shape[:4]
     Nu = out.shape[5]
     eps = 1e-6
     bx_max = numba.uint64(max(Nx - 2, 0))
@@ -412,6 +417,36 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
             a_y = ay_[jy, ix]
             b_y = by_[jy, ix]
             okrow = ok[face, jy, ix, jv]
+            if fold:
+                w0row = W0[face, jy, ix, jv] if has_w0 else W0[0, 0, 0, 0]
+                o0 = out[0, face, jy, ix, jv]
+                r0 = ratio[0]
+                r1 = ratio[min(1, K - 1)]
+                r2 = ratio[min(2, K - 1)]
+                c1 = nxy
+                c2 = nxy + nxy
+                if K == 1:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        okrow[iu] = _folded_confidence(good, np.float32(1.0), np.float32(0.0), w0row[iu], cq, crnd)
+                elif K == 2:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        x1 = np.float32(_bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1 if good else 0.0)
+                        okrow[iu] = _folded_confidence(good, x1, np.float32(0.0), w0row[iu], cq, crnd)
+                else:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        x1 = np.float32(_bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1 if good else 0.0)
+                        x2 = np.float32(_bilinear(Uv, o + c2, dx1, dy1, wx, wy) * r2 if good else 0.0)
+                        okrow[iu] = _folded_confidence(good, x1, x2, w0row[iu], cq, crnd)
+                continue
             # up to three channels (L, W, "no data": the motion solver's) share each ray's
             # position and weights in one pass; more (warp_lightfield's stacks) one at a time
             for k0 in range(0, K, 3):
@@ -475,6 +510,19 @@ def _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm):
 
 
 @numba.njit(cache=True, inline="always")
+def _folded_confidence(good, w, nodata, w0, c_unit, c_rnd):
+    """The motion solver's confidence c of a warped ray, stored as c c_unit + c_rnd (q, rnd of
+    :func:`_confidence_units`): 0 outside the grid (not ``good``), else the warped W
+    clipped to [0, 1], 0 where the warped "no data" indicator is not 0, times frame 1's
+    confidence w0 (:func:`_weight_confidence`). What :func:`_apply_warped_confidence` does
+    after the warp, folded into it (``_warp_into``'s ``confidence_channels``)."""
+    wf = min(max(w, np.float32(0.0)), np.float32(1.0))
+    c = (np.float32(1.0) if good else np.float32(0.0)) * (wf * (np.float32(1.0) if abs(nodata) < 1e-6
+                                                                   else np.float32(0.0)))
+    return c * _weight_confidence(w0) * c_unit + c_rnd
+
+
+@numba.njit(cache=True, inline="always")
 def _bilinear(Uv, o, dx1, dy1, wx, wy):
     """The bilinear blend of Uv at o, o + dx1, o + dy1, o + dy1 + dx1 (weights wx along dx1, wy along dy1)."""
     return ((1.0 - wy) * ((1.0 - wx) * Uv[o] + wx * Uv[o + dx1])
@@ -483,7 +531,7 @@ def _bilinear(Uv, o, dx1, dy1, wx, wy):
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out, ok,
-                      slot, E, edges):
+                      slot, E, edges, fold, W0, has_w0, cq, crnd):
     """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
     time: the row's (u, v) stencils (:func:`_uv_stencil_row`; us (Nu,), vs (Nv,) the sample
     values, R (3, 3) the ray rotation in face coordinates, f the focal length) and its
@@ -492,8 +540,10 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     across viewpoints (no (Nv, Nu, M) intermediate: 1.2 frames less memory, and read from
     cache). With ``edges`` the edge views' rows are copied to E (Nv, K, P, Nu), directions
     innermost, at their ``slot`` (Ny Nx,) (:func:`_perimeter`), for
-    :func:`_extrapolate_xy_kernel` (in srcT's units: ``ratio`` (K,) as :func:`_xy_row`)."""
-    K, _, Ny, Nx = out.shape[:4]
+    :func:`_extrapolate_xy_kernel` (in srcT's units: ``ratio`` (K,) as :func:`_xy_row`).
+    ``fold`` .. ``crnd``: as :func:`_xy_row`."""
+    K = ratio.shape[0]
+    _, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
     nxy = Ny * Nx
     dens = _lagrange_dens(Nv, Nu, taps)
@@ -517,7 +567,8 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
                         row = E[jv, k, p]
                         for u in range(Nu):
                             row[u] = Ur[u, k * nxy + view]
-            _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok)
+            _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
+                    cq, crnd)
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
@@ -533,7 +584,7 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
-                           e_max, ratio, out, ok, marks, has_marks):
+                           e_max, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
@@ -546,18 +597,26 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     ``E`` (Nv, K, P, Nu): the edge views' (u, v)-warped images (:func:`_warp_rows_kernel`),
     ``slot`` (Ny Nx,) each view's index in E (:func:`_perimeter`). ``rho`` (Nv, Nu): the
     disparity per direction of face ``face`` (NaN: unknown, the ray stays empty). Other
-    arguments (``ratio`` included) as :func:`_xy_row`; ``ok`` gets 1 where filled, and with
-    ``has_marks`` so does ``marks`` (F, Ny, Nx, Nv, Nu) (else a dummy)."""
-    K, _, Ny, Nx = out.shape[:4]
+    arguments (``ratio`` and ``fold`` .. ``crnd`` included) as :func:`_xy_row`; ``ok`` gets 1
+    where filled (the folded confidence with ``fold``; a ray inside the grid whose folded
+    confidence is 0 is then not skipped by its ``ok``, but its moved point lies inside, so
+    it is not filled — unless it lies within the inside test's 1e-6 of the edge, where the
+    edge view refills it with the same value), and with ``has_marks`` so does ``marks``
+    (F, Ny, Nx, Nv, Nu) (else a dummy)."""
+    K = ratio.shape[0]
+    _, _, Ny, Nx = out.shape[:4]
     Nv, _, P, Nu = E.shape
     Ef = E.reshape(E.size)
     KPN = K * P * Nu
     for jv in numba.prange(Nv):
         wu = np.empty(4)
         wv = np.empty(4)
+        vals = np.zeros(3, np.float32)                # fold: the confidence channels' values
+        vals[1] = 1.0                                 # (W = 1 when there is none: K = 1)
         for jy in range(Ny):
             for ix in range(Nx):
                 okrow = ok[face, jy, ix, jv]
+                w0row = W0[face, jy, ix, jv] if has_w0 else W0[0, 0, 0, 0]
                 for iu in range(Nu):
                     r = rho[jv, iu]
                     if okrow[iu] > 0.0 or not ok_uv[jv, iu] or not r == r:
@@ -607,14 +666,14 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                        + wu[3] * (w0 * Ef[o0 + 3] + w1 * Ef[o1 + 3]))
                             else:
                                 val = w0 * Ef[o0] + w1 * Ef[o1]
-                            _store(out, (k, face, jy, ix, jv, iu), val * ratio[k])
+                            _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), val * ratio[k])
                     elif tu == 1:                        # along v only
                         if not (ok_uv[ov, ou] and ok_uv[ov + 1, ou] and ok_uv[ov + 2, ou] and ok_uv[ov + 3, ou]):
                             continue
                         for k in range(K):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
-                            _store(out, (k, face, jy, ix, jv, iu), ratio[k] * (
+                            _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), ratio[k] * (
                                 wv[0] * (w0 * Ef[o0] + w1 * Ef[o1])
                                 + wv[1] * (w0 * Ef[o0 + KPN] + w1 * Ef[o1 + KPN])
                                 + wv[2] * (w0 * Ef[o0 + 2 * KPN] + w1 * Ef[o1 + 2 * KPN])
@@ -635,10 +694,24 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 for t in range(4):
                                     acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
                                 val += wv[q] * acc
-                            _store(out, (k, face, jy, ix, jv, iu), val * ratio[k])
-                    okrow[iu] = 1.0
+                            _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), val * ratio[k])
+                    if fold:
+                        okrow[iu] = _folded_confidence(True, vals[1], vals[2], w0row[iu], cq, crnd)
+                    else:
+                        okrow[iu] = 1.0
                     if has_marks:
                         marks[face, jy, ix, jv, iu] = 1
+
+
+@numba.njit(cache=True, inline="always")
+def _put_channel(dst, cvals, folding, ch, ray, value):
+    """Channel ch of a ray (ray = (face, jy, ix, jv, iu)) into dst (:func:`_store`), or with
+    ``folding`` the confidence channels (ch > 0) into cvals (3,) float32 instead. (Argument
+    names differ from the caller's: inlined, ``out = out`` made numba's parfor pass recurse.)"""
+    if folding and ch > 0:
+        cvals[ch] = np.float32(value)
+    else:
+        _store(dst, (ch,) + ray, value)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -809,50 +882,32 @@ def _weight_confidence(w):
 
 
 @numba.njit(parallel=True, cache=True)
-def _warped_confidence_kernel(conf, W, nodata, has_nodata, W0, has_w0, q, rnd):
+def _warped_confidence_kernel(conf, W, nodata, has_nodata, q, rnd):
     n = conf.shape[0]
     rows = max(1, n // 16384)
     for r in numba.prange(rows):
         for k in range(r * n // rows, (r + 1) * n // rows):
             w = min(max(W[k], np.float32(0.0)), np.float32(1.0))
             c = conf[k] * (w * (np.float32(1.0) if not has_nodata or abs(nodata[k]) < 1e-6 else np.float32(0.0)))
-            conf[k] = (c * _weight_confidence(W0[k]) if has_w0 else c) * q + rnd
+            conf[k] = c * q + rnd
 
 
 def _confidence_units(conf: np.ndarray) -> tuple[float, float]:
     """(q, rnd): a confidence c is stored in ``conf`` as c q + rnd (truncated): float32 as it
-    is, uint16 as round(c x 65535) (:func:`_apply_warped_confidence`)."""
+    is, uint16 as round(c x 65535) (:func:`_apply_warped_confidence`, :func:`_folded_confidence`)."""
     return (65535.0, 0.5) if conf.dtype == np.uint16 else (1.0, 0.0)
 
 
-def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray, W0: np.ndarray | None = None) -> None:
+def _apply_warped_confidence(conf: np.ndarray, out: np.ndarray) -> None:
     """conf (F, Ny, Nx, Nv, Nu) *= the confidence of the warped channels out (K, F, Ny, Nx, Nv,
     Nu) of the motion solver's source with W (``polycam.motion._warp_source``: L, W and, K = 3,
     the "no data" indicator W <= 0): the warped W clipped to [0, 1], zero where the warped
-    indicator is not 0; then, with ``W0`` (same dims as conf), by :func:`_apply_weight_confidence`'s
-    factor in the same pass (in place, no frame-sized temporaries). conf float32, or uint16
+    indicator is not 0 (in place, no frame-sized temporaries). conf float32, or uint16
     holding the warp's 0 / 1 and then the product in units of 1 / 65535
-    (:func:`_confidence_units`; the motion solver's, half the memory)."""
+    (:func:`_confidence_units`). The motion solver's ``symmetric`` warps (both frames
+    warped); otherwise the warp folds this into its pass (:func:`_folded_confidence`)."""
     flat = conf.reshape(-1)
     _warped_confidence_kernel(flat, out[1].reshape(-1), out[-1].reshape(-1), out.shape[0] > 2,
-                              flat if W0 is None else np.ascontiguousarray(W0, dtype=np.float32).reshape(-1),
-                              W0 is not None, *_confidence_units(conf))
-
-
-@numba.njit(parallel=True, cache=True)
-def _weight_confidence_kernel(conf, W, q, rnd):
-    n = conf.shape[0]
-    rows = max(1, n // 16384)
-    for r in numba.prange(rows):
-        for k in range(r * n // rows, (r + 1) * n // rows):
-            conf[k] = conf[k] * _weight_confidence(W[k]) * q + rnd
-
-
-def _apply_weight_confidence(conf: np.ndarray, W: np.ndarray) -> None:
-    """conf (F, Ny, Nx, Nv, Nu) *= W (same dims, float32) clipped to [0, 1], zero where W <= 0
-    (the confidence of an unwarped frame; in place, no frame-sized temporaries); conf float32,
-    or uint16 as :func:`_apply_warped_confidence`'s."""
-    _weight_confidence_kernel(conf.reshape(-1), np.ascontiguousarray(W, dtype=np.float32).reshape(-1),
                               *_confidence_units(conf))
 
 
@@ -863,7 +918,8 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                out: np.ndarray, ok: np.ndarray, rho: np.ndarray | None = None,
                extrapolate_views: float = 0.0,
                marks: np.ndarray | None = None, scratch: np.ndarray | None = None,
-               ratio: np.ndarray | None = None) -> None:
+               ratio: np.ndarray | None = None, confidence_channels: int = 0,
+               W0: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
@@ -877,8 +933,18 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller zeroes it).
     ``scratch``: float32 C memory that is free during the call (the solver passes its
     derivatives', which each warp precedes): the extrapolation's copy of the edge views
-    (K P Nv Nu floats, P the edge views) goes there when it fits."""
-    K, F, Ny, Nx, Nv, Nu = out.shape
+    (K P Nv Nu floats, P the edge views) goes there when it fits.
+    ``confidence_channels`` K > 0 (the motion solver's source with W: L, W and with K = 3 the
+    "no data" indicator, :func:`~polycam.motion._warp_source`): out holds only L (its first
+    channel), and ok (uint16) gets the confidence of each warped ray instead of 1, times that of
+    the unwarped frame's ``W0`` (F, Ny, Nx, Nv, Nu) if given (:func:`_folded_confidence`: what
+    :func:`_apply_warped_confidence` does, in the same pass, without storing the warped W)."""
+    _, F, Ny, Nx, Nv, Nu = out.shape
+    fold = confidence_channels > 0
+    K = confidence_channels if fold else out.shape[0]
+    cq, crnd = _confidence_units(ok) if fold else (1.0, 0.0)
+    has_w0 = W0 is not None
+    W0 = np.ascontiguousarray(W0, dtype=np.float32) if has_w0 else np.ones((1, 1, 1, 1, Nu), np.float32)
     xs, ys = grid.x.values, grid.y.values
     us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
     vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
@@ -907,13 +973,13 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
-                          ratio[k], out, ok, slot, E, extrapolate)
+                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
                                    float(extrapolate_views), ratio[k], out, ok,
-                                   _NO_MARKS if marks is None else marks, marks is not None)
+                                   _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,

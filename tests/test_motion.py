@@ -661,33 +661,62 @@ def test_near_marks_dilate_across_views():
 
 def test_warped_confidence_in_place(rng):
     """conf *= clip(warped W, 0, 1) x (warped "no data" indicator == 0), as the numpy formula;
-    without the indicator channel (W had no samples without data) the clipped W alone; with
-    frame 1's W0 also x clip(W0, 0, 1) x (W0 > 0) in the same pass, or alone. The solver's
+    without the indicator channel (W had no samples without data) the clipped W alone. A
     uint16 confidence (the warp's 0 / 1 in, the product out in units of 1 / 65535) rounds it."""
-    from polycam.warp import _apply_warped_confidence, _apply_weight_confidence
+    from polycam.warp import _apply_warped_confidence
 
     shape = (2, 3, 3, 8, 8)
     conf0 = rng.integers(0, 2, shape).astype(np.float32)
     out = np.stack([rng.random(shape), rng.uniform(-0.5, 1.5, shape),
                     np.where(rng.random(shape) < 0.3, rng.uniform(-1, 1, shape), 0.0)]).astype(np.float32)
-    W0 = rng.uniform(-0.5, 1.5, shape).astype(np.float32)
-    factor0 = np.clip(W0, 0, 1) * (W0 > 0)
-    for channels, with_w0 in ((3, False), (2, False), (3, True), (2, True)):
+    for channels in (3, 2):
         conf = conf0.copy()
         expected = conf * (np.clip(out[1], 0, 1) * ((np.abs(out[2]) < 1e-6) if channels == 3 else 1.0))
-        if with_w0:
-            expected = expected * factor0
-        _apply_warped_confidence(conf, out[:channels], W0 if with_w0 else None)
+        _apply_warped_confidence(conf, out[:channels])
         assert np.array_equal(conf, expected.astype(np.float32))
         q = conf0.astype(np.uint16)
-        _apply_warped_confidence(q, out[:channels], W0 if with_w0 else None)
+        _apply_warped_confidence(q, out[:channels])
         assert np.all(np.abs(q - expected.astype(np.float64) * 65535) <= 0.5 + 1e-3) and q.max() > 60000
-    conf = conf0.copy()
-    _apply_weight_confidence(conf, W0)
-    assert np.array_equal(conf, (conf0 * factor0).astype(np.float32))
-    q = conf0.astype(np.uint16)
-    _apply_weight_confidence(q, W0)
-    assert np.all(np.abs(q - conf0 * factor0.astype(np.float64) * 65535) <= 0.5 + 1e-3)
+
+
+@pytest.mark.parametrize("extrapolate", [False, True])
+def test_warp_folds_the_confidences(rng, extrapolate):
+    """The motion solver's warp with W folds the confidences into its pass
+    (``confidence_channels``): L as without folding, bit for bit, and the uint16 confidence
+    = the warp's 0 / 1 x clip(warped W, 0, 1) x (warped "no data" indicator == 0) x frame 1's
+    clip(W0, 0, 1) x (W0 > 0), within one unit of 1 / 65535 of the formula (its rounding, and
+    fast-math contraction) — with and without the indicator, with W0 alone, with rays
+    extrapolated by Eq. 6."""
+    from polycam.motion import _warp_source
+    from polycam.warp import _warp_into
+
+    grid = make_grid(("+z", "-x"), views=5, directions=16)
+    L1 = rng.random(grid.shape).astype(np.float32)
+    W1_full = rng.uniform(0.1, 1.3, grid.shape).astype(np.float32)   # no samples without data
+    W1 = np.where(rng.random(grid.shape) < 0.002, -0.1, W1_full).astype(np.float32)
+    W0 = rng.uniform(-0.2, 1.3, grid.shape).astype(np.float32)
+    factor0 = np.clip(W0, 0, 1) * (W0 > 0)
+    M = T_from_rt(np.array([0.004, -0.003, 0.002, 0.012, -0.02, 0.015]))
+    rho = np.full((grid.shape[0],) + grid.shape[3:], 0.5) if extrapolate else None
+    kw = dict(rho=rho, extrapolate_views=2.0) if extrapolate else {}
+    for W, with_w0, K in ((W1, True, 3), (W1, False, 3), (W1_full, True, 2), (None, True, 1)):
+        src, k, units = _warp_source(L1, W)
+        assert k == K
+        out = np.empty((K,) + grid.shape, np.float32)
+        ok = np.empty(grid.shape, np.float32)
+        _warp_into(src, grid, M, 6, out, ok, ratio=units, **kw)
+        expected = ok.astype(np.float64)
+        if K > 1:
+            expected *= np.clip(out[1], 0, 1) * ((np.abs(out[2]) < 1e-6) if K == 3 else 1.0)
+        if with_w0:
+            expected *= factor0
+        L = np.empty((1,) + grid.shape, np.float32)
+        conf = np.empty(grid.shape, np.uint16)
+        _warp_into(src, grid, M, 6, L, conf, ratio=units, confidence_channels=K,
+                   W0=W0 if with_w0 else None, **kw)
+        assert np.array_equal(L[0], out[0])
+        assert np.all(np.abs(conf - expected * 65535) <= 1.0 + 1e-3)
+        assert (conf > 0).sum() > 0.2 * conf.size and np.any((ok > 0) & (conf == 0))
 
 
 @pytest.mark.parametrize("n", [1, 5, 50_000])
