@@ -511,15 +511,17 @@ def _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm):
 
 @numba.njit(cache=True, inline="always")
 def _folded_confidence(good, w, nodata, w0, c_unit, c_rnd):
-    """The motion solver's confidence c of a warped ray, stored as c c_unit + c_rnd (q, rnd of
-    :func:`_confidence_units`): 0 outside the grid (not ``good``), else the warped W
-    clipped to [0, 1], 0 where the warped "no data" indicator is not 0, times frame 1's
-    confidence w0 (:func:`_weight_confidence`). What :func:`_apply_warped_confidence` does
-    after the warp, folded into it (``_warp_into``'s ``confidence_channels``)."""
+    """The motion solver's confidence c of a warped ray as stored in its uint16 ``conf``:
+    c c_unit + c_rnd (q, rnd of :func:`_confidence_units`) truncated, as int32 (a signed
+    conversion vectorises; the store truncates it to uint16): 0 outside the grid (not
+    ``good``), else the warped W clipped to [0, 1], 0 where the warped "no data" indicator
+    is not 0, times frame 1's confidence w0 (:func:`_weight_confidence`). What
+    :func:`_apply_warped_confidence` does after the warp, folded into it (``_warp_into``'s
+    ``confidence_channels``)."""
     wf = min(max(w, np.float32(0.0)), np.float32(1.0))
     c = (np.float32(1.0) if good else np.float32(0.0)) * (wf * (np.float32(1.0) if abs(nodata) < 1e-6
                                                                    else np.float32(0.0)))
-    return c * _weight_confidence(w0) * c_unit + c_rnd
+    return np.int32(c * _weight_confidence(w0) * c_unit + c_rnd)
 
 
 @numba.njit(cache=True, inline="always")
@@ -936,11 +938,13 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     (K P Nv Nu floats, P the edge views) goes there when it fits.
     ``confidence_channels`` K > 0 (the motion solver's source with W: L, W and with K = 3 the
     "no data" indicator, :func:`~polycam.motion._warp_source`): out holds only L (its first
-    channel), and ok (uint16) gets the confidence of each warped ray instead of 1, times that of
+    channel), and ok (uint16 only) gets the confidence of each warped ray instead of 1, times that of
     the unwarped frame's ``W0`` (F, Ny, Nx, Nv, Nu) if given (:func:`_folded_confidence`: what
     :func:`_apply_warped_confidence` does, in the same pass, without storing the warped W)."""
     _, F, Ny, Nx, Nv, Nu = out.shape
     fold = confidence_channels > 0
+    if fold and ok.dtype != np.uint16:
+        raise ValueError("_warp_into: folded confidences need a uint16 ok")
     K = confidence_channels if fold else out.shape[0]
     cq, crnd = _confidence_units(ok) if fold else (1.0, 0.0)
     has_w0 = W0 is not None
