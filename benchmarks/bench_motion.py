@@ -478,6 +478,7 @@ def speed(repeat: int, directions: int) -> None:
     mem_m = peak_memory(L0, L1, directions, False)
     mem_w = peak_memory(L0, L1, directions, with_w=True)
     mem_s = peak_memory(L0, L1, directions, estimates=3)
+    mem_sw = peak_memory(L0, L1, directions, with_w=True, estimates=3)
     import numba
 
     threads = numba.get_num_threads()
@@ -511,8 +512,9 @@ def speed(repeat: int, directions: int) -> None:
           f"{mem / 2**20:.0f} MiB = {mem / L0.nbytes:.1f} x one frame ({L0.nbytes / 2**20:.1f} MiB); "
           f"with depth_regressors=False {mem_m / 2**20:.0f} MiB = {mem_m / L0.nbytes:.1f} frames; "
           f"with confidences W {mem_w / 2**20:.0f} MiB = {mem_w / L0.nbytes:.1f} frames; "
-          f"over three consecutive estimates (a session's pairs: the work arrays stay, and the allocator "
-          f"keeps some freed memory) {mem_s / 2**20:.0f} MiB = {mem_s / L0.nbytes:.1f} frames")
+          f"over three consecutive estimates (a session's pairs: the work arrays stay, and the coarse levels' "
+          f"frames borrow their idle tails) {mem_s / 2**20:.0f} MiB = {mem_s / L0.nbytes:.1f} frames, "
+          f"with W {mem_sw / 2**20:.0f} MiB = {mem_sw / L0.nbytes:.1f} frames")
     print(f"depth_regressors (the default) costs +{1e3 * (t_full - t_full_m):.1f} ms wall (best of {2 * repeat}, "
           f"alternating), +{1e3 * (c_full - c_full_m):.0f} ms CPU time")
 

@@ -357,18 +357,57 @@ def _work_array(name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
     Pyramid levels run one after the other, so all levels share one buffer per name: the
     peak memory is that of the finest level, as without the cache."""
     cache = _WORK.__dict__.setdefault("arrays", {})
+    lent = _WORK.__dict__.setdefault("lent", {})
     n = math.prod(shape)
     a = cache.get(name)
-    if a is None or a.size < n or a.dtype != np.dtype(dtype):
+    if a is None or a.size < n or a.dtype != np.dtype(dtype) or n > lent.get(name, n):
+        # (a request reaching into a lent tail gets a buffer of its own: the arrays in the
+        # tail keep the old one alive)
         cache[name] = None                      # release the old one before allocating
+        lent.pop(name, None)
         a = cache[name] = np.empty(n, dtype)
     return a[:n].reshape(shape)
+
+
+_TAIL_NAMES = ("derivatives", "out1")
+"""The float32 work arrays whose tails :func:`_tail_array` lends (the largest two)."""
+_TAIL_HEAD = 0.3
+"""The share of a work array :func:`_tail_array` never lends: what the next coarser pyramid
+level uses of it (a quarter, halved (u, v): (65 / 128)² of it at 128 directions) and a margin."""
+
+
+def _tail_array(shape: tuple) -> np.ndarray | None:
+    """A float32 array of the given dims in the idle tail of one of this thread's cached
+    finest-level work arrays (:func:`_work_array`), or None when none has room: the coarse
+    pyramid levels' frames of the next estimate (``polycam.pyramid._pyramid``'s ``alloc``),
+    which live only while the coarse levels, which use those arrays' heads, are solved.
+    Lent from the end down until :func:`_return_tails`; :func:`_work_array` never hands
+    out lent memory."""
+    cache = _WORK.__dict__.get("arrays", {})
+    lent = _WORK.__dict__.setdefault("lent", {})
+    n = math.prod(shape)
+    for name in _TAIL_NAMES:
+        a = cache.get(name)
+        if a is None or a.dtype != np.float32:
+            continue
+        end = lent.get(name, a.size)
+        if end - n >= math.ceil(_TAIL_HEAD * a.size):
+            lent[name] = end - n
+            return a[end - n:end].reshape(shape)
+    return None
+
+
+def _return_tails() -> None:
+    """End the loans of :func:`_tail_array` (their arrays must be dead: the finest level
+    reuses the memory)."""
+    _WORK.__dict__.pop("lent", None)
 
 
 def free_work_buffers() -> None:
     """Release the work arrays that :func:`estimate_motion` keeps on the calling thread for
     its next call (about four frames' worth: those of the finest pyramid level, docs/motion.md "Speed")."""
     _WORK.__dict__.pop("arrays", None)
+    _return_tails()
 
 
 class _Solver:
@@ -918,7 +957,19 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         raise InputError(f"motion: unknown derivative filter {e.args[0]!r}; expected one of "
                          f"{sorted(FILTERS)}") from None
     M = np.eye(4) if T_init is None else np.asarray(T_init, float).copy()
-    levels = _pyramid(L0, L1, W0, W1, grid, opts, {k: fp.radius for k, fp in filters.items()})
+    # the coarse levels' frames borrow the idle tails of the finest level's work arrays
+    # (kept from the previous estimate; a session's peak memory is then one estimate's)
+    _return_tails()
+    try:
+        levels = _pyramid(L0, L1, W0, W1, grid, opts, {k: fp.radius for k, fp in filters.items()},
+                          alloc=_tail_array)
+        return _estimate_levels(levels, M, opts, filters, index)
+    finally:
+        _return_tails()
+
+
+def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: dict, index: int) -> PairResult:
+    """:func:`estimate_motion` on the pyramid ``levels`` (finest first) from ``M``."""
     n_solves = 0
     sol = None
     solver = None
@@ -926,6 +977,8 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
         levels[li + 1:] = [None] * (len(levels) - li - 1)      # and its frames
+        if li == 0:
+            _return_tails()                       # the coarse frames are dead now
         solver = _Solver(levels[li], opts, filters, li)
         finest = li == 0
         whiten = finest and opts.whiten != "off"

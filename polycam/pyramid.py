@@ -49,13 +49,17 @@ def _downsample_uv_kernel(a, taps, out):
                 o[j] = acc
 
 
-def _downsample(a: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
-    """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu) array."""
+def _downsample(a: np.ndarray, axes: tuple[int, ...], alloc=None) -> np.ndarray:
+    """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu)
+    array. ``alloc(shape)``: where to put the result of (v, u) together, a float32 C array of
+    those dims or None (a new one)."""
     taps = np.array([1, 4, 6, 4, 1], np.float32) / 16
     out = np.ascontiguousarray(a, dtype=np.float32)
     if tuple(axes) == (out.ndim - 2, out.ndim - 1):            # (v, u) together: one pass
         Nv, Nu = out.shape[-2:]
-        res = np.empty(out.shape[:-2] + ((Nv - 1) // 2 + 1, (Nu - 1) // 2 + 1), np.float32)
+        shape = out.shape[:-2] + ((Nv - 1) // 2 + 1, (Nu - 1) // 2 + 1)
+        res = None if alloc is None else alloc(shape)
+        res = np.empty(shape, np.float32) if res is None else res
         _downsample_uv_kernel(out.reshape(-1, Nv, Nu), taps, res.reshape((-1,) + res.shape[-2:]))
         return res
     for ax in axes:
@@ -83,9 +87,11 @@ class _Level:
     the finest level's (x, y) sampling."""
 
 
-def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict) -> list[_Level]:
+def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict,
+             alloc=None) -> list[_Level]:
     """Levels finest first. (u, v) are halved while ≥ 32 samples remain; (x, y) only with
-    ``pyramid_xy`` and while the halved axis still leaves valid derivative samples."""
+    ``pyramid_xy`` and while the halved axis still leaves valid derivative samples.
+    ``alloc``: as :func:`_downsample`'s (the motion solver lends idle work memory)."""
     levels = [_Level(grid, L0, L1, W0, W1)]
     for _ in range(opts.levels - 1):
         g = levels[-1].grid
@@ -106,7 +112,7 @@ def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_ra
         ng = replace(g, **kw)
         prev = levels[-1]
         def ds(a, axes=tuple(sorted(axes))):
-            return None if a is None else _downsample(a, axes)
+            return None if a is None else _downsample(a, axes, alloc)
 
         same_views = 1 not in axes and 2 not in axes
         levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1),

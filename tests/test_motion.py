@@ -525,6 +525,62 @@ def test_rho_windows_in_the_warped_frames_memory(scene, monkeypatch, with_w):
 
 
 @pytest.mark.parametrize("with_w", [False, True])
+def test_coarse_frames_in_the_work_arrays_tails(scene, monkeypatch, with_w):
+    """A session's consecutive estimates put the coarse pyramid levels' frames in the idle
+    tails of the finest level's work arrays, kept from the previous estimate: the estimate is
+    the same to the last bit as with frames of their own (a fresh thread's first estimate)."""
+    grid = make_grid(("+z",), views=9, directions=64, spacing=0.01)      # two coarse levels
+    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(6)
+    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
+    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    W = {"W0": rng.uniform(0.5, 1.0, L0.shape).astype(np.float32),
+         "W1": rng.uniform(0.5, 1.0, L1.shape).astype(np.float32)} if with_w else {}
+    tail = pm._tail_array
+    lent = []
+
+    def count(shape):
+        out = tail(shape)
+        lent.append(out is not None)
+        return out
+
+    monkeypatch.setattr(pm, "_tail_array", count)
+    pm.free_work_buffers()
+    a = estimate_motion(L0, L1, grid, **W)
+    assert lent and not any(lent)                     # nothing cached yet: frames of their own
+    lent.clear()
+    b = estimate_motion(L0, L1, grid, **W)
+    assert len(lent) == 2 * (4 if with_w else 2) and all(lent)
+    assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
+    pm.free_work_buffers()
+
+
+def test_work_arrays_never_hand_out_lent_memory():
+    """A tail lent by _tail_array stays untouched: a work array that would reach into it gets
+    memory of its own; a head below the lent part is the same memory; the head share
+    (_TAIL_HEAD) is never lent; loans end with _return_tails."""
+    pm.free_work_buffers()
+    try:
+        whole = pm._work_array("derivatives", (1000,))
+        assert pm._tail_array((701,)) is None                     # would reach into the head share
+        t = pm._tail_array((300,))
+        assert np.shares_memory(t, whole) and t.base is whole.base
+        t[:] = 7.0
+        head = pm._work_array("derivatives", (700,))
+        assert np.shares_memory(head, whole) and not np.shares_memory(head, t)
+        head[:] = -1.0
+        grown = pm._work_array("derivatives", (701,))
+        assert not np.shares_memory(grown, t)
+        grown[:] = -1.0
+        assert np.all(t == 7.0)
+        pm._return_tails()
+        assert pm._tail_array((300,)) is not None                 # the new array lends afresh
+    finally:
+        pm.free_work_buffers()
+
+
+@pytest.mark.parametrize("with_w", [False, True])
 def test_extrapolation_marks_share_the_derivatives_memory(scene, monkeypatch, with_w):
     """The warp's marks of extrapolated samples live in the derivatives' memory (free from the
     warp to the fused kernel, which follows the marks' only use): the estimate is the same
