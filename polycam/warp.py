@@ -418,6 +418,10 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
             b_y = by_[jy, ix]
             okrow = ok[face, jy, ix, jv]
             if fold:
+                # the confidence channels share each ray's position and weights with L in one
+                # pass (one loop per channel count: a branch inside would stop the vectorisation;
+                # each value is computed before the _store call: numba 0.68 stored zeros for a
+                # second channel when the conditional expression was _store's argument)
                 w0row = W0[face, jy, ix, jv] if has_w0 else W0[0, 0, 0, 0]
                 o0 = out[0, face, jy, ix, jv]
                 r0 = ratio[0]
@@ -447,46 +451,15 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
                         x2 = np.float32(_bilinear(Uv, o + c2, dx1, dy1, wx, wy) * r2 if good else 0.0)
                         okrow[iu] = _folded_confidence(good, x1, x2, w0row[iu], cq, crnd)
                 continue
-            # up to three channels (L, W, "no data": the motion solver's) share each ray's
-            # position and weights in one pass; more (warp_lightfield's stacks) one at a time
-            for k0 in range(0, K, 3):
-                nk = min(K - k0, 3)
-                o0 = out[k0, face, jy, ix, jv]
-                o1 = out[k0 + min(1, nk - 1), face, jy, ix, jv]
-                o2 = out[k0 + min(2, nk - 1), face, jy, ix, jv]
-                r0 = ratio[k0]
-                r1 = ratio[k0 + min(1, nk - 1)]
-                r2 = ratio[k0 + min(2, nk - 1)]
-                c0 = numba.uint64(k0) * nxy
-                c1 = c0 + nxy
-                c2 = c1 + nxy
-                # one loop per channel count: a branch inside would stop the vectorisation.
-                # Each value is computed before the _store call: numba 0.68 stored zeros for
-                # the second channel when the conditional expression was _store's argument
-                if nk == 1:
-                    for iu in range(numba.uint64(Nu)):
-                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
-                        x0 = _bilinear(Uv, o + c0, dx1, dy1, wx, wy) * r0 if good else 0.0
-                        _store(o0, iu, x0)
-                        okrow[iu] = 1.0 if good else 0.0
-                elif nk == 2:
-                    for iu in range(numba.uint64(Nu)):
-                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
-                        x0 = _bilinear(Uv, o + c0, dx1, dy1, wx, wy) * r0 if good else 0.0
-                        _store(o0, iu, x0)
-                        x1 = _bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1 if good else 0.0
-                        _store(o1, iu, x1)
-                        okrow[iu] = 1.0 if good else 0.0
-                else:
-                    for iu in range(numba.uint64(Nu)):
-                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
-                        x0 = _bilinear(Uv, o + c0, dx1, dy1, wx, wy) * r0 if good else 0.0
-                        _store(o0, iu, x0)
-                        x1 = _bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1 if good else 0.0
-                        _store(o1, iu, x1)
-                        x2 = _bilinear(Uv, o + c2, dx1, dy1, wx, wy) * r2 if good else 0.0
-                        _store(o2, iu, x2)
-                        okrow[iu] = 1.0 if good else 0.0
+            for k in range(K):
+                orow = out[k, face, jy, ix, jv]
+                rk = ratio[k]
+                c = numba.uint64(k) * nxy
+                for iu in range(numba.uint64(Nu)):
+                    o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                    x = _bilinear(Uv, o + c, dx1, dy1, wx, wy) * rk if good else 0.0
+                    _store(orow, iu, x)
+                    okrow[iu] = 1.0 if good else 0.0
 
 
 @numba.njit(cache=True, inline="always")
