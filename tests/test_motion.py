@@ -736,17 +736,20 @@ def test_warped_confidence_in_place(rng):
 
 
 @pytest.mark.parametrize("extrapolate", [False, True])
-def test_warp_folds_the_confidences(rng, extrapolate):
+@pytest.mark.parametrize("directions", [16, 80])
+def test_warp_folds_the_confidences(rng, extrapolate, directions):
     """The motion solver's warp with W folds the confidences into its pass
     (``confidence_channels``): L as without folding, bit for bit, and the uint16 confidence
     = the warp's 0 / 1 x clip(warped W, 0, 1) x (warped "no data" indicator == 0) x frame 1's
     clip(W0, 0, 1) x (W0 > 0), within one unit of 1 / 65535 of the formula (its rounding, and
     fast-math contraction) — with and without the indicator, with W0 alone, with rays
-    extrapolated by Eq. 6."""
+    extrapolated by Eq. 6; 80 directions: more than one of the blend's chunks
+    (warp._CHUNK = 64), the second one partial."""
     from polycam.motion import _warp_source
-    from polycam.warp import _warp_into
+    from polycam.warp import _CHUNK, _warp_into
 
-    grid = make_grid(("+z", "-x"), views=5, directions=16)
+    assert _CHUNK < 80 < 2 * _CHUNK
+    grid = make_grid(("+z", "-x"), views=5, directions=directions)
     L1 = rng.random(grid.shape).astype(np.float32)
     W1_full = rng.uniform(0.1, 1.3, grid.shape).astype(np.float32)   # no samples without data
     W1 = np.where(rng.random(grid.shape) < 0.002, -0.1, W1_full).astype(np.float32)
