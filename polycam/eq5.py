@@ -634,14 +634,17 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
             else:
                 b[:, :] = 0.0
                 for v in range(rv, Nv - rv):
-                    for u in range(ru, Nu - ru):
-                        c = cm[v, u] * conf_unit
+                    br = b[v]
+                    cr = cm[v]
+                    sr = smooth[fc, ja, ia, v] if smooth_mode == 1 else smooth[0, 0, 0, 0]
+                    for u in range(numba.uint64(ru), numba.uint64(Nu - ru)):   # (unsigned: vectorises)
+                        c = cr[u] * conf_unit
                         # (the weight first, then the store: with a conditional product as the
                         # inlined store's argument numba 0.68 stored 0s)
                         x = c
                         if smooth_mode == 1:
-                            x = c * (np.float32(smooth[fc, ja, ia, v, u]) * _weight_unit(smooth))
-                        _store_weight(b, (v, u), x)
+                            x = c * (np.float32(sr[u]) * _weight_unit(smooth))
+                        _store_weight(br, u, x)
             # the (u, v) stage one derivative at a time into o (cm is no longer needed), each
             # quantised into its scaled view: L_u, L_v first (the Eq. 6 regressors use them)
             tmp = buf[4]
