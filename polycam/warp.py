@@ -407,7 +407,8 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur):
 
 
 @numba.njit(cache=True, inline="always")
-def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0, cq, crnd):
+def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0, cq, crnd,
+            nd_row):
     """Row jv of every view of ``out`` (K, F, Ny, Nx, Nv, Nu): bilinear interpolation across
     viewpoints of the row's (u, v)-warped images Uv (Nu M,) ((Nu, M) flattened, M >= K Ny Nx:
     (K, Ny, Nx) flattened, then padding) at each moved ray's focal-plane point in grid units,
@@ -478,10 +479,19 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
                 else:
                     # two or three channels: a chunk of directions at a time, blended into the
                     # stack buffers (vectorised), then stored
-                    for s in range(0, Nu, _CHUNK):
-                        n = numba.uint64(min(_CHUNK, Nu - s))
+                    s = 0
+                    while s < Nu:
+                        # a run of at most _CHUNK directions whose "no data" channel is all zero
+                        # (nd_row 0: blended as K = 2, the same values) or not
+                        z = nd_row[s] if K == 3 else 0
+                        e = s + 1
+                        e_max = min(s + _CHUNK, Nu)
+                        while e < e_max and (K == 2 or nd_row[e] == z):
+                            e += 1
+                        n = numba.uint64(e - s)
                         us = numba.uint64(s)
-                        if K == 2:
+                        s = e
+                        if z == 0:
                             for i in range(n):
                                 o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, us + i, lim, ib_max,
                                                                unx, nm)
@@ -511,6 +521,38 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
                     x = _bilinear(Uv, o + c, dx1, dy1, wx, wy) * rk if good else 0.0
                     _store(orow, iu, x)
                     okrow[iu] = 1.0 if good else 0.0
+
+
+_ND_RUN = 16
+"""Zero runs of the "no data" flags shorter than this are marked as data (:func:`_nodata_runs`)."""
+
+
+@numba.njit(cache=True, inline="always")
+def _nodata_runs(Ur, m0, n, nd):
+    """nd (Nu,) uint8: 0 where the (u, v)-warped "no data" channel Ur[u, m0:m0 + n] (Ur (Nu, M))
+    is 0 in every view (the folded warp blends those directions as with K = 2, the same
+    values: :func:`_xy_row`, :func:`_extrapolate_xy_kernel`), else 1; a run of zeros shorter
+    than _ND_RUN between ones is set to 1 too, so that the blend's runs of either kind
+    are not too short to vectorise."""
+    Nu = Ur.shape[0]
+    for u in range(Nu):
+        r = Ur[u]
+        f = False
+        for m in range(m0, m0 + n):
+            f |= r[m] != 0.0
+        nd[u] = f
+    u = 0
+    while u < Nu:
+        if nd[u] != 0:
+            u += 1
+            continue
+        e = u
+        while e < Nu and nd[e] == 0:
+            e += 1
+        if e - u < _ND_RUN and (u > 0 or e < Nu):
+            for i in range(u, e):
+                nd[i] = 1
+        u = e
 
 
 @numba.njit(cache=True, inline="always")
@@ -557,7 +599,7 @@ def _bilinear(Uv, o, dx1, dy1, wx, wy):
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out, ok,
-                      slot, E, edges, fold, W0, has_w0, cq, crnd):
+                      slot, E, edges, fold, W0, has_w0, cq, crnd, ND):
     """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
     time: the row's (u, v) stencils (:func:`_uv_stencil_row`; us (Nu,), vs (Nv,) the sample
     values, R (3, 3) the ray rotation in face coordinates, f the focal length) and its
@@ -567,11 +609,13 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     cache). With ``edges`` the edge views' rows are copied to E (Nv, K, P, Nu), directions
     innermost, at their ``slot`` (Ny Nx,) (:func:`_perimeter`), for
     :func:`_extrapolate_xy_kernel` (in srcT's units: ``ratio`` (K,) as :func:`_xy_row`).
-    ``fold`` .. ``crnd``: as :func:`_xy_row`."""
+    ``fold`` .. ``crnd``: as :func:`_xy_row`. With ``fold`` and K = 3, ND (Nv, Nu) uint8 gets
+    :func:`_nodata_runs` of each row (else a dummy (1, Nu))."""
     K = ratio.shape[0]
     _, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
     nxy = Ny * Nx
+    nodata = fold and K == 3
     dens = _lagrange_dens(Nv, Nu, taps)
     chunks = min(Nv, 32)
     for c in numba.prange(chunks):
@@ -593,8 +637,10 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
                         row = E[jv, k, p]
                         for u in range(Nu):
                             row[u] = Ur[u, k * nxy + view]
+            if nodata:
+                _nodata_runs(Ur, 2 * nxy, nxy, ND[jv])
             _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
-                    cq, crnd)
+                    cq, crnd, ND[jv if nodata else 0])
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
@@ -610,7 +656,7 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
-                           e_max, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd):
+                           e_max, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
@@ -628,8 +674,11 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     confidence is 0 is then not skipped by its ``ok``, but its moved point lies inside, so
     it is not filled — unless it lies within the inside test's 1e-6 of the edge, where the
     edge view refills it with the same value), and with ``has_marks`` so does ``marks``
-    (F, Ny, Nx, Nv, Nu) (else a dummy)."""
+    (F, Ny, Nx, Nv, Nu) (else a dummy). With ``fold`` and K = 3, the "no data" channel is
+    left at 0 where ND (Nv, Nu) (:func:`_warp_rows_kernel`) is 0 at every node: it is 0
+    there."""
     K = ratio.shape[0]
+    nodata = fold and K == 3
     _, _, Ny, Nx = out.shape[:4]
     Nv, _, P, Nu = E.shape
     Ef = E.reshape(E.size)
@@ -682,7 +731,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 continue
                         elif not okr[ou]:
                             continue
-                        for k in range(K):
+                        for k in range(_channels(K, nodata, ND, vals, ov, ou, 1, tu)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             if tu == 4:
@@ -696,7 +745,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                     elif tu == 1:                        # along v only
                         if not (ok_uv[ov, ou] and ok_uv[ov + 1, ou] and ok_uv[ov + 2, ou] and ok_uv[ov + 3, ou]):
                             continue
-                        for k in range(K):
+                        for k in range(_channels(K, nodata, ND, vals, ov, ou, 4, 1)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), ratio[k] * (
@@ -711,7 +760,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 good = good and ok_uv[ov + q, ou + t]
                         if not good:
                             continue
-                        for k in range(K):
+                        for k in range(_channels(K, nodata, ND, vals, ov, ou, 4, 4)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             val = 0.0
@@ -727,6 +776,22 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                         okrow[iu] = 1.0
                     if has_marks:
                         marks[face, jy, ix, jv, iu] = 1
+
+
+@numba.njit(cache=True, inline="always")
+def _channels(K, nodata, ND, cvals, ov, ou, nv, nu):
+    """How many of the K channels :func:`_extrapolate_xy_kernel` computes for a ray whose
+    nodes are ND[ov:ov + nv, ou:ou + nu]: K - 1 with ``nodata`` (the folded "no data"
+    channel, K = 3) when ND is 0 at all of them, and then that channel's cvals[2] = 0 (its
+    value), else K."""
+    if not nodata:
+        return K
+    for q in range(nv):
+        for t in range(nu):
+            if ND[ov + q, ou + t] != 0:
+                return K
+    cvals[2] = 0.0
+    return K - 1
 
 
 @numba.njit(cache=True, inline="always")
@@ -987,6 +1052,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     E = flat[:n_e].reshape(e_shape) if flat is not None and flat.dtype == np.float32 and flat.size >= n_e \
         else np.empty(e_shape, np.float32)
     ratio = np.ones((F, K)) if ratio is None else np.ascontiguousarray(ratio, dtype=np.float64)
+    ND = np.empty((Nv if fold and K == 3 else 1, Nu), np.uint8)      # _nodata_runs per face
     for k, face in enumerate(grid.faces):
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
@@ -1001,13 +1067,14 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
-                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd)
+                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd, ND)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
                                    float(extrapolate_views), ratio[k], out, ok,
-                                   _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd)
+                                   _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd,
+                                   ND)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,

@@ -743,8 +743,9 @@ def test_warp_folds_the_confidences(rng, extrapolate, directions):
     = the warp's 0 / 1 x clip(warped W, 0, 1) x (warped "no data" indicator == 0) x frame 1's
     clip(W0, 0, 1) x (W0 > 0), within one unit of 1 / 65535 of the formula (its rounding, and
     fast-math contraction) — with and without the indicator, with W0 alone, with rays
-    extrapolated by Eq. 6; 80 directions: more than one of the blend's chunks
-    (warp._CHUNK = 64), the second one partial."""
+    extrapolated by Eq. 6, with samples without data scattered or in a block (whose
+    directions far from it blend as without the indicator: warp._nodata_runs); 80 directions:
+    more than one of the blend's chunks (warp._CHUNK = 64), the second one partial."""
     from polycam.motion import _warp_source
     from polycam.warp import _CHUNK, _warp_into
 
@@ -753,12 +754,14 @@ def test_warp_folds_the_confidences(rng, extrapolate, directions):
     L1 = rng.random(grid.shape).astype(np.float32)
     W1_full = rng.uniform(0.1, 1.3, grid.shape).astype(np.float32)   # no samples without data
     W1 = np.where(rng.random(grid.shape) < 0.002, -0.1, W1_full).astype(np.float32)
+    W1_cols = W1_full.copy()                              # no data in a block of directions:
+    W1_cols[..., 3:9, :2] = 0.0                           # runs of all-zero "no data" channels
     W0 = rng.uniform(-0.2, 1.3, grid.shape).astype(np.float32)
     factor0 = np.clip(W0, 0, 1) * (W0 > 0)
     M = T_from_rt(np.array([0.004, -0.003, 0.002, 0.012, -0.02, 0.015]))
     rho = np.full((grid.shape[0],) + grid.shape[3:], 0.5) if extrapolate else None
     kw = dict(rho=rho, extrapolate_views=2.0) if extrapolate else {}
-    for W, with_w0, K in ((W1, True, 3), (W1, False, 3), (W1_full, True, 2), (None, True, 1)):
+    for W, with_w0, K in ((W1, True, 3), (W1, False, 3), (W1_cols, True, 3), (W1_full, True, 2), (None, True, 1)):
         src, k, units = _warp_source(L1, W)
         assert k == K
         out = np.empty((K,) + grid.shape, np.float32)
