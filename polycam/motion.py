@@ -291,7 +291,7 @@ def ray_to_rig_jacobian(M: np.ndarray, H: np.ndarray | None = None) -> np.ndarra
 
 
 def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None, L_other: np.ndarray | None = None,
-                 W_other: np.ndarray | None = None) -> tuple[np.ndarray, int, np.ndarray]:
+                 W_other: np.ndarray | None = None) -> tuple[np.ndarray, int, np.ndarray, np.ndarray | None]:
     """Channels warped together, (F, Nv, Nu, M) int16 (:func:`~polycam.warp._views_inner`
     layout; scaled warp, :func:`~polycam.warp._warp_into`): L, and with a confidence W also W
     and, where W has samples without data (W <= 0), the "no data" indicator W <= 0, which
@@ -302,7 +302,9 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None, L
     per face: max |channel| / 32767 (1 for an all-zero channel; for L the maximum over L and
     ``L_other`` too, the other frame of the pair, which the derivatives read rounded to the
     same units), 1 / 32767 for the indicator. L's maxima leave out the samples whose confidence
-    (W, ``W_other``) is <= 0: they are never used and must not change the rest (they are clipped)."""
+    (W, ``W_other``) is <= 0: they are never used and must not change the rest (they are clipped).
+    Last, with K = 3 the directions with samples without data in some view, (F, Nv, Nu) uint8
+    (:func:`~polycam.warp._warp_into`'s ``nodata``), else None."""
     F, Ny, Nx, Nv, Nu = L.shape
     flat = (F, Ny * Nx, Nv, Nu)
     L = np.ascontiguousarray(L, dtype=np.float32).reshape(flat)
@@ -320,8 +322,9 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None, L
     shape = (F, Nv, Nu, _padded(channels * Ny * Nx))
     out = np.empty(shape, np.int16) if name is None else _work_array(name, shape, np.int16)
     inv = np.float32(1.0) / units.astype(np.float32)      # as derivatives._on_grid's (float32 division)
-    _views_inner_lw_kernel(L, W, channels, inv, out)
-    return out, channels, units[:, :channels]
+    nodata = np.empty((F, Nv, Nu) if channels == 3 else (1, 1, 1), np.uint8)
+    _views_inner_lw_kernel(L, W, channels, inv, out, nodata)
+    return out, channels, units[:, :channels], nodata if channels == 3 else None
 
 
 _RHO_SETTLED = 0.05
@@ -441,10 +444,10 @@ class _Solver:
         # the warp sources are int16 in units (F, K) per face and channel (warp._warp_into's
         # scaled warp: the warped frames are float32), L's common to both frames: the fused
         # kernel reads frame 1 rounded to them (l0g), so equal samples give L_t = 0 exactly
-        self.src1, self.K1, self.units1 = _warp_source(lev.L1, lev.W1, "src1", lev.L0, lev.W0)
+        self.src1, self.K1, self.units1, self.nodata1 = _warp_source(lev.L1, lev.W1, "src1", lev.L0, lev.W0)
         self.l0g = self.units1[:, 0].astype(np.float32)
-        self.src0, self.K0, self.units0 = _warp_source(lev.L0, lev.W0, None, lev.L1, lev.W1) if opts.symmetric \
-            else (None, 0, None)
+        self.src0, self.K0, self.units0, _ = _warp_source(lev.L0, lev.W0, None, lev.L1, lev.W1) if opts.symmetric \
+            else (None, 0, None, None)
         # the derivatives are int16 scaled views (polycam.eq5's docstring: a scale per view
         # image and derivative in self.dsc), five in one block of float32 slots. The warp
         # stores only L of frame 2: it folds the warped W and "no data" channels into the
@@ -633,7 +636,8 @@ class _Solver:
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    rho_bar, opts.extrapolate_views, marks=marks,
                    scratch=self.warp_scratch, ratio=self.units1,
-                   confidence_channels=self.K1 if fold else 0, W0=lev.W0 if fold else None)
+                   confidence_channels=self.K1 if fold else 0, W0=lev.W0 if fold else None,
+                   nodata=self.nodata1 if fold else None)
         if not opts.symmetric:
             return lev.L0
         conf = self.conf

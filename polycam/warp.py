@@ -381,17 +381,19 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 
 
 @numba.njit(cache=True, inline="always")
-def _uv_row(srcT, wv, iv, wu, iu, Ur):
+def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes):
     """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m] (srcT float32, or int16
     in its channels' units: :func:`_warp_into`): one direction row of
     the (u, v) part of the warp (6 x 6 taps; stencils (Nu, 6) of :func:`_uv_stencil_row`),
     shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
     and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
-    multiple of 16: no scalar remainder)."""
+    multiple of 16: no scalar remainder). Only the first lanes[u] (Nu,) lanes of direction u
+    are computed (a multiple of 16 too), the others are 0."""
     Nu, M = Ur.shape
     for u in range(Nu):
         o = Ur[u]
         o[:] = 0.0
+        mu = lanes[u]
         for q in range(6):
             wq = wv[u, q]
             if wq == 0.0:
@@ -402,7 +404,7 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur):
                 if w == 0.0:
                     continue
                 s = row[iu[u, r]]
-                for m in range(M):
+                for m in range(mu):
                     o[m] += w * np.float32(s[m])
 
 
@@ -528,14 +530,18 @@ _ND_RUN = 16
 
 
 @numba.njit(cache=True, inline="always")
-def _nodata_runs(Ur, m0, n, nd):
+def _nodata_runs(Ur, m0, n, lanes, nd):
     """nd (Nu,) uint8: 0 where the (u, v)-warped "no data" channel Ur[u, m0:m0 + n] (Ur (Nu, M))
     is 0 in every view (the folded warp blends those directions as with K = 2, the same
     values: :func:`_xy_row`, :func:`_extrapolate_xy_kernel`), else 1; a run of zeros shorter
     than _ND_RUN between ones is set to 1 too, so that the blend's runs of either kind
-    are not too short to vectorise."""
-    Nu = Ur.shape[0]
+    are not too short to vectorise. Directions whose (u, v) warp left the channel out
+    (lanes[u] < M, :func:`_uv_row`) are 0 without a look."""
+    Nu, M = Ur.shape
     for u in range(Nu):
+        if lanes[u] < M:
+            nd[u] = 0
+            continue
         r = Ur[u]
         f = False
         for m in range(m0, m0 + n):
@@ -599,7 +605,7 @@ def _bilinear(Uv, o, dx1, dy1, wx, wy):
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out, ok,
-                      slot, E, edges, fold, W0, has_w0, cq, crnd, ND):
+                      slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S):
     """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
     time: the row's (u, v) stencils (:func:`_uv_stencil_row`; us (Nu,), vs (Nv,) the sample
     values, R (3, 3) the ray rotation in face coordinates, f the focal length) and its
@@ -610,12 +616,16 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     innermost, at their ``slot`` (Ny Nx,) (:func:`_perimeter`), for
     :func:`_extrapolate_xy_kernel` (in srcT's units: ``ratio`` (K,) as :func:`_xy_row`).
     ``fold`` .. ``crnd``: as :func:`_xy_row`. With ``fold`` and K = 3, ND (Nv, Nu) uint8 gets
-    :func:`_nodata_runs` of each row (else a dummy (1, Nu))."""
+    :func:`_nodata_runs` of each row (else a dummy (1, Nu)), and the (u, v) warp leaves the
+    "no data" channel out (it is 0) where no tap of a direction's stencil lies on a
+    direction with samples without data in some view: S (Nv + 1, Nu + 1) int32 counts them
+    (a summed-area table: S[v, u] = their number in rows < v, columns < u)."""
     K = ratio.shape[0]
     _, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
     nxy = Ny * Nx
     nodata = fold and K == 3
+    m2 = min(-(-2 * nxy // 16) * 16, M)           # the lanes of L and W (padded as _padded)
     dens = _lagrange_dens(Nv, Nu, taps)
     chunks = min(Nv, 32)
     for c in numba.prange(chunks):
@@ -625,9 +635,23 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
         wu = np.empty((Nu, 6))
         iv = np.empty((Nu, 6), np.int64)
         iu = np.empty((Nu, 6), np.int64)
+        lanes = np.full(Nu, M, np.int64)
         for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
             _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
-            _uv_row(srcT, wv, iv, wu, iu, Ur)
+            if nodata:
+                for u in range(Nu):
+                    v0 = min(iv[u, 0], iv[u, 5])
+                    v1 = max(iv[u, 0], iv[u, 5])
+                    u0 = min(iu[u, 0], iu[u, 5])
+                    u1 = max(iu[u, 0], iu[u, 5])
+                    for q in range(1, 5):
+                        v0 = min(v0, iv[u, q])
+                        v1 = max(v1, iv[u, q])
+                        u0 = min(u0, iu[u, q])
+                        u1 = max(u1, iu[u, q])
+                    n_nd = S[v1 + 1, u1 + 1] - S[v0, u1 + 1] - S[v1 + 1, u0] + S[v0, u0]
+                    lanes[u] = M if n_nd > 0 else m2
+            _uv_row(srcT, wv, iv, wu, iu, Ur, lanes)
             if edges:
                 for k in range(K):
                     for view in range(nxy):
@@ -638,7 +662,7 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
                         for u in range(Nu):
                             row[u] = Ur[u, k * nxy + view]
             if nodata:
-                _nodata_runs(Ur, 2 * nxy, nxy, ND[jv])
+                _nodata_runs(Ur, 2 * nxy, nxy, lanes, ND[jv])
             _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
                     cq, crnd, ND[jv if nodata else 0])
 
@@ -895,11 +919,12 @@ def _views_inner_kernel(a, out):
 
 
 @numba.njit(parallel=True, cache=True)
-def _views_inner_lw_kernel(L, W, channels, inv, out):
+def _views_inner_lw_kernel(L, W, channels, inv, out, nodata):
     """:func:`_views_inner_kernel` of the first ``channels`` (1, 2 or 3) of L, W and the "no
     data" indicator W <= 0 (1 / 0) from L, W (F, Ny Nx, Nv, Nu): no stacked copy. Channel k
     of face f is multiplied by inv[f, k] (F, 3) float32 and stored by :func:`_store` (out
-    float32 or int16)."""
+    float32 or int16). With 3 channels ``nodata`` (F, Nv, Nu) uint8 gets 1 where some view
+    has a sample without data, else 0 (:func:`_warp_into`'s ``nodata``)."""
     F, V, Nv, Nu = L.shape
     M = channels * V
     Mp = out.shape[3]
@@ -912,10 +937,13 @@ def _views_inner_lw_kernel(L, W, channels, inv, out):
             _put_views(o, W, f, v, V, inv[f, 1])
         if channels > 2:
             one = inv[f, 2]
+            nd = nodata[f, v]
+            nd[:] = 0
             for m in range(V):
                 row = W[f, m, v]
                 for u in range(Nu):
                     _store(o, (u, 2 * V + m), one if row[u] <= 0.0 else np.float32(0.0))
+                    nd[u] |= row[u] <= 0.0
         for u in range(Nu):
             o[u, M:Mp] = 0
 
@@ -1010,7 +1038,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                extrapolate_views: float = 0.0,
                marks: np.ndarray | None = None, scratch: np.ndarray | None = None,
                ratio: np.ndarray | None = None, confidence_channels: int = 0,
-               W0: np.ndarray | None = None) -> None:
+               W0: np.ndarray | None = None, nodata: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
@@ -1029,7 +1057,10 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     "no data" indicator, :func:`~polycam.motion._warp_source`): out holds only L (its first
     channel), and ok (uint16 only) gets the confidence of each warped ray instead of 1, times that of
     the unwarped frame's ``W0`` (F, Ny, Nx, Nv, Nu) if given (:func:`_folded_confidence`: what
-    :func:`_apply_warped_confidence` does, in the same pass, without storing the warped W)."""
+    :func:`_apply_warped_confidence` does, in the same pass, without storing the warped W).
+    With K = 3, ``nodata`` (F, Nv, Nu) uint8 (:func:`~polycam.motion._warp_source`; None:
+    from srcT) is nonzero where some view has a sample without data: the (u, v) warp
+    leaves the indicator out where no stencil tap touches one (it is 0 there)."""
     _, F, Ny, Nx, Nv, Nu = out.shape
     fold = confidence_channels > 0
     if fold and ok.dtype != np.uint16:
@@ -1053,7 +1084,13 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         else np.empty(e_shape, np.float32)
     ratio = np.ones((F, K)) if ratio is None else np.ascontiguousarray(ratio, dtype=np.float64)
     ND = np.empty((Nv if fold and K == 3 else 1, Nu), np.uint8)      # _nodata_runs per face
+    S = np.zeros((Nv + 1, Nu + 1) if fold and K == 3 else (1, 1), np.int32)
+    if fold and K == 3 and nodata is None:
+        nxy = Ny * Nx
+        nodata = (srcT[..., 2 * nxy:3 * nxy] != 0).any(axis=-1)
     for k, face in enumerate(grid.faces):
+        if fold and K == 3:                      # the summed-area table of face k's nodata
+            np.cumsum(np.cumsum(nodata[k] != 0, axis=0, dtype=np.int32), axis=1, out=S[1:, 1:])
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
         G = T_inverse(Tk) @ T_ray @ Tk          # the ray motion in face coordinates
@@ -1067,7 +1104,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
-                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd, ND)
+                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd, ND, S)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0

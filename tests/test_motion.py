@@ -333,7 +333,7 @@ def test_warp_source_is_int16_within_half_a_unit(scene):
     rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
     L0[1] *= 3.0                                      # frame 1 sets the second face's units
-    src, K, units = pm._warp_source(L1, None, None, L0)
+    src, K, units, _ = pm._warp_source(L1, None, None, L0)
     assert src.dtype == np.int16 and K == 1 and units.shape == (2, 1)
     expected = np.maximum(np.abs(L0).max(axis=(1, 2, 3, 4)), np.abs(L1).max(axis=(1, 2, 3, 4))) / 32767
     assert np.allclose(units[:, 0], expected, rtol=1e-6)
@@ -744,7 +744,9 @@ def test_warp_folds_the_confidences(rng, extrapolate, directions):
     clip(W0, 0, 1) x (W0 > 0), within one unit of 1 / 65535 of the formula (its rounding, and
     fast-math contraction) — with and without the indicator, with W0 alone, with rays
     extrapolated by Eq. 6, with samples without data scattered or in a block (whose
-    directions far from it blend as without the indicator: warp._nodata_runs); 80 directions:
+    directions far from it blend as without the indicator: warp._nodata_runs; the (u, v)
+    warp leaves it out where no tap touches a direction with such samples, as given by
+    _warp_source or found by the warp itself); 80 directions:
     more than one of the blend's chunks (warp._CHUNK = 64), the second one partial."""
     from polycam.motion import _warp_source
     from polycam.warp import _CHUNK, _warp_into
@@ -762,8 +764,12 @@ def test_warp_folds_the_confidences(rng, extrapolate, directions):
     rho = np.full((grid.shape[0],) + grid.shape[3:], 0.5) if extrapolate else None
     kw = dict(rho=rho, extrapolate_views=2.0) if extrapolate else {}
     for W, with_w0, K in ((W1, True, 3), (W1, False, 3), (W1_cols, True, 3), (W1_full, True, 2), (None, True, 1)):
-        src, k, units = _warp_source(L1, W)
+        src, k, units, nodata = _warp_source(L1, W)
         assert k == K
+        if K == 3:          # the directions with samples without data in some view
+            assert np.array_equal(nodata, np.any(W <= 0, axis=(1, 2)))
+        else:
+            assert nodata is None
         out = np.empty((K,) + grid.shape, np.float32)
         ok = np.empty(grid.shape, np.float32)
         _warp_into(src, grid, M, 6, out, ok, ratio=units, **kw)
@@ -772,13 +778,14 @@ def test_warp_folds_the_confidences(rng, extrapolate, directions):
             expected *= np.clip(out[1], 0, 1) * ((np.abs(out[2]) < 1e-6) if K == 3 else 1.0)
         if with_w0:
             expected *= factor0
-        L = np.empty((1,) + grid.shape, np.float32)
-        conf = np.empty(grid.shape, np.uint16)
-        _warp_into(src, grid, M, 6, L, conf, ratio=units, confidence_channels=K,
-                   W0=W0 if with_w0 else None, **kw)
-        assert np.array_equal(L[0], out[0])
-        assert np.all(np.abs(conf - expected * 65535) <= 1.0 + 1e-3)
-        assert (conf > 0).sum() > 0.2 * conf.size and np.any((ok > 0) & (conf == 0))
+        for nd in (nodata, None) if K == 3 else (None,):        # None: the warp finds it
+            L = np.empty((1,) + grid.shape, np.float32)
+            conf = np.empty(grid.shape, np.uint16)
+            _warp_into(src, grid, M, 6, L, conf, ratio=units, confidence_channels=K,
+                       W0=W0 if with_w0 else None, nodata=nd, **kw)
+            assert np.array_equal(L[0], out[0])
+            assert np.all(np.abs(conf - expected * 65535) <= 1.0 + 1e-3)
+            assert (conf > 0).sum() > 0.2 * conf.size and np.any((ok > 0) & (conf == 0))
 
 
 @pytest.mark.parametrize("n", [1, 5, 50_000])
