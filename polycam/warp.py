@@ -421,14 +421,17 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
     K = len(ratio) channels; with ``fold`` out holds channel 0 only and the others (a
     confidence W, and a "no data" indicator with K = 3) are folded into ok[face] (uint16)
     with the unwarped frame's ``W0`` (F, Ny, Nx, Nv, Nu, if ``has_w0``) by
-    :func:`_folded_confidence` (``cq``, ``crnd``: its q, rnd, :func:`_confidence_units`).
+    :func:`_folded_confidence` (``cq``, ``crnd``: its q, rnd, :func:`_confidence_units`);
+    ``nd_row`` (Nu,) uint8 with K = 3: :func:`_nodata_runs` of the row (0: the indicator is 0
+    in every view, so those directions blend as with K = 2).
 
     The blend loops are scalar: their stores to ``out`` keep LLVM from vectorising them
     (:func:`_stack_buffer`), and scalar loads are faster than gathers here for one channel
     (measured: vectorised through a stack buffer, the one-channel warp took 6.4 ms against
     5.6 ms, 9 x 9 views x 128 x 128 directions, 2 cores). With two or three folded channels
     the position, weights and confidence arithmetic per ray outweighs that: those blend a
-    chunk of _CHUNK directions into stack buffers (vectorised, gathers), then store it
+    run of at most _CHUNK directions (of one ``nd_row`` value) into stack buffers
+    (vectorised, gathers), then store it
     (10.0 -> 7.5 ms the warp with W and W0; the same values, bit for bit)."""
     K = ratio.shape[0]
     _, _, Ny, Nx = out.shape[:4]
