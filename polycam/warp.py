@@ -939,14 +939,23 @@ def _views_inner_lw_kernel(L, W, channels, inv, out, nodata):
         if channels > 1:
             _put_views(o, W, f, v, V, inv[f, 1])
         if channels > 2:
+            # the indicator: a direction without such samples in any view gets a contiguous
+            # row of zeros, the others their views one by one
             one = inv[f, 2]
             nd = nodata[f, v]
             nd[:] = 0
             for m in range(V):
                 row = W[f, m, v]
                 for u in range(Nu):
-                    _store(o, (u, 2 * V + m), one if row[u] <= 0.0 else np.float32(0.0))
                     nd[u] |= row[u] <= 0.0
+            for u in range(Nu):
+                ou = o[u]
+                if nd[u] == 0:
+                    for m in range(2 * V, 3 * V):
+                        ou[m] = 0
+                else:
+                    for m in range(V):
+                        _store(ou, 2 * V + m, one if W[f, m, v, u] <= 0.0 else np.float32(0.0))
         for u in range(Nu):
             o[u, M:Mp] = 0
 

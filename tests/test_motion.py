@@ -766,7 +766,11 @@ def test_warp_folds_the_confidences(rng, extrapolate, directions):
     for W, with_w0, K in ((W1, True, 3), (W1, False, 3), (W1_cols, True, 3), (W1_full, True, 2), (None, True, 1)):
         src, k, units, nodata = _warp_source(L1, W)
         assert k == K
-        if K == 3:          # the directions with samples without data in some view
+        if K == 3:          # the indicator (1 = 32767 units) and the directions with it in some view
+            F, Ny, Nx, Nv, Nu = grid.shape
+            V = Ny * Nx
+            indicator = np.moveaxis((W <= 0).reshape(F, V, Nv, Nu), 1, -1) * 32767
+            assert np.array_equal(src[..., 2 * V:3 * V], indicator)
             assert np.array_equal(nodata, np.any(W <= 0, axis=(1, 2)))
         else:
             assert nodata is None
