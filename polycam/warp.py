@@ -627,7 +627,7 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     _, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
     nxy = Ny * Nx
-    nodata = fold and K == 3
+    has_nd = fold and K == 3
     m2 = min(-(-2 * nxy // 16) * 16, M)           # the lanes of L and W (padded as _padded)
     dens = _lagrange_dens(Nv, Nu, taps)
     chunks = min(Nv, 32)
@@ -641,13 +641,11 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
         lanes = np.full(Nu, M, np.int64)
         for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
             _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
-            if nodata:
-                for u in range(Nu):
-                    v0 = min(iv[u, 0], iv[u, 5])
-                    v1 = max(iv[u, 0], iv[u, 5])
-                    u0 = min(iu[u, 0], iu[u, 5])
-                    u1 = max(iu[u, 0], iu[u, 5])
-                    for q in range(1, 5):
+            if has_nd:
+                for u in range(Nu):                  # the stencil's box of taps
+                    v0 = v1 = iv[u, 0]
+                    u0 = u1 = iu[u, 0]
+                    for q in range(1, 6):
                         v0 = min(v0, iv[u, q])
                         v1 = max(v1, iv[u, q])
                         u0 = min(u0, iu[u, q])
@@ -664,10 +662,10 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
                         row = E[jv, k, p]
                         for u in range(Nu):
                             row[u] = Ur[u, k * nxy + view]
-            if nodata:
+            if has_nd:
                 _nodata_runs(Ur, 2 * nxy, nxy, lanes, ND[jv])
             _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
-                    cq, crnd, ND[jv if nodata else 0])
+                    cq, crnd, ND[jv if has_nd else 0])
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
@@ -705,7 +703,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     left at 0 where ND (Nv, Nu) (:func:`_warp_rows_kernel`) is 0 at every node: it is 0
     there."""
     K = ratio.shape[0]
-    nodata = fold and K == 3
+    has_nd = fold and K == 3
     _, _, Ny, Nx = out.shape[:4]
     Nv, _, P, Nu = E.shape
     Ef = E.reshape(E.size)
@@ -758,7 +756,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 continue
                         elif not okr[ou]:
                             continue
-                        for k in range(_channels(K, nodata, ND, vals, ov, ou, 1, tu)):
+                        for k in range(_channels(K, has_nd, ND, vals, ov, ou, 1, tu)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             if tu == 4:
@@ -772,7 +770,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                     elif tu == 1:                        # along v only
                         if not (ok_uv[ov, ou] and ok_uv[ov + 1, ou] and ok_uv[ov + 2, ou] and ok_uv[ov + 3, ou]):
                             continue
-                        for k in range(_channels(K, nodata, ND, vals, ov, ou, 4, 1)):
+                        for k in range(_channels(K, has_nd, ND, vals, ov, ou, 4, 1)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), ratio[k] * (
@@ -787,7 +785,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 good = good and ok_uv[ov + q, ou + t]
                         if not good:
                             continue
-                        for k in range(_channels(K, nodata, ND, vals, ov, ou, 4, 4)):
+                        for k in range(_channels(K, has_nd, ND, vals, ov, ou, 4, 4)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             val = 0.0
@@ -806,12 +804,12 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
 
 
 @numba.njit(cache=True, inline="always")
-def _channels(K, nodata, ND, cvals, ov, ou, nv, nu):
+def _channels(K, has_nd, ND, cvals, ov, ou, nv, nu):
     """How many of the K channels :func:`_extrapolate_xy_kernel` computes for a ray whose
-    nodes are ND[ov:ov + nv, ou:ou + nu]: K - 1 with ``nodata`` (the folded "no data"
+    nodes are ND[ov:ov + nv, ou:ou + nu]: K - 1 with ``has_nd`` (the folded "no data"
     channel, K = 3) when ND is 0 at all of them, and then that channel's cvals[2] = 0 (its
     value), else K."""
-    if not nodata:
+    if not has_nd:
         return K
     for q in range(nv):
         for t in range(nu):
@@ -1095,13 +1093,14 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     E = flat[:n_e].reshape(e_shape) if flat is not None and flat.dtype == np.float32 and flat.size >= n_e \
         else np.empty(e_shape, np.float32)
     ratio = np.ones((F, K)) if ratio is None else np.ascontiguousarray(ratio, dtype=np.float64)
-    ND = np.empty((Nv if fold and K == 3 else 1, Nu), np.uint8)      # _nodata_runs per face
-    S = np.zeros((Nv + 1, Nu + 1) if fold and K == 3 else (1, 1), np.int32)
-    if fold and K == 3 and nodata is None:
+    has_nd = fold and K == 3                     # the folded "no data" channel
+    ND = np.empty((Nv if has_nd else 1, Nu), np.uint8)      # _nodata_runs per face
+    S = np.zeros((Nv + 1, Nu + 1) if has_nd else (1, 1), np.int32)
+    if has_nd and nodata is None:
         nxy = Ny * Nx
         nodata = (srcT[..., 2 * nxy:3 * nxy] != 0).any(axis=-1)
     for k, face in enumerate(grid.faces):
-        if fold and K == 3:                      # the summed-area table of face k's nodata
+        if has_nd:                               # the summed-area table of face k's nodata
             np.cumsum(np.cumsum(nodata[k] != 0, axis=0, dtype=np.int32), axis=1, out=S[1:, 1:])
         Rk = np.asarray(face.R_rig_face, float)
         Tk = T_from_Rt(Rk, np.zeros(3))
