@@ -381,19 +381,19 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 
 
 @numba.njit(cache=True, inline="always")
-def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes):
+def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes):
     """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m] (srcT float32, or int16
     in its channels' units: :func:`_warp_into`): one direction row of
     the (u, v) part of the warp (6 x 6 taps; stencils (Nu, 6) of :func:`_uv_stencil_row`),
     shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
     and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
-    multiple of 16: no scalar remainder). Only the first lanes[u] (Nu,) lanes of direction u
-    are computed (a multiple of 16 too), the others are 0."""
+    multiple of 16: no scalar remainder). With ``has_lanes`` only the first lanes[u] (Nu,)
+    lanes of direction u are computed (a multiple of 16 too), the others are 0."""
     Nu, M = Ur.shape
     for u in range(Nu):
         o = Ur[u]
         o[:] = 0.0
-        mu = lanes[u]
+        mu = lanes[u] if has_lanes else M
         for q in range(6):
             wq = wv[u, q]
             if wq == 0.0:
@@ -638,7 +638,7 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
         wu = np.empty((Nu, 6))
         iv = np.empty((Nu, 6), np.int64)
         iu = np.empty((Nu, 6), np.int64)
-        lanes = np.full(Nu, M, np.int64)
+        lanes = np.full(Nu if has_nd else 1, M, np.int64)     # (one allocation less without)
         for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
             _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
             if has_nd:
@@ -652,7 +652,7 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
                         u1 = max(u1, iu[u, q])
                     n_nd = S[v1 + 1, u1 + 1] - S[v0, u1 + 1] - S[v1 + 1, u0] + S[v0, u0]
                     lanes[u] = M if n_nd > 0 else m2
-            _uv_row(srcT, wv, iv, wu, iu, Ur, lanes)
+            _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_nd)
             if edges:
                 for k in range(K):
                     for view in range(nxy):
