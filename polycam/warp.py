@@ -632,40 +632,54 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     dens = _lagrange_dens(Nv, Nu, taps)
     chunks = min(Nv, 32)
     for c in numba.prange(chunks):
-        Ur = np.empty((Nu, M), np.float32)
-        Uv = Ur.reshape(Nu * M)
-        wv = np.empty((Nu, 6))
-        wu = np.empty((Nu, 6))
-        iv = np.empty((Nu, 6), np.int64)
-        iu = np.empty((Nu, 6), np.int64)
-        lanes = np.full(Nu if has_nd else 1, M, np.int64)     # (one allocation less without)
-        for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
-            _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
-            if has_nd:
-                for u in range(Nu):                  # the stencil's box of taps
-                    v0 = v1 = iv[u, 0]
-                    u0 = u1 = iu[u, 0]
-                    for q in range(1, 6):
-                        v0 = min(v0, iv[u, q])
-                        v1 = max(v1, iv[u, q])
-                        u0 = min(u0, iu[u, q])
-                        u1 = max(u1, iu[u, q])
-                    n_nd = S[v1 + 1, u1 + 1] - S[v0, u1 + 1] - S[v1 + 1, u0] + S[v0, u0]
-                    lanes[u] = M if n_nd > 0 else m2
-            _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_nd)
-            if edges:
-                for k in range(K):
-                    for view in range(nxy):
-                        p = slot[view]
-                        if p < 0:
-                            continue
-                        row = E[jv, k, p]
-                        for u in range(Nu):
-                            row[u] = Ur[u, k * nxy + view]
-            if has_nd:
-                _nodata_runs(Ur, 2 * nxy, nxy, lanes, ND[jv])
-            _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
-                    cq, crnd, ND[jv if has_nd else 0])
+        # (the int64 cast: one specialisation of the worker, not an int64 and a uint64 one)
+        _warp_rows_chunk(np.int64(c), chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
+                         face, ratio, out, ok, slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, dens, m2, has_nd)
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH)
+def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out,
+                     ok, slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, dens, m2, has_nd):
+    """Chunk c of ``chunks`` of :func:`_warp_rows_kernel`'s direction rows (serial: the
+    parallel kernel only distributes the chunks, which keeps its compilation short)."""
+    K = ratio.shape[0]
+    _, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = srcT.shape
+    nxy = Ny * Nx
+    Ur = np.empty((Nu, M), np.float32)
+    Uv = Ur.reshape(Nu * M)
+    wv = np.empty((Nu, 6))
+    wu = np.empty((Nu, 6))
+    iv = np.empty((Nu, 6), np.int64)
+    iu = np.empty((Nu, 6), np.int64)
+    lanes = np.full(Nu if has_nd else 1, M, np.int64)     # (one allocation less without)
+    for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
+        _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
+        if has_nd:
+            for u in range(Nu):                  # the stencil's box of taps
+                v0 = v1 = iv[u, 0]
+                u0 = u1 = iu[u, 0]
+                for q in range(1, 6):
+                    v0 = min(v0, iv[u, q])
+                    v1 = max(v1, iv[u, q])
+                    u0 = min(u0, iu[u, q])
+                    u1 = max(u1, iu[u, q])
+                n_nd = S[v1 + 1, u1 + 1] - S[v0, u1 + 1] - S[v1 + 1, u0] + S[v0, u0]
+                lanes[u] = M if n_nd > 0 else m2
+        _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_nd)
+        if edges:
+            for k in range(K):
+                for view in range(nxy):
+                    p = slot[view]
+                    if p < 0:
+                        continue
+                    row = E[jv, k, p]
+                    for u in range(Nu):
+                        row[u] = Ur[u, k * nxy + view]
+        if has_nd:
+            _nodata_runs(Ur, 2 * nxy, nxy, lanes, ND[jv])
+        _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
+                cq, crnd, ND[jv if has_nd else 0])
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
