@@ -511,6 +511,35 @@ def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind,
     st[3] += tex
 
 
+
+_ACCUMULATE_LOADED: set = set()
+
+
+def _load_accumulate_view(Lx: np.ndarray, dsc: np.ndarray, base: np.ndarray, vals: list, zs: np.ndarray,
+                          fs: np.ndarray, P: np.ndarray, tile: int, box: np.ndarray, h: np.ndarray,
+                          var: np.ndarray, final: bool) -> None:
+    """Load :func:`_accumulate_view`'s own compiled code for the argument types that
+    :func:`_pass_kernel` and :func:`_prepare_kernel` give it (Lx and its siblings, dsc, base:
+    the kernels' work arrays; vals: the grid's x, y, u, v values; once per process and types),
+    before those kernels first run. numba links a copy of a called function into the
+    caller's code and keeps the function's own code too, and a call reaches whichever the
+    process loaded first: the function's own when the caller was compiled in this process,
+    the caller's copy when the caller came from numba's disk cache. The two were optimised
+    apart and can round float32 sums in another order, so a first run after an install or a
+    source change gave other last digits than later runs (docs/motion.md, sessions 16–17).
+    Loaded first, the function's own code is the one every run reaches. The call sums no
+    ray (an empty row range)."""
+    key = tuple(str(numba.typeof(a)) for a in (Lx, dsc, base, vals[2], vals[3], zs, P, h, var))
+    if key in _ACCUMULATE_LOADED:
+        return
+    v = int(box[4])
+    _accumulate_view(Lx[0, 0, 0], Lx[0, 0, 0], Lx[0, 0, 0], Lx[0, 0, 0], Lx[0, 0, 0], dsc[0, 0, 0], base[0, 0, 0],
+                     vals[0][0], vals[1][0], vals[2], vals[3], zs[0], fs[0], P[0], 0, 0.0, int(tile), v, v,
+                     int(box[6]), int(box[7]), h, var, bool(final), np.zeros((1, 1, _NACC)), np.zeros(_NSTAT),
+                     np.empty((3, 6)), np.empty(5))
+    _ACCUMULATE_LOADED.add(key)
+
+
 @numba.njit(cache=True, inline="always")
 def _box_view(idx, box, ny, nx):
     """(face, y, x) of the view with flat index idx over the faces x the box's (ny, nx) views
@@ -890,9 +919,11 @@ def _accumulate(der, base: np.ndarray, has_base: bool, grid: LightFieldGrid, P: 
     zs = np.array([face.z_pi for face in grid.faces], float)
     fs = np.array([face.f for face in grid.faces], float)
     if nv_ and box[5] > box[4] and box[7] > box[6]:
-        _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, _unit_scales(der.Lx.shape), base, has_base, *vals, zs, fs,
-                     np.ascontiguousarray(P, dtype=np.float64), kind, float(inv_sc), int(tile), box,
-                     _view_origin(Ny, Nx), h, var, final, acc, st, parallel_chunks())
+        P = np.ascontiguousarray(P, dtype=np.float64)
+        dsc = _unit_scales(der.Lx.shape)
+        _load_accumulate_view(der.Lx, dsc, base, vals, zs, fs, P, int(tile), box, h, var, final)
+        _pass_kernel(der.Lx, der.Ly, der.Lu, der.Lv, der.Lt, dsc, base, has_base, *vals, zs, fs, P, kind,
+                     float(inv_sc), int(tile), box, _view_origin(Ny, Nx), h, var, final, acc, st, parallel_chunks())
     else:
         acc[:] = 0.0
         st[:] = 0.0

@@ -134,8 +134,8 @@ import numpy as np
 
 from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
-                  _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights, _unpack_sym, _view_origin,
-                  _weighted_median, depth_rho, ray_motion_coefficients)
+                  _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights,
+                  _unpack_sym, _view_origin, _weighted_median, depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
@@ -511,6 +511,9 @@ class _Solver:
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
         self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
+        # the kernels' summing function loaded before they run: the same code fresh or cached
+        _load_accumulate_view(self.der[0], self.dsc, self.base, self.vals, self.zs, self.fs, np.zeros((F, 6)),
+                              self.tile, self.box, self.h, np.zeros(4), False)
 
     # --------------------------------------------------------------- passes
 

@@ -1359,3 +1359,51 @@ def test_noise_variance_on_the_cameras_views(rng, n_cams, oversample):
         frames.append(((1 - wx) * rows[:, lo] + wx * rows[:, lo + 1])[None].astype(np.float32))
     var = _noise_variance(_Level(grid, frames[0], frames[1], None, None))
     assert np.sqrt(var) == pytest.approx(sigma, rel=MOTION_NOISE_SIGMA_REL)
+
+
+_CACHE_RUN = '''
+import hashlib
+import numpy as np
+from polycam.eq5 import _accumulate, _accumulate_view, _pass_kernel
+from polycam.synth import default_lightfield_grid
+grid = default_lightfield_grid("+z", directions=64, views=5)
+F, Ny, Nx, Nv, Nu = grid.shape
+rng = np.random.default_rng(5)
+
+class Der:
+    pass
+
+der = Der()
+for name in ("Lx", "Ly", "Lu", "Lv", "Lt"):          # int16 derivatives, as the solver stores them
+    setattr(der, name, rng.integers(-3000, 3000, grid.shape).astype(np.int16))
+base = rng.integers(0, 32767, grid.shape).astype(np.int16)
+box = np.array([1, Ny - 1, 1, Nx - 1, 2, Nv - 2, 2, Nu - 2], np.int64)
+h = np.array([grid.x.step, grid.y.step, grid.u.step, grid.v.step])
+acc, st = _accumulate(der, base, True, grid, rng.normal(0.0, 1e-3, (F, 6)), 1, 50.0, 64, box, h,
+                      np.full(4, 1e-4), False)          # (a row-wide pass: there the two copies differed)
+print(hashlib.md5(acc.tobytes() + st.tobytes()).hexdigest(), sum(_pass_kernel.stats.cache_hits.values()),
+      sum(_pass_kernel.stats.cache_misses.values()))
+'''
+
+
+def test_fresh_and_cached_kernels_give_the_same_sums(tmp_path):
+    """The IRLS pass kernel calls the compiled summing function ``eq5._accumulate_view``;
+    numba links a copy of it into the kernel and keeps its own code too, and a process
+    that compiles the kernel reached the one, a process that loads it from numba's disk
+    cache the other, which round float32 sums differently (docs/motion.md, sessions 16–17).
+    ``eq5._load_accumulate_view`` loads the function first, so a first run after an
+    install gives the same sums, bit for bit, as the runs after it: two processes on one
+    fresh cache directory, the first compiling the kernel, the second loading it."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    runs = [subprocess.run([sys.executable, "-c", _CACHE_RUN], capture_output=True, text=True, cwd=root, env=env,
+                           timeout=600) for _ in range(2)]
+    for r in runs:
+        assert r.returncode == 0, r.stderr
+    (fresh, hits0, misses0), (cached, hits1, misses1) = (r.stdout.split() for r in runs)
+    assert (hits0, misses0, hits1, misses1) == ("0", "1", "1", "0")       # compiled, then loaded
+    assert fresh == cached
