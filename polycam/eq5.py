@@ -511,7 +511,6 @@ def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind,
     st[3] += tex
 
 
-
 _ACCUMULATE_LOADED: set = set()
 
 
@@ -519,16 +518,17 @@ def _load_accumulate_view(Lx: np.ndarray, dsc: np.ndarray, base: np.ndarray, val
                           fs: np.ndarray, P: np.ndarray, tile: int, box: np.ndarray, h: np.ndarray,
                           var: np.ndarray, final: bool) -> None:
     """Load :func:`_accumulate_view`'s own compiled code for the argument types that
-    :func:`_pass_kernel` and :func:`_prepare_kernel` give it (Lx and its siblings, dsc, base:
-    the kernels' work arrays; vals: the grid's x, y, u, v values; once per process and types),
-    before those kernels first run. numba links a copy of a called function into the
+    :func:`_pass_kernel` gives it (Lx and its siblings, dsc, base: the kernel's work arrays;
+    vals: the grid's x, y, u, v values; once per process and types), before the kernel
+    first runs. numba links a copy of a called function into the
     caller's code and keeps the function's own code too, and a call reaches whichever the
     process loaded first: the function's own when the caller was compiled in this process,
     the caller's copy when the caller came from numba's disk cache. The two were optimised
     apart and can round float32 sums in another order, so a first run after an install or a
     source change gave other last digits than later runs (docs/motion.md, sessions 16–17).
     Loaded first, the function's own code is the one every run reaches. The call sums no
-    ray (an empty row range)."""
+    ray (an empty row range). (:func:`_prepare_kernel` calls the function with other
+    argument types, constants among them; its estimates were the same fresh and cached.)"""
     key = tuple(str(numba.typeof(a)) for a in (Lx, dsc, base, vals[2], vals[3], zs, P, h, var))
     if key in _ACCUMULATE_LOADED:
         return

@@ -1364,7 +1364,7 @@ def test_noise_variance_on_the_cameras_views(rng, n_cams, oversample):
 _CACHE_RUN = '''
 import hashlib
 import numpy as np
-from polycam.eq5 import _accumulate, _accumulate_view, _pass_kernel
+from polycam.eq5 import _accumulate, _pass_kernel
 from polycam.synth import default_lightfield_grid
 grid = default_lightfield_grid("+z", directions=64, views=5)
 F, Ny, Nx, Nv, Nu = grid.shape
