@@ -187,7 +187,10 @@ def test_cli_from_colmap(tmp_path):
 
 
 def _moving_rig_session(tmp_path):
-    """A rendered 2x2 rig (cameras 6 cm apart, perturbed) moving through a room, 8 frames."""
+    """A rendered 2x2 rig (cameras 6 cm apart, perturbed) moving through a room, 8 frames
+    (3 cm and 1 degree per frame: with 5 cm and 2 degrees COLMAP's incremental mapping was
+    marginal here, 2 of 8 frames registered with one seed in 18 runs on a loaded machine, and
+    with all three seeds of the retry test in one CI run; 18 of 18 mapped whole now)."""
     from polycam.session import open_session
     from polycam.synth import synth_session
 
@@ -207,8 +210,8 @@ scene = "room"
 motion = "smooth"
 seed = 3
 distance = 3.0
-step_t = 0.05
-step_r_deg = 2.0
+step_t = 0.03
+step_r_deg = 1.0
 """)
     rig = load_rig(p)
     out = synth_session(rig, tmp_path / "s", frames=8, perturb_position_m=0.001, perturb_rotation_deg=0.3,
