@@ -17,7 +17,7 @@ A second table repeats one motion at the middle distance with both frames quanti
 to 8 bits after adding Gaussian noise of 0, 1 and 3 grey levels. ``--supersample k``
 renders the accuracy table with k x k rays per sample (a finer approximation of a pixel's
 area integral; the silhouettes' staircase of k x k point samples is model error the
-translation sees at large D: docs/motion.md).
+translation sees at large D: docs/motion_log.md).
 
 Speed: one face of 9 x 9 views x 128 x 128 directions (1.33 M rays): derivatives of a
 frame pair + one linear solve of Eq. 5, ours (numba kernels) against a numpy / scipy

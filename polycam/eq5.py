@@ -32,7 +32,7 @@ derivative (*scaled views*): value = q × ``dsc[f, j, i, c]``, ``dsc`` (F, ny, n
 float32 over the same views, c = 0..4 for L_x, L_y, L_u, L_v, L_t, the scale =
 max |value| over the view image's rays with base weight > 0, / 32767 (``_quantise_plane``;
 the others are clipped: they are never used): half the memory of float32,
-with a rounding error of at most 1.5e-5 of the view's largest value (docs/motion.md,
+with a rounding error of at most 1.5e-5 of the view's largest value (docs/motion_log.md,
 "Speed"). The kernels that read derivatives take such ``dsc``; float32 derivatives (the
 public :func:`~polycam.motion.solve_ray_motion`, the tests' references) pass unit scales
 (``_unit_scales``): the products are then exact. The solver keeps ρ̂ of the Eq. 6
@@ -525,7 +525,7 @@ def _load_accumulate_view(Lx: np.ndarray, dsc: np.ndarray, base: np.ndarray, val
     process loaded first: the function's own when the caller was compiled in this process,
     the caller's copy when the caller came from numba's disk cache. The two were optimised
     apart and can round float32 sums in another order, so a first run after an install or a
-    source change gave other last digits than later runs (docs/motion.md, sessions 16–17).
+    source change gave other last digits than later runs (docs/motion_log.md, sessions 16–17).
     Loaded first, the function's own code is the one every run reaches. The call sums no
     ray (an empty row range). (:func:`_prepare_kernel` calls the function with other
     argument types, constants among them; its estimates were the same fresh and cached.)"""
@@ -975,7 +975,7 @@ average away; noise-free sphere scene at 8-16 m: 1.1e4-6e5x, 5-95%), while a mis
 dozen to a few hundred times the noise is signal that the measured derivatives carry beyond one
 depth (the noisy one-face 5 x 5 room of tests/test_design.py: 28-310x; replacing it there
 makes the translation columns nearly collinear with the rotation's, condition 11 → 60, and
-the scatter 2.3x). docs/motion.md."""
+the scatter 2.3x). docs/motion_log.md, "Noise"."""
 
 _DEPTH_RHO_KAPPA = 0.0856
 """Variance of ρ̂'s pooled noise, in units of var(L_x) / Σ_window (L_u² + L_v²): Σ (w ⋆ k)² /

@@ -45,7 +45,7 @@ the solver then loses 36% of its rays, whose filter supports need them); at the
 finest level, once ρ̂ below exists, those up to ``extrapolate_views`` steps out are
 extrapolated by Eq. 6 from the edge views instead (``L(x_e + d, u) = L(x_e, u + ρ d)``,
 ρ averaged over the views per direction; ρ̂ itself is then taken from the rays whose
-filter support holds captured samples only; docs/motion.md).
+filter support holds captured samples only; docs/motion_log.md, "Paper Fig. 5c").
 
 Robust weighting
 ----------------
@@ -72,7 +72,7 @@ that is less noisy, or where the views are nearly parallel (the disparity gate: 
 measured ones are aliased there), unless the gate costs information (it raises the normal
 matrix's condition number more than ``depth_gate_cond`` times; then it acts only where the
 misfit is far above the noise) (``MotionOptions.depth_regressors``, default on since
-session 5; the rule: :func:`polycam.eq5.depth_rho`; measured: docs/motion.md).
+session 5; the rule: :func:`polycam.eq5.depth_rho`; measured: docs/motion_log.md, "Noise").
 
 Diagnostics
 -----------
@@ -89,16 +89,15 @@ viewpoints); the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as ``covariance_i
 Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 9 x 9 views 1 cm apart, 64 x 64 directions, 3 x 3 supersampling, |t| = 1.5 cm,
 |ω| = 0.2°; default options, i.e. with the Eq. 6 regressors): median relative error per
-component 0.01–0.06% (t) and 0.02–0.12% (ω) at 4–8 m; 0.7–2% (t) and 0.4–0.6% (ω) at
+component 0.03–0.07% (t) and 0.02–0.14% (ω) at 4–8 m; 0.4–2% (t) and 0.3–0.4% (ω) at
 12–16 m, where the directions are aliased and the translation's signal is weak (the
 paper sees the same growth); against 18–49% / 17–33% for one-shot central-difference
-least squares. With 8-bit frames at 12 m: 0.3% / 0.2% (t / ω) quantised only, 1.2% / 0.3% with 3 grey
+least squares. With 8-bit frames at 12 m: 0.03% / 0.2% (t / ω) quantised only, 0.2% / 0.6% with 3 grey
 levels of noise.
 Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
-figures and history in docs/motion.md): the full default estimate (7 solves over 3 levels)
-takes ~130 ms wall on 2 threads (~97 ms without the extrapolation beyond the views,
-``extrapolate_views=0``; one thread 370 ms CPU time before the session-3 kernel work,
-240 ms before session 5's).
+figures in docs/motion.md, their history in docs/motion_log.md): the full default
+estimate (7 solves over 3 levels) takes ~110–120 ms wall on 2 threads (~20 ms more with
+confidences W).
 Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, then a branch-free blend across views),
 one fused kernel (derivatives, stored as int16 with a scale per view image (eq5's

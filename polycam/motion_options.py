@@ -61,7 +61,7 @@ class MotionOptions:
     whose edge dominates its window): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
     levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+15 ms wall per
-    estimate on 1.33 M rays (docs/motion.md). On by default since session 5 (at least as
+    estimate on 1.33 M rays (docs/motion_log.md). On by default since session 5 (at least as
     accurate as the measured regressors in every benchmark and test, 4x less translation
     error on the paper's Fig. 5c scene at 8-16 m); ``False``: Eq. 5 with the measured
     L_x, L_y everywhere."""
@@ -75,7 +75,7 @@ class MotionOptions:
     noise-free translation error drops 4x at 8-16 m (benchmarks/bench_motion.py). A misfit
     of a few dozen to a few hundred times the noise is signal the measured derivatives carry
     beyond one depth: replacing it there (session 4, without the misfit floor) gave a noisy
-    near room seen by one face of views 1 cm apart 2.3x the translation scatter (docs/motion.md).
+    near room seen by one face of views 1 cm apart 2.3x the translation scatter (docs/motion_log.md).
     0: only where one depth explains the window to within the noise."""
     depth_gate_misfit: float = 1000.0
     """``depth_gate``: where the gate falls back (``depth_gate_cond``, ``depth_gate_z``), it

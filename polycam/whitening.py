@@ -8,7 +8,7 @@ covariance ⊗ₐ K_a K_aᵀ (one banded Cholesky factor per axis, with a ridge
 rows (``_weighted_rows``, built on the row coefficients of :mod:`polycam.eq5`), the
 banded forward substitution along one axis, the whitened tile sums (same layout as
 :func:`polycam.eq5._accumulate`'s) and the whitened noise gain that scales the expected
-noise energy. Measurements: docs/motion.md.
+noise energy. Measurements: docs/motion_log.md, "Noise".
 """
 
 from __future__ import annotations

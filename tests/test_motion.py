@@ -1390,7 +1390,7 @@ def test_fresh_and_cached_kernels_give_the_same_sums(tmp_path):
     """The IRLS pass kernel calls the compiled summing function ``eq5._accumulate_view``;
     numba links a copy of it into the kernel and keeps its own code too, and a process
     that compiles the kernel reached the one, a process that loads it from numba's disk
-    cache the other, which round float32 sums differently (docs/motion.md, sessions 16–17).
+    cache the other, which round float32 sums differently (docs/motion_log.md, sessions 16–17).
     ``eq5._load_accumulate_view`` loads the function first, so a first run after an
     install gives the same sums, bit for bit, as the runs after it: two processes on one
     fresh cache directory, the first compiling the kernel, the second loading it."""
