@@ -114,7 +114,9 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
 
 def cmd_motion(args: argparse.Namespace) -> int:
     from .depth_cli import open_source
+    from .motion_options import changed_options, options_from_strings
 
+    opts = options_from_strings(args.option)          # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step)  # validates before the solver import
     truth_name = src / "groundtruth.tum"
@@ -125,8 +127,12 @@ def cmd_motion(args: argparse.Namespace) -> int:
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
+    changed = changed_options(opts)
+    if changed:
+        print("solver options: " + ", ".join(f"{k}={v}" for k, v in changed.items()))
+    scale_selection = args.scale_selection == "on"
     with _progress(f"motion {src.name}", len(store) - 1) as advance:
-        traj, results = estimate_trajectory(store, progress=advance, scale_selection=args.scale_selection == "on")
+        traj, results = estimate_trajectory(store, progress=advance, options=opts, scale_selection=scale_selection)
     write_tum(args.out, traj)
     failed = [r for r in results if not r]
     print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"
@@ -147,7 +153,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if args.report:
         from .motion_report import write_motion_report
 
-        written = write_motion_report(args.report, results, traj, truth, store.timestamps_ns)
+        written = write_motion_report(args.report, results, traj, truth, store.timestamps_ns, options=opts,
+                                      scale_selection=scale_selection)
         print(f"report in {args.report}: {', '.join(written)}")
     return 0
 
@@ -256,6 +263,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="pre-smooth (u, v) at the scale where the four depth estimates agree (Sect. 4.1), "
                          "capped by the disparity between views: for grids whose views are far apart for "
                          "the scene; about 1.5x the time per pair (default off; docs/end_to_end.md)")
+    pm.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a solver setting (a MotionOptions field; repeatable), e.g. for frames with several "
+                         "grey levels of noise: --option smooth_c=0 --option eiv=true --option whiten=on "
+                         "(docs/motion.md, \"Noise\"); the report's options.toml records them all")
     pm.set_defaults(func=cmd_motion)
 
     pi = sub.add_parser("info", help="summarise a session folder or a light-field store")

@@ -3,16 +3,21 @@
 :class:`MotionOptions` lives here, apart from the solver, so that the modules the solver is
 built from (:mod:`polycam.motion_weights`, :mod:`polycam.pyramid`) can take it without
 importing :mod:`polycam.motion`; it is re-exported there. What the options do:
-docs/motion.md and the docstring of :mod:`polycam.motion`.
+docs/motion.md and the docstring of :mod:`polycam.motion`. :func:`options_from_strings`
+reads them from ``KEY=VALUE`` strings (``polycam motion --option``), :func:`changed_options`
+lists the ones that differ from the defaults.
 """
 
 from __future__ import annotations
 
 import math
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields, replace
 
-__all__ = ["MotionOptions"]
+from .errors import InputError
+
+__all__ = ["MotionOptions", "options_from_strings", "changed_options"]
 
 
 @dataclass(frozen=True)
@@ -151,3 +156,79 @@ class MotionOptions:
             raise ValueError(f"extrapolate_views must be >= 0 and finite, got {self.extrapolate_views}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
+
+
+_TRUE = ("true", "on", "yes", "1")
+_FALSE = ("false", "off", "no", "0")
+
+
+def _default(f) -> object:
+    return f.default_factory() if callable(f.default_factory) else f.default
+
+
+def _parse_value(name: str, default: object, text: str) -> object:
+    """``text`` as the type of the field's ``default`` (ValueError: it is not one)."""
+    if isinstance(default, bool):
+        t = text.strip().lower()
+        if t in _TRUE or t in _FALSE:
+            return t in _TRUE
+        raise ValueError(f"expected true or false, got {text!r}")
+    try:
+        if isinstance(default, int):
+            return int(text)
+        v = float(text) if isinstance(default, float) else None
+    except ValueError:
+        raise ValueError(f"expected {'an integer' if isinstance(default, int) else 'a number'}, got {text!r}") from None
+    if v is not None:
+        if math.isnan(v):
+            raise ValueError("expected a number, got nan")
+        return v
+    if name == "filters":        # a name for all axes, or axis:name pairs
+        if ":" not in text:
+            return text.strip()
+        pairs = [item.split(":", 1) for item in text.split(",")]
+        if any(len(p) != 2 or p[0].strip() not in ("x", "y", "u", "v") for p in pairs):
+            raise ValueError(f"expected a filter name or axis:name pairs (x, y, u, v), got {text!r}")
+        return {k.strip(): v.strip() for k, v in pairs}
+    return text
+
+
+def options_from_strings(items: Sequence[str], base: MotionOptions | None = None) -> MotionOptions:
+    """:class:`MotionOptions` from ``KEY=VALUE`` strings (the CLI's ``--option``), each
+    value read as its field's type: bool ``true``/``false`` (also on/off, yes/no, 1/0),
+    int, float (``inf`` allowed, not ``nan``), str; ``filters`` takes a filter name for all
+    axes (``fs5``) or ``axis:name`` pairs (``x:fs3,y:fs3,u:fs5,v:fs5``). Later items win;
+    the others keep ``base``'s values (default: the defaults).
+    Raises :class:`~polycam.errors.InputError` (one line naming the item) for an unknown
+    key, a value of the wrong type, or options :class:`MotionOptions` rejects."""
+    known = {f.name: f for f in fields(MotionOptions)}
+    kw: dict[str, object] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep:
+            raise InputError(f"--option {item!r}: expected KEY=VALUE")
+        if key not in known:
+            raise InputError(f"--option {key}: not a solver option (one of: {', '.join(known)})")
+        try:
+            kw[key] = _parse_value(key, _default(known[key]), text)
+        except ValueError as e:
+            raise InputError(f"--option {key}: {e}") from None
+    try:
+        opts = replace(base, **kw) if base is not None else MotionOptions(**kw)
+    except ValueError as e:
+        raise InputError(f"--option: {e}") from None
+    if "filters" in kw:                 # the names exist (the filter table's module imports numba)
+        from .derivatives import FILTERS
+
+        f = opts.filters
+        for name in (f.values() if isinstance(f, dict) else (f,)):
+            if name not in FILTERS:
+                raise InputError(f"--option filters: unknown filter {name!r} (one of: {', '.join(FILTERS)})")
+    return opts
+
+
+def changed_options(opts: MotionOptions) -> dict[str, object]:
+    """The fields of ``opts`` that differ from the defaults, by name (for reports)."""
+    return {f.name: getattr(opts, f.name) for f in fields(MotionOptions)
+            if getattr(opts, f.name) != _default(f)}

@@ -15,11 +15,12 @@ from __future__ import annotations
 import csv
 import io
 import os
+from dataclasses import fields
 from typing import Sequence
 
 import numpy as np
 
-from .motion import PairResult
+from .motion import MotionOptions, PairResult
 from .tomlio import atomic_write_text
 
 __all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report", "write_motion_report"]
@@ -51,9 +52,13 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
 
 
 def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairResult], traj,
-                        truth=None, timestamps_ns: np.ndarray | None = None) -> list[str]:
-    """A report folder: ``pairs.csv``, ``trajectory.png`` and, with a ground truth,
-    ``errors.png``. Returns the names of the files written.
+                        truth=None, timestamps_ns: np.ndarray | None = None,
+                        options: MotionOptions | None = None, scale_selection: bool | None = None) -> list[str]:
+    """A report folder: ``pairs.csv``, ``trajectory.png``, with a ground truth
+    ``errors.png``, and with ``options`` ``options.toml`` (the solver's settings: every
+    :class:`~polycam.motion.MotionOptions` field under ``[motion]``, ``scale_selection``
+    too when given, so that a report says how it was made). Returns the names of the
+    files written.
 
     traj, truth: :class:`~polycam.trajectory.Trajectory` (``truth`` optional, same timestamps).
     """
@@ -70,4 +75,13 @@ def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairRes
     if truth is not None:
         plot_pair_errors(report / "errors.png", pair_errors(traj, truth))
         written.append("errors.png")
+    if options is not None:
+        import tomli_w
+
+        doc = {f.name: getattr(options, f.name) for f in fields(options)}
+        if scale_selection is not None:
+            doc["scale_selection"] = bool(scale_selection)
+        atomic_write_text(report / "options.toml", "# polycam motion: the solver's settings (MotionOptions)\n"
+                          + tomli_w.dumps({"motion": doc}))
+        written.append("options.toml")
     return written

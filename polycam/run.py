@@ -252,11 +252,12 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     # 5. motion
     from .evaluate import ate_rmse, pair_errors
     from .lfstore import open_lightfield
-    from .motion import estimate_trajectory
+    from .motion import MotionOptions, estimate_trajectory
     from .motion_report import write_motion_report
     from .trajectory import write_tum
 
     lf = open_lightfield(out / "lightfield.zarr")
+    motion_options = MotionOptions(smooth_c=opts.smooth_c)
     stamps = [time.perf_counter()]                 # after each pair: per-pair times
     with bar("5/6 plenoptic motion", len(lf) - 1) as adv, _stage("motion"):
         def tick(done: int, total: int) -> None:
@@ -264,7 +265,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
             if adv is not None:
                 adv(done, total)
 
-        traj, results = estimate_trajectory(lf, progress=tick, smooth_c=opts.smooth_c,
+        traj, results = estimate_trajectory(lf, progress=tick, options=motion_options,
                                             scale_selection=opts.scale_selection)
     per_pair = np.diff(stamps) if len(stamps) > 1 else np.array([time.perf_counter() - stamps[0]])
     write_tum(out / "trajectory.tum", traj)
@@ -289,7 +290,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")
-    written = write_motion_report(report, results, traj, truth, lf.timestamps_ns)
+    written = write_motion_report(report, results, traj, truth, lf.timestamps_ns, options=motion_options,
+                                  scale_selection=opts.scale_selection)
 
     # 6. depth and the pictures of the light field
     t0 = time.perf_counter()

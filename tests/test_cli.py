@@ -6,6 +6,7 @@ import os
 import re
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -171,6 +172,34 @@ def test_motion_on_a_lightfield_with_report(tmp_path, selection):
         assert (tmp_path / "rep" / name).stat().st_size > 0
     header = (tmp_path / "rep" / "pairs.csv").read_text().splitlines()[0]
     assert header.startswith("pair,timestamp_ns,t_x")
+
+
+@pytest.fixture(scope="module")
+def two_frame_lightfield(tmp_path_factory) -> Path:
+    return _small_lightfield(tmp_path_factory.mktemp("lf2"), 2)
+
+
+def test_motion_takes_solver_options_and_records_them(tmp_path):
+    """``--option KEY=VALUE`` sets MotionOptions fields (typed; the noise options of
+    docs/motion.md here), the command says which differ from the defaults, and the
+    report's options.toml records every field."""
+    lf = _small_lightfield(tmp_path, 2)
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"),
+                  "--option", "smooth_c=0", "--option", "eiv=true", "--option", "whiten=on", "--option", "levels=2")
+    assert res.returncode == 0, res.stderr
+    assert "solver options: levels=2, smooth_c=0.0, eiv=True, whiten=on" in res.stdout
+    doc = tomllib.loads((tmp_path / "rep" / "options.toml").read_text())["motion"]
+    assert doc["smooth_c"] == 0.0 and doc["eiv"] is True and doc["whiten"] == "on" and doc["levels"] == 2
+    assert doc["uv_taps"] == 6 and doc["scale_selection"] is False       # the others: the defaults
+
+
+@pytest.mark.parametrize("option, problem", [("nope=1", "not a solver option"), ("eiv=maybe", "true or false"),
+                                             ("levels=2.5", "integer"), ("robust=bogus", "robust"),
+                                             ("filters=foo", "unknown filter"), ("smooth_c", "KEY=VALUE")])
+def test_motion_rejects_a_bad_option_before_writing(tmp_path, two_frame_lightfield, option, problem):
+    lf = two_frame_lightfield
+    assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--option", option), problem)
+    assert not (tmp_path / "t.tum").exists()
 
 
 def test_motion_needs_two_frames(tmp_path):

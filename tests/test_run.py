@@ -32,7 +32,7 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
                 "session/capture_stats.toml", "session/calib/cam04.cameramodel"):
         assert (out / rel).exists(), rel
     rep = out / "report"
-    for name in ("README.md", "summary.toml", "pairs.csv", "trajectory.png", "errors.png",
+    for name in ("README.md", "summary.toml", "pairs.csv", "trajectory.png", "errors.png", "options.toml",
                  "calibration_residuals.png", "mosaic.png", "epi.png", "depth.png", "points.ply"):
         assert (rep / name).stat().st_size > 0, name
     summary = tomllib.loads((rep / "summary.toml").read_text())
