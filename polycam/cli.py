@@ -203,7 +203,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .depth_cli import add_source_options
+    from .depth_cli import add_solver_options, add_source_options
 
     p = argparse.ArgumentParser(prog="polycam", description="Polydioptric camera arrays: "
                                 "capture, calibrate, resample, plenoptic egomotion.")
@@ -263,10 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="pre-smooth (u, v) at the scale where the four depth estimates agree (Sect. 4.1), "
                          "capped by the disparity between views: for grids whose views are far apart for "
                          "the scene; about 1.5x the time per pair (default off; docs/end_to_end.md)")
-    pm.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                    help="a solver setting (a MotionOptions field; repeatable), e.g. for frames with several "
-                         "grey levels of noise: --option smooth_c=0 --option eiv=true --option whiten=on "
-                         "(docs/motion.md, \"Noise\"); the report's options.toml records them all")
+    add_solver_options(pm)
     pm.set_defaults(func=cmd_motion)
 
     pi = sub.add_parser("info", help="summarise a session folder or a light-field store")

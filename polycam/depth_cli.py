@@ -28,6 +28,15 @@ def add_source_options(p: argparse.ArgumentParser) -> None:
                    help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
 
 
+def add_solver_options(p: argparse.ArgumentParser) -> None:
+    """``--option KEY=VALUE``: fields of the motion solver's MotionOptions
+    (:func:`polycam.motion_options.options_from_strings`); shared by the verbs that estimate motion."""
+    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a motion solver setting (a MotionOptions field; repeatable), e.g. for frames with several "
+                        "grey levels of noise: --option smooth_c=0 --option eiv=true --option whiten=on "
+                        "(docs/motion.md, \"Noise\")")
+
+
 def add_parsers(sub) -> None:
     """Add the ``depth`` verb."""
     p = sub.add_parser("depth", help="depth of a frame pair (Eq. 6-7): per-view depth maps and a PLY point cloud",
@@ -51,6 +60,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--keep", type=_positive_float, default=0.5, metavar="FRAC",
                    help="keep the most confident FRAC of the rays (default 0.5)")
     add_source_options(p)
+    add_solver_options(p)
     p.add_argument("--ascii-ply", action="store_true", help="write an ASCII PLY (default binary little-endian)")
     p.set_defaults(func=cmd_depth)
 
@@ -102,7 +112,9 @@ def cmd_depth(args: argparse.Namespace) -> int:
     from .depth import confident_mask, depth_of_pair, view_mask
     from .depth_io import write_depth_folder
     from .errors import InputError
+    from .motion_options import changed_options, options_from_strings
 
+    opts = options_from_strings(args.option)          # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step)
     n = len(store.timestamps_ns)
@@ -125,12 +137,14 @@ def cmd_depth(args: argparse.Namespace) -> int:
     else:
         from .motion import estimate_motion
 
-        res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i)
+        res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i, options=opts)
         if not res:
             raise InputError(f"{src}: motion of frames {i}, {i + 1} failed ({res.reason}); "
                              "give it with --traj")
         M = res.T_prev_next
         motion = {"motion_source": "estimated", "motion_condition": float(res.condition)}
+        if changed_options(opts):
+            motion["motion_options"] = changed_options(opts)
     mode = args.scale_selection
     if mode == "auto":
         mode = "face" if args.views == "central" else "off"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import tomllib
 
 import numpy as np
 import pytest
@@ -283,18 +284,21 @@ def test_depth_verb_writes_maps_and_a_ply(tmp_path, repo):
     assert {"red", "green", "blue", "confidence"} <= set(ply)
 
 
-def test_depth_verb_estimates_the_motion(tmp_path, capsys):
+@pytest.mark.parametrize("options", [[], ["--option", "levels=2", "--option", "whiten=on"]])
+def test_depth_verb_estimates_the_motion(tmp_path, capsys, options):
     from polycam.cli import main
 
     _plane_store(tmp_path / "lf.zarr")
-    assert main(["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o")]) == 0
+    assert main(["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o"), *options]) == 0
     out = capsys.readouterr().out
     assert "motion: estimated" in out and "motion vs groundtruth" in out
     assert (tmp_path / "o" / "views" / "face0" / "y02_x02_depth.pfm").exists()
     assert read_ply(tmp_path / "o" / "points.ply")["x"].size > 0
+    doc = tomllib.loads((tmp_path / "o" / "depth.toml").read_text())["depth"]
+    assert doc.get("motion_options", {}) == ({"levels": 2, "whiten": "on"} if options else {})
 
 
-@pytest.mark.parametrize("case", ["single_frame", "missing", "frame_range", "missing_traj"])
+@pytest.mark.parametrize("case", ["single_frame", "missing", "frame_range", "missing_traj", "bad_option"])
 def test_depth_verb_bad_input(tmp_path, capsys, case):
     from polycam.cli import main
 
@@ -306,6 +310,9 @@ def test_depth_verb_bad_input(tmp_path, capsys, case):
     elif case == "frame_range":
         _plane_store(tmp_path / "lf.zarr", frames=2)
         argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o"), "--frame", "1"]
+    elif case == "bad_option":
+        _plane_store(tmp_path / "lf.zarr", frames=2)
+        argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o"), "--option", "levels=none"]
     else:
         _plane_store(tmp_path / "lf.zarr", frames=2)
         argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o"), "--traj",
