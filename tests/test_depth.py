@@ -268,8 +268,6 @@ def test_depth_verb_writes_maps_and_a_ply(tmp_path, repo):
            "--traj", str(tmp_path / "gt.tum"), "--views", "all"]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=repo, timeout=300)
     assert res.returncode == 0, res.stderr
-    import tomllib
-
     doc = tomllib.loads((out / "depth.toml").read_text())
     assert doc["depth"]["frame"] == 0 and len(doc["views"]) == 25
     assert doc["depth"]["motion_source"].endswith("gt.tum")
