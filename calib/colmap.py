@@ -131,15 +131,18 @@ _MAPPING_ATTEMPTS = 3
 def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike, *,
                        camera_mode: str = "PER_FOLDER", camera_model: str = "SIMPLE_RADIAL",
                        max_image_size: int = 1600, max_features: int = 8192, sequential_overlap: int | None = None,
-                       num_threads: int = 2, seed: int = 0, image_names: list[str] | None = None,
+                       num_threads: int = 1, seed: int = 0, image_names: list[str] | None = None,
                        rig_configs: list | None = None):
     """SIFT + matching + incremental mapping of the images under ``image_dir``; returns
     (largest pycolmap.Reconstruction, database path). ``camera_mode``: ``PER_FOLDER``,
     ``PER_IMAGE`` or ``SINGLE``. ``rig_configs``: ``pycolmap.RigConfig`` s applied to the
     database before mapping (with their ``cam_from_rig`` given, the mapper registers whole
-    rig frames and refines ``sensor_from_rig`` in its bundle adjustments)."""
+    rig frames and refines ``sensor_from_rig`` in its bundle adjustments). ``num_threads``:
+    the feature extraction's (on 2 threads, runs with one seed differed: 1439 or 1440 points,
+    cameras 0.035 apart in their parameters; on 1 they are the same to the last bit). Every
+    RANSAC gets ``seed``, so one seed gives one result."""
     pycolmap = _pycolmap()
-    pycolmap.set_random_seed(int(seed))          # before matching too: its geometric verification is RANSAC
+    pycolmap.set_random_seed(int(seed))
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     db = workdir / "database.db"
@@ -154,14 +157,23 @@ def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike,
     pycolmap.extract_features(db, image_dir, image_names=image_names or [],
                               camera_mode=getattr(pycolmap.CameraMode, camera_mode), reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
+    # matching on one thread: on two, runs with one seed differed when other threads loaded
+    # the cores (numba's, just after rendering the session: 1440 or 1441 points, cameras up to
+    # 0.1 apart in their parameters); and the geometric verification's RANSAC seeded (its
+    # default, -1, seeds each worker thread's generator from the clock, whatever
+    # set_random_seed did on this thread)
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = 1        # the verification's RANSAC draws depend on which thread gets which pair
+    matching.num_threads = 1
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = int(seed)
     if sequential_overlap:
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = int(sequential_overlap)
-        pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+        pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing,
+                                  verification_options=verification, device=pycolmap.Device.cpu)
     else:
-        pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
+                                  device=pycolmap.Device.cpu)
     if rig_configs:
         database = pycolmap.Database.open(db)
         try:
@@ -170,12 +182,14 @@ def reconstruct_images(image_dir: str | os.PathLike, workdir: str | os.PathLike,
             database.close()
     # the incremental mapper is reproducible only on one thread (its multi-threaded bundle
     # adjustments and registration order vary from run to run: seen as 2 of 8 frames registered
-    # in one run of a session that registers 8 of 8 in others); so is the matching's
-    # verification (the same failure came back with a one-thread mapper); extraction stays threaded
+    # in one run of a session that registers 8 of 8 in others), and with its RANSACs seeded
     pycolmap.set_random_seed(int(seed))
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = 1
     opts.random_seed = int(seed)
+    opts.mapper.num_threads = 1
+    opts.mapper.random_seed = int(seed)
+    opts.triangulation.random_seed = int(seed)
     opts.multiple_models = False
     sparse = workdir / "sparse"
     sparse.mkdir(exist_ok=True)
@@ -360,6 +374,7 @@ def calibrate_colmap(session, *, board=None, cameras: list[str] | None = None, f
         ba.refine_principal_point = True
         ba.refine_extra_params = True
         ba.print_summary = False
+        ba.ceres.solver_options.num_threads = 1       # (threaded, Ceres' sums vary in the last digits)
         pycolmap.bundle_adjustment(rec, ba)
         rms = _rms_reprojection(rec)
         if keep_workdir:
