@@ -143,8 +143,9 @@ def cmd_depth(args: argparse.Namespace) -> int:
                              "give it with --traj")
         M = res.T_prev_next
         motion = {"motion_source": "estimated", "motion_condition": float(res.condition)}
-        if changed_options(opts):
-            motion["motion_options"] = changed_options(opts)
+        changed = changed_options(opts)
+        if changed:
+            motion["motion_options"] = changed
     mode = args.scale_selection
     if mode == "auto":
         mode = "face" if args.views == "central" else "off"
