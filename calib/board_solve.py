@@ -12,7 +12,7 @@ Pipeline (:func:`calibrate_board`), all mrcal's own machinery:
    along ``mrcal.traverse_sensor_links``, board poses from
    ``mrcal.estimate_joint_frame_poses``).
 3. Staged ``mrcal.optimize`` (as ``mrcal-calibrate-cameras`` does): geometry
-   only, then the stereographic core, then the full lens model (OPENCV4/5/8,
+   only, then the stereographic core, then (for OPENCV5/8) OPENCV4, then the full lens model (OPENCV4/5/8,
    or splined stereographic with its core locked) with outlier rejection and
    regularisation, and a last pass that also fits the board's flex
    (``calobject_warp``) unless disabled.
@@ -469,6 +469,13 @@ def calibrate_board(obs: BoardObservations, rig: Rig | None, *, lensmodel: str =
         extra[:, 5:8] *= 1e-3        # keep the rational denominator near 1 at the start
     if splined:
         extra[:] = 0.0
+    if m and int(m.group(1)) > 4:
+        # the radial and tangential terms first, from the core: the higher-order and rational
+        # terms started from ~0 can send the full solve to a local minimum
+        run("LENSMODEL_OPENCV4", intrinsics=np.ascontiguousarray(np.concatenate([core, extra[:, :4]], axis=1)),
+            lensmodel="LENSMODEL_OPENCV4", do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+        extra[:, :4] = inputs["intrinsics"][:, 4:8]
+        core = inputs["intrinsics"][:, :4]
     run(f"{full}", intrinsics=np.ascontiguousarray(np.concatenate([core, extra], axis=1)), lensmodel=full,
         do_optimize_intrinsics_core=not splined, do_optimize_intrinsics_distortions=True,
         do_apply_outlier_rejection=outlier_rejection, do_apply_regularization=regularization)
