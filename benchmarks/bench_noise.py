@@ -34,6 +34,9 @@ keeps, with plain or whitened least squares, against the measured and the Eq. 6 
 estimate ρ̂ (:class:`OracleDepth`): the same rays get Eq. 6 regressors, ``ρ L_u, ρ L_v`` with
 the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
 ``--supersample`` sets the rays the renderer averages per sample (k x k; default 3).
+``--scene room`` replaces the spheres by the mock rig's textured room (far wall at
+``--distance``; a diagnostic: at this grid's 64 directions per 90° its near walls put texture
+near the directions' Nyquist limit, docs/motion_log.md, "Noise" → Session 19).
 
 The bound (derivation)
 ----------------------
@@ -106,7 +109,8 @@ from polycam.eq5 import depth_regularise  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
-from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
+from polycam.synth import LightFieldRenderer, default_lightfield_grid  # noqa: E402
+from polycam.synth.scenes import make_scene  # noqa: E402
 from polycam.synth.raycast import trace_outer  # noqa: E402
 from polycam.synth.render import lightfield_face_rays  # noqa: E402
 
@@ -253,7 +257,7 @@ def linear_model_bounds(L0: np.ndarray, L1: np.ndarray, grid, M: np.ndarray,
 
 
 def raw_sample_bounds(faces: str, D: float, supersample: int, directions: int,
-                      M: np.ndarray, blur: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                      M: np.ndarray, blur: float = 0.0, scene: str = "spheres") -> tuple[np.ndarray, np.ndarray]:
     """(6, 6) CRBs (over the samples of the filtered model's ray set V, over all samples) of the rig motion's (t, r) per unit σ² from the *raw* samples, no filters:
     ``2 (Jᵀ J)⁻¹`` with J (n_samples, 6) the exact Jacobian of frame 2's samples with respect to
     (t, r) at the true motion (central differences of the renderer: 1 mm, 0.1 mrad steps), the
@@ -262,7 +266,7 @@ def raw_sample_bounds(faces: str, D: float, supersample: int, directions: int,
     linear model (:func:`linear_model_bounds`) already leaves to the estimator: the
     high-frequency content of the raw samples that the derivative filters cannot use."""
     grid = default_lightfield_grid(faces, directions=directions)
-    ren = LightFieldRenderer(spheres_scene(D, seed=0), grid, supersample)
+    ren = LightFieldRenderer(make_scene(scene, D, seed=0), grid, supersample)
     q = np.concatenate([M[:3, 3], rt_from_T(M)[:3]])
     steps = (1e-3,) * 3 + (1e-4,) * 3
     cols = []
@@ -350,13 +354,15 @@ def rms_norm(e: np.ndarray) -> float:
 
 
 def setup(faces: str, D: float, supersample: int, directions: int, blur: float = 0.0,
-          motion_scale: float = 1.0, oracle: bool = False):
+          motion_scale: float = 1.0, oracle: bool = False, scene: str = "spheres"):
     """(grid, L0, L1, M): the noise-free frame pair of the set-up. ``blur``: std [samples] of a
     Gaussian optics blur along u and v of every view (0: the renderer's pixel averaging only);
     ``motion_scale``: multiplies the motion (|t| = 1.5 cm, |ω| = 0.2° at 1); ``oracle``: also
-    return the true disparity (:func:`true_disparity`) as a fifth item."""
+    return the true disparity (:func:`true_disparity`) as a fifth item; ``scene``: a
+    :func:`polycam.synth.scenes.make_scene` name (``spheres``: the paper's; ``room``: the mock
+    rig's textured room, far wall at D, objects 1–4 m away)."""
     grid = default_lightfield_grid(faces, directions=directions)
-    scene = spheres_scene(D, seed=0)
+    scene = make_scene(scene, D, seed=0)
     ren = LightFieldRenderer(scene, grid, supersample)
     M = random_motion(np.random.default_rng(8000), 0.015 * motion_scale, math.radians(0.2) * motion_scale)
     out = grid, optics(ren.render(np.eye(4)), blur), optics(ren.render(M), blur), M
@@ -585,7 +591,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 draws, fewer levels, supersample 2")
     ap.add_argument("--draws", type=int, default=None)
-    ap.add_argument("--distance", type=float, default=8.0)
+    ap.add_argument("--distance", type=float, default=8.0,
+                    help="[m] the spheres' distance (spheres) or the far wall's (room)")
+    ap.add_argument("--scene", choices=("spheres", "room"), default="spheres",
+                    help="spheres: the paper's Sect. 5 scene (default); room: the mock rig's textured room")
     ap.add_argument("--variants", action="store_true", help="also the MotionOptions variants table")
     ap.add_argument("--no-predict", action="store_true", help="skip polycam.design.predict_pair")
     ap.add_argument("--faces", nargs="+", default=["all", "+z"])
@@ -622,13 +631,13 @@ def main() -> None:
         main_name += ", true disparity in the Eq. 6 regressors (--oracle-depth)"
     for faces in args.faces:
         grid, L0, L1, M, *rho = setup(faces, args.distance, ss, 64, args.blur, args.motion_scale,
-                                      args.oracle_depth)
-        label = "six faces" if faces == "all" else f"one face {faces}"
+                                      args.oracle_depth, args.scene)
+        label = ("six faces" if faces == "all" else f"one face {faces}") + (", room" if args.scene == "room" else "")
         if args.raw_bound or args.raw_bound_only:
             crb_f, _ = linear_model_bounds(L0, L1, grid, M, MotionOptions().filters)
             print(f"\n## {label}, D = {args.distance:g} m: bounds at σ = 1 grey level, sqrt(trace) t [mm], ω [µrad]\n")
             print("| bound | t | ω |\n|---|---|---|")
-            crb_v, crb_all = raw_sample_bounds(faces, args.distance, ss, 64, M, args.blur)
+            crb_v, crb_all = raw_sample_bounds(faces, args.distance, ss, 64, M, args.blur, args.scene)
             for bname, C in (("linear model, prefiltered derivatives (the yardstick)", crb_f),
                              ("raw samples, exact Jacobian, rays of V", crb_v),
                              ("raw samples, exact Jacobian, all rays", crb_all)):
