@@ -184,6 +184,10 @@ def test_lens_models_recover_noise_free_truth(tmp_path, lensmodel):
     cal = calibrate_board(obs, rig, lensmodel=lensmodel, valid_region=False, board_warp=False,
                           regularization=not exact)
     assert cal.lensmodel.startswith("LENSMODEL_" + ("SPLINED" if lensmodel == "splined" else lensmodel.upper()))
+    # OPENCV5/8 start from an OPENCV4 solve (from the stereographic core, a noise-free OPENCV8 solve of
+    # the real lens stopped in a 0.3 px local minimum on one CPU type)
+    staged = [name for name, _ in cal.stages]
+    assert ("LENSMODEL_OPENCV4" in staged[:-1]) == (lensmodel in ("opencv5", "opencv8"))
     from calib.align import fit_rig_frame, rotation_angle
 
     cams = list(true)
