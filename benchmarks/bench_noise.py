@@ -18,8 +18,11 @@ regressors), measured in the same run.
 Table per level: RMS over the draws of the vector error |t̂ − t| and |ω̂ − ω| (nothing
 removed; the noise-free error, i.e. the bias, is the σ = 0 row), the bound (sqrt of
 the trace of the CRB blocks below: the RMS vector error an efficient unbiased
-estimator reaches), and the ratio measured / bound (goal ≤ 1.5). Two further columns
-give the noise-only ratio (RMS of the deviation from the draws' mean / bound) and the
+estimator reaches), and the ratio measured / bound (goal ≤ 1.5). Further columns
+give the noise-only ratio (RMS of the deviation from the draws' mean / bound), the draws'
+mean error / bound (the bias under noise, which can exceed the σ = 0 row's: model error
+that the robust weights discard on noise-free frames, docs/motion_log.md, "Noise" →
+Session 19; the mean of n draws also carries noise-only / √n), and the
 σ predicted for the solver's own weighted estimator by :func:`polycam.design.predict_pair`
 (which knows the discontinuity and Tukey weights but not the errors-in-variables step,
 the noise-aware weight or the whitening); ``GLS`` counts the estimates in which
@@ -389,9 +392,9 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     print(f"\n## {name}: {grid.shape} rays, |t| = {100 * np.linalg.norm(M[:3, 3]):.1f} cm, "
           f"|w| = {np.degrees(np.linalg.norm(rt_from_T(M)[:3])):.2f} deg, {draws} draws per level\n")
     print("| σ [grey] | RMS err t [mm] | CRB t [mm] | ratio t | noise-only t | RMS err ω [µrad] | "
-          "CRB ω [µrad] | ratio ω | noise-only ω | OLS/CRB t, ω | solver σ t, ω (design) / CRB | "
-          "GLS | time/est [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "CRB ω [µrad] | ratio ω | noise-only ω | mean / CRB t, ω | OLS/CRB t, ω | "
+          "solver σ t, ω (design) / CRB | GLS | time/est [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for s in sigmas:
         sig = s / 255.0
@@ -408,6 +411,8 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
         dev = e - e.mean(axis=0)
         corr = math.sqrt(len(e) / (len(e) - 1)) if len(e) > 1 else math.nan
         n_t, n_w = rms_norm(dev[:, :3]) * corr, rms_norm(dev[:, 3:]) * corr
+        mean = e.mean(axis=0)                  # the draws' mean error: bias, incl. what the noise brings
+        a_t, a_w = float(np.linalg.norm(mean[:3])), float(np.linalg.norm(mean[3:]))
         pred = ""
         if predict and s > 0:
             src0 = L0.reshape(F * Ny * Nx, Nv, Nu)
@@ -415,15 +420,15 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
             pr = predict_pair(sampling, src0, src1, M, np.full(n_src, sig), options=opts,
                               rng=np.random.default_rng(5))
             pred = f"{pr.std_t / b_t:.2f}, {pr.std_w / b_w:.2f}"
-        row = dict(sigma=s, err_t=m_t, err_w=m_w, crb_t=b_t, crb_w=b_w, noise_t=n_t, noise_w=n_w,
+        row = dict(sigma=s, err_t=m_t, err_w=m_w, crb_t=b_t, crb_w=b_w, noise_t=n_t, noise_w=n_w, mean_t=a_t, mean_w=a_w,
                    ols_t=math.sqrt(np.trace(ols[:3, :3])), ols_w=math.sqrt(np.trace(ols[3:, 3:])))
         rows.append(row)
         if s == 0:
-            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | {gls} | "
+            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | {gls} | "
                   f"{dt:.1f} |", flush=True)
             continue
         print(f"| {s:g} | {1e3 * m_t:.4f} | {1e3 * b_t:.4f} | {m_t / b_t:.2f} | {n_t / b_t:.2f} | "
-              f"{1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {n_w / b_w:.2f} | "
+              f"{1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {n_w / b_w:.2f} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | "
               f"{row['ols_t'] / b_t:.2f}, {row['ols_w'] / b_w:.2f} | {pred or '–'} | {gls} | {dt:.1f} |", flush=True)
     snr = regressor_snr(L0, L1, grid, filters)
     print("\nregressor signal / noise RMS at σ = 1 grey level (divide by σ for other levels): "
