@@ -27,6 +27,7 @@ with ``mode="nearest"``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -42,6 +43,7 @@ __all__ = [
     "Derivatives",
     "plenoptic_derivatives",
     "plenoptic_derivatives_reference",
+    "derivative_noise",
     "smooth_all",
     "filter_taps",
     "parallel_chunks",
@@ -254,6 +256,9 @@ def _resolve_filters(filters) -> dict:
     out = {}
     for k in _AX:
         name = filters.get(k, "fs5") if isinstance(filters, dict) else filters
+        if isinstance(name, FilterPair):
+            out[k] = name
+            continue
         if name not in FILTERS:
             raise ValueError(f"unknown derivative filter {name!r}; expected one of {sorted(FILTERS)}")
         out[k] = FILTERS[name]
@@ -576,6 +581,46 @@ def _derivatives_kernel(L0, L1, py, dy, px, dx, pv, dv, pu, du, sx, sy, su, sv, 
 def parallel_chunks() -> int:
     """Work chunks for a prange over view images: a few per thread (load balance)."""
     return 4 * numba.get_num_threads()
+
+
+def derivative_noise(noise_var: float, grid: LightFieldGrid, filters: str | dict = "fs5",
+                     smoothing: dict | None = None) -> np.ndarray:
+    """(5,) variances of L_x, L_y, L_u, L_v, L_t (:func:`plenoptic_derivatives`, units as
+    theirs) caused by white sensor noise of variance ``noise_var`` per sample, independent in
+    the two frames: the spatial derivatives are of the frames' mean (variance noise_var / 2),
+    L_t of their difference (2 noise_var), each through the separable filters of every
+    differentiated axis (the sum of the squared taps per axis; an axis too short to
+    differentiate is neither smoothed nor differentiated: variance 0 for its derivative).
+    ``filters``: as :func:`plenoptic_derivatives` (names, or axis → FilterPair);
+    ``smoothing``: optional axis → taps the frames were correlated with before (e.g.
+    :func:`polycam.scales.smooth_at_scale`'s binomial pre-smoothing), composed with the filters."""
+    pairs = _axis_pairs({"x": grid.x.count, "y": grid.y.count, "u": grid.u.count,
+                         "v": grid.v.count}, _resolve_filters(filters))
+    var_S = 0.5 * noise_var
+    if not var_S > 0:
+        return np.zeros(5)
+    smoothing = smoothing or {}
+    step = {"x": grid.x.step, "y": grid.y.step, "u": grid.u.step, "v": grid.v.step}
+
+    def taps(k: str, t: np.ndarray) -> np.ndarray:
+        s = smoothing.get(k)
+        return np.asarray(t, float) if s is None else np.convolve(np.asarray(t, float), np.asarray(s, float))
+
+    pn = {}                        # noise gain of each axis's prefilter (or pre-smoothing alone)
+    for k in ("x", "y", "u", "v"):
+        if pairs[k] is not None:
+            pn[k] = float(np.sum(taps(k, pairs[k].prefilter) ** 2))
+        else:
+            pn[k] = float(np.sum(np.asarray(smoothing[k], float) ** 2)) if k in smoothing else 1.0
+    var = []
+    for k in ("x", "y", "u", "v"):
+        if pairs[k] is None or not step[k] > 0:
+            var.append(0.0)
+            continue
+        others = math.prod(pn[o] for o in "xyuv" if o != k)
+        var.append(var_S * float(np.sum(taps(k, pairs[k].derivative) ** 2)) * others / step[k] ** 2)
+    var.append(2.0 * noise_var * math.prod(pn.values()))
+    return np.array(var)
 
 
 def filter_taps(grid: LightFieldGrid, filters: str | dict) -> tuple[dict, tuple]:

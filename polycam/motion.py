@@ -131,7 +131,7 @@ from typing import Callable
 
 import numpy as np
 
-from .derivatives import FILTERS, Derivatives, filter_taps, parallel_chunks
+from .derivatives import FILTERS, Derivatives, derivative_noise, filter_taps, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
                   _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights,
                   _unpack_sym, _view_origin, _weighted_median, depth_rho, ray_motion_coefficients)
@@ -725,20 +725,7 @@ class _Solver:
 
     def derivative_noise(self) -> np.ndarray:
         """(4,) expected variance of sensor noise in L_x, L_y, L_u, L_v (the frames' mean)."""
-        var_S = 0.5 * _noise_variance(self.lev)
-        if not var_S > 0:
-            return np.zeros(4)
-        pn = {k: (float(np.sum(fp.prefilter ** 2)) if self.radius[k] > 0 else 1.0)
-              for k, fp in self.filters.items()}
-        step = {"x": self.g.x.step, "y": self.g.y.step, "u": self.g.u.step, "v": self.g.v.step}
-        var = []
-        for k in ("x", "y", "u", "v"):
-            if self.radius[k] == 0 or not step[k] > 0:
-                var.append(0.0)
-                continue
-            others = math.prod(pn[o] for o in "xyuv" if o != k)
-            var.append(var_S * float(np.sum(self.filters[k].derivative ** 2)) * others / step[k] ** 2)
-        return np.array(var)
+        return derivative_noise(_noise_variance(self.lev), self.g, self.filters)[:4]
 
     # --------------------------------------------------------------- whitening
 

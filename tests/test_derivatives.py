@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import correlate1d
 
-from polycam.derivatives import FILTERS, correlate_axis, plenoptic_derivatives
+from polycam.derivatives import FILTERS, correlate_axis, derivative_noise, plenoptic_derivatives
 from polycam.lightfield import Axis, LightFieldGrid
 
-from tolerances import DERIV_LINEAR_ATOL, DERIV_SINE_REL_FS5
+from tolerances import DERIV_LINEAR_ATOL, DERIV_NOISE_VAR_REL, DERIV_SINE_REL_FS5
 
 
 def grid(nx=9, ny=7, nu=20, nv=16, faces=("+z",)) -> LightFieldGrid:
@@ -142,3 +142,26 @@ def test_fused_kernels_match_reference(rng, shape, filters):
         ref = getattr(b, name)
         assert np.max(np.abs(getattr(a, name) - ref)) <= 1e-5 * max(1.0, np.abs(ref).max())
     assert np.array_equal(a.valid, b.valid) and a.differentiated == b.differentiated
+
+
+@pytest.mark.parametrize("smoothing", [None, "uv2"])
+def test_derivative_noise_matches_the_derivatives_of_noise(smoothing):
+    """derivative_noise: the variance of L_x .. L_t of two frames of white noise (with an
+    optional (u, v) pre-smoothing, as polycam.scales applies), per unit of the grid's steps."""
+    g = LightFieldGrid.cube(["+z"], f=60.0, z_pi=0.0, x=Axis(-0.04, 0.04, 9), y=Axis(-0.04, 0.04, 9),
+                            u=Axis(-31.5, 31.5, 64), v=Axis(-31.5, 31.5, 64))
+    filters = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
+    rng = np.random.default_rng(11)
+    sigma = 0.01
+    frames = [rng.normal(0.0, sigma, g.shape).astype(np.float32) for _ in range(2)]
+    taps = {}
+    if smoothing:
+        taps = {"u": np.array([0.25, 0.5, 0.25]), "v": np.array([0.25, 0.5, 0.25])}
+        frames = [correlate_axis(correlate_axis(a, taps["u"].astype(np.float32), 4), taps["v"].astype(np.float32), 3)
+                  for a in frames]
+    d = plenoptic_derivatives(*frames, g, filters=filters)
+    v = np.broadcast_to(d.valid, g.shape)
+    measured = np.array([np.mean(getattr(d, k)[v].astype(np.float64) ** 2) for k in ("Lx", "Ly", "Lu", "Lv", "Lt")])
+    predicted = derivative_noise(sigma ** 2, g, filters, taps)
+    np.testing.assert_allclose(measured, predicted, rtol=DERIV_NOISE_VAR_REL)
+    assert not np.any(derivative_noise(0.0, g, filters))
