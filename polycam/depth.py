@@ -38,7 +38,7 @@ from .derivatives import FILTERS, Derivatives, correlate_axis
 from .geometry import T_inverse, rt_from_T
 from .lightfield import LightFieldGrid
 
-__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "depth_equations", "window_sum",
+__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "depth_equations", "equation_noise", "window_sum",
            "depth_from_derivatives", "depth_of_pair", "confident_mask", "view_mask", "depth_points"]
 
 DEPTH_FILTERS = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
@@ -95,6 +95,47 @@ def window_sum(a: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
+def _face_flows(grid: LightFieldGrid, T_prev_next: np.ndarray):
+    """Per face: :func:`_ray_flow` of the rays' motion ``T_prev_next⁻¹`` (the rig motion
+    ``T_rig0_rig1`` (4, 4)) in the face's frame."""
+    G = T_inverse(np.asarray(T_prev_next, float))          # the rays' motion
+    rt = rt_from_T(G)
+    p_rig = np.concatenate([rt[3:], rt[:3]])
+    for k, face in enumerate(grid.faces):
+        R = np.asarray(face.R_rig_face, float)
+        yield _ray_flow(grid, k, np.concatenate([R.T @ p_rig[:3], R.T @ p_rig[3:]]))
+
+
+def equation_noise(grid: LightFieldGrid, noise: np.ndarray, T_prev_next: np.ndarray | None = None
+                   ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The sensor noise's second moments ``(var a, cov(a, b), var b)`` of each equation of
+    :func:`depth_equations` (same names), each broadcastable to (F, Ny, Nx, Nv, Nu):
+    ``noise`` (5,) the variances of L_x, L_y, L_u, L_v, L_t
+    (:func:`polycam.derivatives.derivative_noise`), whose noises are uncorrelated (each
+    axis's derivative taps are odd, its prefilter even; L_t is of the frames' difference,
+    the others of their mean)."""
+    vx, vy, vu, vv, vt = (float(n) for n in noise)
+    F = len(grid.faces)
+    const = lambda c: np.full((F, 1, 1, 1, 1), c)                      # noqa: E731
+    out = {"stereo_x": (const(vx), const(0.0), const(vu)), "stereo_y": (const(vy), const(0.0), const(vv))}
+    if T_prev_next is None:
+        return out
+    flows = list(_face_flows(grid, T_prev_next))
+
+    def stack(f):
+        return np.stack([np.broadcast_to(f(*fl), grid.shape[1:]) for fl in flows])
+
+    # directional: a = L_t + L_u δu + L_v δv, b = −(L_u δx + L_v δy)
+    out["motion_dir"] = (stack(lambda dx, dy, du, dv: vt + du * du * vu + dv * dv * vv),
+                         stack(lambda dx, dy, du, dv: -(du * dx * vu + dv * dy * vv)),
+                         stack(lambda dx, dy, du, dv: dx * dx * vu + dy * dy * vv))
+    # positional: a = L_x δu + L_y δv, b = −(L_t + L_x δx + L_y δy)
+    out["motion_pos"] = (stack(lambda dx, dy, du, dv: du * du * vx + dv * dv * vy),
+                         stack(lambda dx, dy, du, dv: -(du * dx * vx + dv * dy * vy)),
+                         stack(lambda dx, dy, du, dv: vt + dx * dx * vx + dy * dy * vy))
+    return out
+
+
 def depth_equations(der: Derivatives, grid: LightFieldGrid,
                     T_prev_next: np.ndarray | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The depth equations ``a λ = b`` (λ = Z / f) per ray: name → (a, b), each
@@ -106,17 +147,11 @@ def depth_equations(der: Derivatives, grid: LightFieldGrid,
     out = {"stereo_x": (der.Lx, der.Lu), "stereo_y": (der.Ly, der.Lv)}
     if T_prev_next is None:
         return out
-    G = T_inverse(np.asarray(T_prev_next, float))          # the rays' motion
-    rt = rt_from_T(G)
-    p_rig = np.concatenate([rt[3:], rt[:3]])
     a_dir = np.empty_like(der.Lx)
     b_dir = np.empty_like(der.Lx)
     a_pos = np.empty_like(der.Lx)
     b_pos = np.empty_like(der.Lx)
-    for k, face in enumerate(grid.faces):
-        R = np.asarray(face.R_rig_face, float)
-        p_face = np.concatenate([R.T @ p_rig[:3], R.T @ p_rig[3:]])
-        dx, dy, du, dv = _ray_flow(grid, k, p_face)
+    for k, (dx, dy, du, dv) in enumerate(_face_flows(grid, T_prev_next)):
         Lx, Ly, Lu, Lv, Lt = der.Lx[k], der.Ly[k], der.Lu[k], der.Lv[k], der.Lt[k]
         a_dir[k] = Lt + Lu * du + Lv * dv
         b_dir[k] = -(Lu * dx + Lv * dy)
@@ -128,20 +163,26 @@ def depth_equations(der: Derivatives, grid: LightFieldGrid,
 
 
 def _fuse(sums: list[tuple[np.ndarray, np.ndarray, np.ndarray]], valid: np.ndarray, window: int,
-          grid: LightFieldGrid, min_confidence: float) -> DepthMap:
-    """DepthMap from per-ray sums (a², a b, b²) of the equations to fuse."""
+          grid: LightFieldGrid, min_confidence: float,
+          noise: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> DepthMap:
+    """DepthMap from per-ray sums (a², a b, b²) of the equations to fuse; ``noise``: their
+    noise moments (:func:`equation_noise`), taken out of the window sums (errors in
+    variables: the noise energy of a in Σ a² would shrink λ = Σ a b / Σ a² towards 0)."""
     aa = sum(s[0] for s in sums)
     ab = sum(s[1] for s in sums)
     bb = sum(s[2] for s in sums)
     Saa = window_sum(aa * valid, window)
     Sab = window_sum(ab * valid, window)
     Sbb = window_sum(bb * valid, window)
+    if noise:
+        for S, i in ((Saa, 0), (Sab, 1), (Sbb, 2)):
+            S -= window_sum(np.broadcast_to(sum(n[i] for n in noise), valid.shape) * valid, window)
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = np.where(Saa > 0, Sab / Saa, np.nan)
         # energy explained by the best single depth: (Σab)² / (Σa² Σb²) ∈ [0, 1]
         consistency = np.where((Saa > 0) & (Sbb > 0), (Sab * Sab) / (Saa * Sbb), 0.0)
     consistency = np.clip(np.nan_to_num(consistency), 0.0, 1.0).astype(np.float32)
-    confidence = (Saa * consistency * (valid > 0)).astype(np.float32)
+    confidence = (np.maximum(Saa, 0.0) * consistency * (valid > 0)).astype(np.float32)
     Z = np.empty_like(lam, dtype=np.float32)
     for k, face in enumerate(grid.faces):
         Z[k] = lam[k] * face.f
@@ -153,7 +194,7 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
                            T_prev_next: np.ndarray | None = None, window: int = 4,
                            min_confidence: float = 0.0,
                            equations: tuple[str, ...] = ("stereo_x", "stereo_y", "motion_pos"),
-                           valid: np.ndarray | None = None) -> DepthMap:
+                           valid: np.ndarray | None = None, noise: np.ndarray | None = None) -> DepthMap:
     """Per-ray depth from the plenoptic derivatives of a frame pair.
 
     ``der``: :func:`~polycam.derivatives.plenoptic_derivatives` of frames (L0, L1).
@@ -164,7 +205,11 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     fusion. ``equations``: which of :data:`EQUATIONS` to fuse (motion ones are
     skipped without ``T_prev_next``). ``valid``: optional extra mask broadcastable
     to (F, Ny, Nx, Nv, Nu) (e.g. the border of a pre-smoothing). Rays with
-    confidence ≤ ``min_confidence`` get ``Z = NaN``.
+    confidence ≤ ``min_confidence`` get ``Z = NaN``. ``noise``: (5,) the sensor noise's
+    variances in L_x, L_y, L_u, L_v, L_t (:func:`polycam.derivatives.derivative_noise`);
+    its expected energy is taken out of the fused sums, without which noise in the
+    positional derivatives biases the depth towards the rig (at σ = 4 grey levels by ~16 %
+    on the paper's spheres at 4 m; docs/depth.md). None: no correction.
     """
     unknown = [e for e in equations if e not in EQUATIONS]
     if unknown:
@@ -175,26 +220,37 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
         if name in eqs:
             a, b = eqs[name]
             sums.append((a * a, a * b, b * b))
+    moments = None
+    if noise is not None and np.any(np.asarray(noise) > 0):
+        en = equation_noise(grid, noise, T_prev_next if "motion_dir" in eqs else None)
+        moments = [en[name] for name in equations if name in eqs]
     m = np.broadcast_to(der.valid, der.Lx.shape)
     if valid is not None:
         m = m & np.broadcast_to(valid, der.Lx.shape)
-    return _fuse(sums, m.astype(np.float32), window, grid, min_confidence)
+    return _fuse(sums, m.astype(np.float32), window, grid, min_confidence, moments)
 
 
 def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
                   T_prev_next: np.ndarray | None = None, *, window: int = 4,
-                  filters: str | dict = DEPTH_FILTERS) -> DepthMap:
+                  filters: str | dict = DEPTH_FILTERS, noise_var: float | None = None) -> DepthMap:
     """Single-scale depth of the frame pair (L0, L1), each (F, Ny, Nx, Nv, Nu) (a trailing
     colour axis is averaged): :func:`depth_from_derivatives` of their plenoptic
-    derivatives with the rig motion ``T_prev_next`` (4, 4) ``T_rig0_rig1`` (None: stereo only)."""
-    from .derivatives import plenoptic_derivatives
+    derivatives with the rig motion ``T_prev_next`` (4, 4) ``T_rig0_rig1`` (None: stereo only),
+    corrected for the sensor noise of variance ``noise_var`` per sample (None: estimated
+    from the frames, :func:`polycam.motion_weights.frame_noise_variance`; 0: no correction)."""
+    from .derivatives import derivative_noise, plenoptic_derivatives
+    from .motion_weights import frame_noise_variance
 
     def grey(L):
         L = np.asarray(L)
         return np.ascontiguousarray(L.mean(axis=-1) if L.ndim == 6 else L, dtype=np.float32)
 
-    der = plenoptic_derivatives(grey(L0), grey(L1), grid, filters=filters)
-    return depth_from_derivatives(der, grid, T_prev_next=T_prev_next, window=window)
+    g0, g1 = grey(L0), grey(L1)
+    der = plenoptic_derivatives(g0, g1, grid, filters=filters)
+    if noise_var is None:
+        noise_var = frame_noise_variance(g0, g1, grid)
+    return depth_from_derivatives(der, grid, T_prev_next=T_prev_next, window=window,
+                                  noise=derivative_noise(noise_var, grid, filters))
 
 
 def confident_mask(dm: DepthMap, *, keep: float = 0.5, W: np.ndarray | None = None,

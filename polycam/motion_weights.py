@@ -24,6 +24,7 @@ from .motion_options import MotionOptions
 from .pyramid import _Level
 
 __all__ = [
+    "frame_noise_variance",
     "discontinuity_weight",
     "solver_filter_pairs",
     "min_over_support",
@@ -165,6 +166,15 @@ def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
     if v.size == 0:
         return 0.0
     return float((1.4826 * _median(v)) ** 2 / 6.0)
+
+
+def frame_noise_variance(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, W0: np.ndarray | None = None,
+                         W1: np.ndarray | None = None) -> float:
+    """Sensor-noise variance per sample of a frame pair (F, Ny, Nx, Nv, Nu) float32 (with
+    confidences W0, W1 of the same dims, or None), as the motion solver estimates it
+    (:func:`_noise_variance`: the robust spread of second differences across viewpoints);
+    :func:`polycam.derivatives.derivative_noise` turns it into the derivatives' noise."""
+    return _noise_variance(_Level(grid, L0, L1, W0, W1))
 
 
 @numba.njit(parallel=True, cache=True)

@@ -514,12 +514,14 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
     depth, and the confident rays' relative depth error is reported."""
     import numpy as np
 
-    from .depth import depth_from_derivatives
-    from .derivatives import plenoptic_derivatives
+    from .depth import DEPTH_FILTERS, depth_from_derivatives
+    from .derivatives import derivative_noise, plenoptic_derivatives
+    from .motion_weights import frame_noise_variance
 
     g0, g1 = _grey(L0).astype(np.float32), _grey(L1).astype(np.float32)
-    der = plenoptic_derivatives(g0, g1, grid, filters={"x": "fs3", "y": "fs3"})
-    dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next)
+    der = plenoptic_derivatives(g0, g1, grid, filters=DEPTH_FILTERS)
+    noise = derivative_noise(frame_noise_variance(g0, g1, grid, W0), grid, DEPTH_FILTERS)
+    dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next, noise=noise)
     conf = dm.confidence
     if W0 is not None:
         conf = conf * (W0 > 0.5)

@@ -36,8 +36,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .depth import DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, window_sum
-from .derivatives import correlate_axis, plenoptic_derivatives
+from .derivatives import correlate_axis, derivative_noise, plenoptic_derivatives
 from .lightfield import LightFieldGrid
+from .motion_weights import frame_noise_variance
 
 __all__ = [
     "Scale",
@@ -47,6 +48,7 @@ __all__ = [
     "DISPARITY_SIGMA_FACTOR",
     "binomial_taps",
     "smooth_at_scale",
+    "smoothing_taps",
     "scale_derivatives",
     "DepthEstimates",
     "depth_estimates",
@@ -153,6 +155,19 @@ def _smooth_face(L: np.ndarray, scale: Scale) -> tuple[np.ndarray, np.ndarray]:
             sh[a4] = n
             ok &= keep.reshape(sh)
     return out, ok
+
+
+def smoothing_taps(scale: Scale, grid: LightFieldGrid) -> dict:
+    """Axis name → the binomial taps :func:`smooth_at_scale` correlates that axis with at
+    ``scale`` (axes it leaves alone are absent), e.g. for
+    :func:`polycam.derivatives.derivative_noise`."""
+    counts = {"x": grid.x.count, "y": grid.y.count, "u": grid.u.count, "v": grid.v.count}
+    out = {}
+    for names, order in (("xy", scale.xy), ("uv", scale.uv)):
+        for name in names:
+            if order and counts[name] >= order + 1:
+                out[name] = binomial_taps(order)
+    return out
 
 
 def smooth_at_scale(L: np.ndarray, scales: Scale | list[Scale] | tuple[Scale, ...]
@@ -548,10 +563,13 @@ def depth_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T
     Z = np.full(grid.shape, np.nan, np.float32)
     conf = np.zeros(grid.shape, np.float32)
     cons = np.zeros(grid.shape, np.float32)
+    noise_var = frame_noise_variance(L0, L1, grid, W0)       # the sensor noise, for each scale's derivatives
     for si in np.unique(choice):
-        der, ok = scale_derivatives(L0, L1, grid, selection.scales[int(si)])
+        scale = selection.scales[int(si)]
+        der, ok = scale_derivatives(L0, L1, grid, scale)
+        noise = derivative_noise(noise_var, grid, DEPTH_FILTERS, smoothing_taps(scale, grid))
         dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next, window=window,
-                                    equations=equations, valid=ok)
+                                    equations=equations, valid=ok, noise=noise)
         m = np.broadcast_to((choice == si)[:, None, None], grid.shape)
         Z[m] = dm.Z[m]
         conf[m] = dm.confidence[m]
