@@ -39,7 +39,7 @@ from .geometry import T_inverse, rt_from_T
 from .lightfield import LightFieldGrid
 
 __all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "depth_equations", "equation_noise", "window_sum",
-           "depth_from_derivatives", "depth_of_pair", "confident_mask", "view_mask", "depth_points"]
+           "depth_from_derivatives", "depth_of_pair", "grey_frame", "confident_mask", "view_mask", "depth_points"]
 
 DEPTH_FILTERS = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
 """Derivative filters for depth (the motion solver's defaults; 9 viewpoints leave 7 valid with fs3)."""
@@ -230,6 +230,12 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     return _fuse(sums, m.astype(np.float32), window, grid, min_confidence, moments)
 
 
+def grey_frame(L: np.ndarray) -> np.ndarray:
+    """A frame (F, Ny, Nx, Nv, Nu) float32, its trailing colour axis (if any) averaged."""
+    L = np.asarray(L)
+    return np.ascontiguousarray(L.mean(axis=-1) if L.ndim == 6 else L, dtype=np.float32)
+
+
 def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
                   T_prev_next: np.ndarray | None = None, *, window: int = 4,
                   filters: str | dict = DEPTH_FILTERS, noise_var: float | None = None) -> DepthMap:
@@ -241,11 +247,7 @@ def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
     from .derivatives import derivative_noise, plenoptic_derivatives
     from .motion_weights import frame_noise_variance
 
-    def grey(L):
-        L = np.asarray(L)
-        return np.ascontiguousarray(L.mean(axis=-1) if L.ndim == 6 else L, dtype=np.float32)
-
-    g0, g1 = grey(L0), grey(L1)
+    g0, g1 = grey_frame(L0), grey_frame(L1)
     der = plenoptic_derivatives(g0, g1, grid, filters=filters)
     if noise_var is None:
         noise_var = frame_noise_variance(g0, g1, grid)

@@ -109,7 +109,8 @@ def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int):
 def cmd_depth(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from .depth import confident_mask, depth_of_pair, view_mask
+    from .depth import confident_mask, depth_of_pair, grey_frame, view_mask
+    from .motion_weights import frame_noise_variance
     from .depth_io import write_depth_folder
     from .errors import InputError
     from .motion_options import changed_options, options_from_strings
@@ -149,20 +150,23 @@ def cmd_depth(args: argparse.Namespace) -> int:
     mode = args.scale_selection
     if mode == "auto":
         mode = "face" if args.views == "central" else "off"
+    # the sensor noise, whose energy the depth fusion takes out (docs/depth.md)
+    noise_var = frame_noise_variance(grey_frame(L0), grey_frame(L1), grid, W0, W1)
     if mode == "off":
-        dm = depth_of_pair(L0, L1, grid, M)
+        dm = depth_of_pair(L0, L1, grid, M, noise_var=noise_var)
         scale_info = {}
     else:
         from .scales import depth_scale_selected
 
-        dm, sel = depth_scale_selected(L0, L1, grid, M, per=mode, W0=W0)
+        dm, sel = depth_scale_selected(L0, L1, grid, M, per=mode, W0=W0, noise_var=noise_var)
         scale_info = {"face_scales": [s.name for s in sel.face_scales()]}
     mask = confident_mask(dm, keep=args.keep, W=W0)
     views = view_mask(grid, 1 if args.views == "central" else None)
     L0a = np.asarray(L0, np.float32)
     meta = {"source": str(src), "frame": i, "frame_next": i + 1, "timestamp_ns": int(ts[i]),
             "timestamp_next_ns": int(ts[i + 1]), "T_prev_next": np.asarray(M, float).tolist(),
-            "keep": float(args.keep), "scale_selection": mode, **motion, **scale_info}
+            "keep": float(args.keep), "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)),
+            **motion, **scale_info}
     summary = write_depth_folder(args.out, grid, dm, intensity=L0a, mask=mask, views=views, meta=meta,
                                  binary_ply=not args.ascii_ply)
     out = Path(args.out)

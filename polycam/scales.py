@@ -542,9 +542,11 @@ def depth_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T
                          selection: ScaleSelection | None = None, scales: tuple[Scale, ...] = SCALE_LADDER,
                          per: str = "region", tile: int = 16, window: int = 4,
                          equations: tuple[str, ...] = ("stereo_x", "stereo_y", "motion_pos"),
-                         W0: np.ndarray | None = None) -> tuple[DepthMap, ScaleSelection]:
+                         W0: np.ndarray | None = None, noise_var: float | None = None
+                         ) -> tuple[DepthMap, ScaleSelection]:
     """Fused depth (:func:`~polycam.depth.depth_from_derivatives`) where every face / (u, v)
-    tile takes the scale its four depth estimates agree best at.
+    tile takes the scale its four depth estimates agree best at, corrected for the sensor
+    noise of variance ``noise_var`` per sample (None: estimated from the frames; 0: none).
 
     Returns the :class:`~polycam.depth.DepthMap` (F, Ny, Nx, Nv, Nu) and the selection
     used (computed unless ``selection`` is given; ``per`` as in :func:`select_scales`).
@@ -563,7 +565,8 @@ def depth_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T
     Z = np.full(grid.shape, np.nan, np.float32)
     conf = np.zeros(grid.shape, np.float32)
     cons = np.zeros(grid.shape, np.float32)
-    noise_var = frame_noise_variance(L0, L1, grid, W0)       # the sensor noise, for each scale's derivatives
+    if noise_var is None:                                      # the sensor noise, for each scale's derivatives
+        noise_var = frame_noise_variance(L0, L1, grid, W0)
     for si in np.unique(choice):
         scale = selection.scales[int(si)]
         der, ok = scale_derivatives(L0, L1, grid, scale)

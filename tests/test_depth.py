@@ -294,6 +294,7 @@ def test_depth_verb_writes_maps_and_a_ply(tmp_path, repo):
     doc = tomllib.loads((out / "depth.toml").read_text())
     assert doc["depth"]["frame"] == 0 and len(doc["views"]) == 25
     assert doc["depth"]["motion_source"].endswith("gt.tum")
+    assert 0.0 <= doc["depth"]["sensor_noise_sigma"] < 0.5 / 255      # noise-free frames
     Z = read_pfm(out / "views" / "face0" / "y02_x02_depth.pfm")
     assert Z.shape == (32, 32) and np.isfinite(Z).sum() > 100
     assert np.nanmedian(np.abs(Z / 1.5 - 1)) < DEPTH_PLANE_MEDIAN_REL
