@@ -110,10 +110,10 @@ def cmd_depth(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .depth import confident_mask, depth_of_pair, grey_frame, view_mask
-    from .motion_weights import frame_noise_variance
     from .depth_io import write_depth_folder
     from .errors import InputError
     from .motion_options import changed_options, options_from_strings
+    from .motion_weights import frame_noise_variance
 
     opts = options_from_strings(args.option)          # before anything is read or written
     src = Path(args.source)
