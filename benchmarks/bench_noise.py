@@ -408,10 +408,10 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
         b_t = math.sqrt(np.trace(crb[:3, :3]))
         b_w = math.sqrt(np.trace(crb[3:, 3:]))
         m_t, m_w = rms_norm(e[:, :3]), rms_norm(e[:, 3:])
-        dev = e - e.mean(axis=0)
+        mean = e.mean(axis=0)                  # the draws' mean error: bias, incl. what the noise brings
+        dev = e - mean
         corr = math.sqrt(len(e) / (len(e) - 1)) if len(e) > 1 else math.nan
         n_t, n_w = rms_norm(dev[:, :3]) * corr, rms_norm(dev[:, 3:]) * corr
-        mean = e.mean(axis=0)                  # the draws' mean error: bias, incl. what the noise brings
         a_t, a_w = float(np.linalg.norm(mean[:3])), float(np.linalg.norm(mean[3:]))
         pred = ""
         if predict and s > 0:

@@ -106,10 +106,11 @@ def _face_flows(grid: LightFieldGrid, T_prev_next: np.ndarray):
         yield _ray_flow(grid, k, np.concatenate([R.T @ p_rig[:3], R.T @ p_rig[3:]]))
 
 
-def equation_noise(grid: LightFieldGrid, noise: np.ndarray, T_prev_next: np.ndarray | None = None
-                   ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The sensor noise's second moments ``(var a, cov(a, b), var b)`` of each equation of
-    :func:`depth_equations` (same names), each broadcastable to (F, Ny, Nx, Nv, Nu):
+def equation_noise(grid: LightFieldGrid, noise: np.ndarray, T_prev_next: np.ndarray | None = None,
+                   equations: tuple[str, ...] = EQUATIONS) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The sensor noise's second moments ``(var a, cov(a, b), var b)`` of the ``equations`` of
+    :func:`depth_equations` (same names; the motion ones need ``T_prev_next``), each
+    broadcastable to (F, Ny, Nx, Nv, Nu):
     ``noise`` (5,) the variances of L_x, L_y, L_u, L_v, L_t
     (:func:`polycam.derivatives.derivative_noise`), whose noises are uncorrelated (each
     axis's derivative taps are odd, its prefilter even; L_t is of the frames' difference,
@@ -117,22 +118,27 @@ def equation_noise(grid: LightFieldGrid, noise: np.ndarray, T_prev_next: np.ndar
     vx, vy, vu, vv, vt = (float(n) for n in noise)
     F = len(grid.faces)
     const = lambda c: np.full((F, 1, 1, 1, 1), c)                      # noqa: E731
-    out = {"stereo_x": (const(vx), const(0.0), const(vu)), "stereo_y": (const(vy), const(0.0), const(vv))}
-    if T_prev_next is None:
+    out = {}
+    if "stereo_x" in equations:
+        out["stereo_x"] = (const(vx), const(0.0), const(vu))
+    if "stereo_y" in equations:
+        out["stereo_y"] = (const(vy), const(0.0), const(vv))
+    motion = [e for e in equations if e.startswith("motion")]
+    if T_prev_next is None or not motion:
         return out
     flows = list(_face_flows(grid, T_prev_next))
 
     def stack(f):
         return np.stack([np.broadcast_to(f(*fl), grid.shape[1:]) for fl in flows])
 
-    # directional: a = L_t + L_u δu + L_v δv, b = −(L_u δx + L_v δy)
-    out["motion_dir"] = (stack(lambda dx, dy, du, dv: vt + du * du * vu + dv * dv * vv),
-                         stack(lambda dx, dy, du, dv: -(du * dx * vu + dv * dy * vv)),
-                         stack(lambda dx, dy, du, dv: dx * dx * vu + dy * dy * vv))
-    # positional: a = L_x δu + L_y δv, b = −(L_t + L_x δx + L_y δy)
-    out["motion_pos"] = (stack(lambda dx, dy, du, dv: du * du * vx + dv * dv * vy),
-                         stack(lambda dx, dy, du, dv: -(du * dx * vx + dv * dy * vy)),
-                         stack(lambda dx, dy, du, dv: vt + dx * dx * vx + dy * dy * vy))
+    if "motion_dir" in motion:          # a = L_t + L_u δu + L_v δv, b = −(L_u δx + L_v δy)
+        out["motion_dir"] = (stack(lambda dx, dy, du, dv: vt + du * du * vu + dv * dv * vv),
+                             stack(lambda dx, dy, du, dv: -(du * dx * vu + dv * dy * vv)),
+                             stack(lambda dx, dy, du, dv: dx * dx * vu + dy * dy * vv))
+    if "motion_pos" in motion:          # a = L_x δu + L_y δv, b = −(L_t + L_x δx + L_y δy)
+        out["motion_pos"] = (stack(lambda dx, dy, du, dv: du * du * vx + dv * dv * vy),
+                             stack(lambda dx, dy, du, dv: -(du * dx * vx + dv * dy * vy)),
+                             stack(lambda dx, dy, du, dv: vt + dx * dx * vx + dy * dy * vy))
     return out
 
 
@@ -222,8 +228,9 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
             sums.append((a * a, a * b, b * b))
     moments = None
     if noise is not None and np.any(np.asarray(noise) > 0):
-        en = equation_noise(grid, noise, T_prev_next if "motion_dir" in eqs else None)
-        moments = [en[name] for name in equations if name in eqs]
+        names = tuple(name for name in equations if name in eqs)
+        en = equation_noise(grid, noise, T_prev_next, names)
+        moments = [en[name] for name in names]
     m = np.broadcast_to(der.valid, der.Lx.shape)
     if valid is not None:
         m = m & np.broadcast_to(valid, der.Lx.shape)

@@ -128,7 +128,20 @@ def binomial_taps(order: int) -> np.ndarray:
     return t
 
 
-_AXES = {"xy": (1, 2), "uv": (3, 4)}
+_AXES = {"xy": (("y", 1), ("x", 2)), "uv": (("v", 3), ("u", 4))}
+
+
+def _scale_taps(scale: Scale, shape4: tuple) -> dict:
+    """Axis name → (axis index 1..4, binomial taps) of the axes that ``scale`` smooths on a
+    face of ``shape4`` (Ny, Nx, Nv, Nu): an axis too short for the taps is left alone."""
+    out = {}
+    for group, order in (("xy", scale.xy), ("uv", scale.uv)):
+        if order == 0:
+            continue
+        for name, ax in _AXES[group]:
+            if shape4[ax - 1] >= order + 1:
+                out[name] = (ax, binomial_taps(order))
+    return out
 
 
 def _smooth_face(L: np.ndarray, scale: Scale) -> tuple[np.ndarray, np.ndarray]:
@@ -138,22 +151,16 @@ def _smooth_face(L: np.ndarray, scale: Scale) -> tuple[np.ndarray, np.ndarray]:
     nd = out.ndim
     shape4 = out.shape[-4:]
     ok = np.ones(shape4, bool)
-    for group, order in (("xy", scale.xy), ("uv", scale.uv)):
-        if order == 0:
-            continue
-        taps = binomial_taps(order)
-        r = order // 2
-        for ax in _AXES[group]:
-            a4 = ax - 1                                   # axis in (Ny, Nx, Nv, Nu)
-            n = shape4[a4]
-            if n < 2 * r + 1:                             # too short to smooth: leave it
-                continue
-            out = correlate_axis(out, taps, nd - 4 + a4)
-            keep = np.zeros(n, bool)
-            keep[r:n - r] = True
-            sh = [1, 1, 1, 1]
-            sh[a4] = n
-            ok &= keep.reshape(sh)
+    for ax, taps in _scale_taps(scale, shape4).values():
+        a4 = ax - 1                                       # axis in (Ny, Nx, Nv, Nu)
+        n = shape4[a4]
+        r = len(taps) // 2
+        out = correlate_axis(out, taps, nd - 4 + a4)
+        keep = np.zeros(n, bool)
+        keep[r:n - r] = True
+        sh = [1, 1, 1, 1]
+        sh[a4] = n
+        ok &= keep.reshape(sh)
     return out, ok
 
 
@@ -161,13 +168,8 @@ def smoothing_taps(scale: Scale, grid: LightFieldGrid) -> dict:
     """Axis name → the binomial taps :func:`smooth_at_scale` correlates that axis with at
     ``scale`` (axes it leaves alone are absent), e.g. for
     :func:`polycam.derivatives.derivative_noise`."""
-    counts = {"x": grid.x.count, "y": grid.y.count, "u": grid.u.count, "v": grid.v.count}
-    out = {}
-    for names, order in (("xy", scale.xy), ("uv", scale.uv)):
-        for name in names:
-            if order and counts[name] >= order + 1:
-                out[name] = binomial_taps(order)
-    return out
+    shape4 = (grid.y.count, grid.x.count, grid.v.count, grid.u.count)
+    return {name: taps for name, (_, taps) in _scale_taps(scale, shape4).items()}
 
 
 def smooth_at_scale(L: np.ndarray, scales: Scale | list[Scale] | tuple[Scale, ...]
