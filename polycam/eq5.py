@@ -44,6 +44,8 @@ The ray loops are branch-free with unsigned indices and re-associated sums
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 from numba.extending import overload
@@ -51,7 +53,7 @@ from numba.extending import overload
 from .derivatives import _FASTMATH, FILTERS, Derivatives, _filt_u, _filt_v, correlate_axis, parallel_chunks, xy_view
 from .lightfield import LightFieldGrid
 
-__all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho", "rho_values"]
+__all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho", "rho_values", "RegressorMix"]
 
 
 _NACC = 29
@@ -985,6 +987,33 @@ correlated over the filter supports and L_u locally constant (measured on the ro
 0.10 median)."""
 
 
+@dataclass(frozen=True)
+class RegressorMix:
+    """The make-up of the Eq. 6 regressors' noise (:func:`depth_rho`, :func:`depth_regularise`):
+    on the replaced rays ``ρ̂ L_u`` carries ``ρ̂² var_u`` (L_u's noise) plus ``L_u² var(ρ̂)`` (ρ̂'s
+    pooled noise times the signal), elsewhere the measured L_x keeps ``var_x``; likewise for y."""
+
+    frac: float
+    """Replaced rays / valid rays."""
+    rho2: float
+    """Mean ρ̂² over the replaced rays [(u per unit of x)²]."""
+    rho_noise: float
+    """Mean ``L_u² var(ρ̂)`` per component over the replaced rays (units of var_x): from the
+    measured regressors' noise, unwhitened."""
+
+    def variances(self, var: np.ndarray, rho_gain: float = 1.0) -> np.ndarray:
+        """(4,) noise variances of the regressors (L_x or ρ̂ L_u, L_y or ρ̂ L_v, L_u, L_v), a
+        ray-count mix, from ``var`` (4,): the derivatives' noise in the metric of the sums
+        (unwhitened, or whitened: :meth:`polycam.motion._Solver.whitened_derivative_noise`);
+        ``rho_gain``: the factor by which that metric scales the signal ``L_u`` (1 unwhitened),
+        since ``L_u δρ`` is the signal modulated by ρ̂'s slowly varying error."""
+        out = np.asarray(var, float).copy()
+        er = self.rho_noise * rho_gain
+        out[0] = (1.0 - self.frac) * var[0] + self.frac * (self.rho2 * var[2] + er)
+        out[1] = (1.0 - self.frac) * var[1] + self.frac * (self.rho2 * var[3] + er)
+        return out
+
+
 def _depth_rho_noise(var: np.ndarray) -> tuple[float, float]:
     """(a, b) of the noise test of the Eq. 6 regressors: a ray's ρ̂ L_u, ρ̂ L_v replaces the
     measured L_x, L_y only where ``ρ̂² a + (L_u² + L_v²) b / S_uu ≤ 1`` (S_uu the window's
@@ -1039,15 +1068,12 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     use = valid & quiet & (fits | gated)
     Lx[use] = rho[use] * gu[use]
     Ly[use] = rho[use] * gv[use]
-    out = np.asarray(var, float).copy()
     nv = int(valid.sum())
-    if nv and use.any():
-        frac = float(use.sum()) / nv
-        r2 = float(np.mean(rho[use].astype(np.float64) ** 2))
-        er = 0.5 * float(np.mean(e_rho[use].astype(np.float64))) * vxy      # per component
-        out[0] = (1.0 - frac) * var[0] + frac * (r2 * var[2] + er)
-        out[1] = (1.0 - frac) * var[1] + frac * (r2 * var[3] + er)
-    return out
+    if not (nv and use.any()):
+        return np.asarray(var, float).copy()
+    mix = RegressorMix(frac=float(use.sum()) / nv, rho2=float(np.mean(rho[use].astype(np.float64) ** 2)),
+                       rho_noise=0.5 * float(np.mean(e_rho[use].astype(np.float64))) * vxy)   # per component
+    return mix.variances(var)
 
 
 @numba.njit(cache=True, inline="always")
@@ -1327,7 +1353,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
               near: np.ndarray | None = None, vo: np.ndarray | None = None,
               dsc: np.ndarray | None = None, scratch: np.ndarray | None = None,
-              out_scale: np.ndarray | None = None) -> np.ndarray:
+              out_scale: np.ndarray | None = None, return_mix: bool = False):
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
@@ -1342,7 +1368,8 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     origin (module docstring; None: they hold every view). ``scratch``: optional float32
     memory the kernel may use as its work arrays (about 17 view images per thread:
     the solver lends it the warped frame, dead by then), allocated when None or too small.
-    Returns (4,) the variances for the replaced regressors, as depth_regularise."""
+    Returns (4,) the variances for the replaced regressors, as depth_regularise; with
+    ``return_mix`` also their make-up, a :class:`RegressorMix` (None: no ray replaced)."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
@@ -1359,7 +1386,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     box = np.asarray(box, np.int64)
     if out.dtype != np.int16:
         rho, rho_sc = np.empty(out.shape, np.int16), np.empty(out.shape[:3], np.float32)
-        res = depth_rho(der, base, box, var, rho, rho_max, gate_misfit, near, vo, dsc, scratch, rho_sc)
+        res = depth_rho(der, base, box, var, rho, rho_max, gate_misfit, near, vo, dsc, scratch, rho_sc, return_mix)
         out[...] = rho_values(rho, rho_sc)
         return res
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
@@ -1377,11 +1404,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
         out[...] = _RHO_NONE
         out_scale[...] = 0.0
     n_valid, n_use, r2, er = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0, 0.0)
-    res = np.asarray(var, float).copy()
-    if n_valid and n_use:
-        frac = n_use / n_valid
-        r2 = r2 / n_use
-        er = 0.5 * er / n_use * float(var[0] + var[1])                       # per component
-        res[0] = (1.0 - frac) * var[0] + frac * (r2 * var[2] + er)
-        res[1] = (1.0 - frac) * var[1] + frac * (r2 * var[3] + er)
-    return res
+    mix = RegressorMix(frac=n_use / n_valid, rho2=r2 / n_use,
+                       rho_noise=0.5 * er / n_use * float(var[0] + var[1])) if n_valid and n_use else None
+    res = mix.variances(var) if mix is not None else np.asarray(var, float).copy()
+    return (res, mix) if return_mix else res

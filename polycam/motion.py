@@ -134,7 +134,7 @@ import numpy as np
 from .derivatives import FILTERS, Derivatives, derivative_noise, filter_taps, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
                   _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights,
-                  _unpack_sym, _view_origin, _weighted_median, depth_rho, ray_motion_coefficients)
+                  _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
@@ -504,6 +504,9 @@ class _Solver:
         self.rho: np.ndarray | None = None   # ρ̂ of the Eq. 6 regressors (depth_regressors): int16
         self.rho_sc: np.ndarray | None = None  # in units of these per view image (polycam.eq5.depth_rho)
         self.var_dr: np.ndarray | None = None
+        self.mix: RegressorMix | None = None   # the make-up of var_dr (None: measured regressors only)
+        self.rho_gain = 1.0                    # whitened / plain energy of the signal L_u (whitened re-solves)
+        self.N_plain: np.ndarray | None = None  # the last solve's normal matrix before whitening
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
@@ -573,7 +576,7 @@ class _Solver:
         Lx, Ly, Lu, Lv, Lt = self.der
         has_rho = dr and not first_dr
         if has_rho:
-            self.var = self.var_dr
+            self.var = self._regressor_noise()
         g = self.lev.grid
         rho_max = opts.depth_gate * abs(g.u.step) / max(abs(g.x.step), 1e-300)
         # the gate's misfit floor, decided at the level's first ρ̂: none unless the gate costs
@@ -603,7 +606,8 @@ class _Solver:
                     self._warp(H, H1, rho_bar, None)      # ρ̂'s windows used the warped frame's memory
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, _NO_RHO_SC, False, False)
-                self.var = self.var_dr = self._depth_rho(var, rho_max, floor, near)
+                self.var_dr = self._depth_rho(var, rho_max, floor, near)
+                self.var = self._regressor_noise()
                 _apply_rho(Lx, Ly, Lu, Lv, self.dsc, self.base, self.rho, self.rho_sc, self.box, self.vo,
                            parallel_chunks())
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
@@ -659,8 +663,9 @@ class _Solver:
         (x, y) support of a ray's filters) only the other rays enter ρ̂'s windows, ``rho_bar``
         becomes their view mean and the near rays get it (their measured L_x, L_y mix the
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
-        var_dr = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor, near,
-                           self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc)   # out1: read by now
+        var_dr, self.mix = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor,
+                                     near, self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc,
+                                     return_mix=True)                             # out1: read by now
         if near is not None:
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
             _fill_rho(self.rho, self.rho_sc, near, self.base, self.rho_bar, self.box, self.vo)
@@ -748,8 +753,10 @@ class _Solver:
         opts = self.opts
         var_n = _noise_variance(self.lev)
         on = opts.whiten == "on"
+        Nw = None
         if opts.whiten == "auto" and var_n > 0 and self.n_base > 0:
             N, rhs, sbb, sw, _ = self.whitened_sums(self.p_w)
+            Nw = N
             p = _solve_normal(N, rhs, opts.rcond)["p"]
             s2 = max(sbb - 2.0 * float(p @ rhs) + float(p @ N @ p), 0.0) / max(sw - 6.0, 1.0)
             noise = 2.0 * var_n * math.prod(self._prefilter_gains().values())
@@ -758,8 +765,20 @@ class _Solver:
                       s2, s2 / noise, noise, "on" if on else "off")
         self.whitened = on
         if on:
-            self.var = self.whitened_derivative_noise(var_n)
+            if self.mix is not None and self.N_plain is not None:
+                Nw = self.whitened_sums(self.p_w)[0] if Nw is None else Nw
+                self.rho_gain = _signal_gain(self.N_plain, Nw)
+            self.var = self._regressor_noise()
         return on
+
+    def _regressor_noise(self) -> np.ndarray:
+        """(4,) noise variances of the current regressors in the metric of the sums: the
+        measured derivatives', or with the Eq. 6 regressors their mix (:class:`~polycam.eq5.RegressorMix`);
+        whitened once the GLS re-solves are on."""
+        if not self.whitened:
+            return self.var_dr if self.var_dr is not None else self.derivative_noise()
+        var_w = self.whitened_derivative_noise(_noise_variance(self.lev))
+        return self.mix.variances(var_w, self.rho_gain) if self.mix is not None and self.var_dr is not None else var_w
 
     def whitened_derivative_noise(self, var_n: float) -> np.ndarray:
         """(4,) :meth:`derivative_noise` in the whitened metric: along the differentiated
@@ -829,9 +848,12 @@ class _Solver:
             self.p_w = sol["p"]
             (N, rhs, sbb, sw, tiles), st = self.reweighted(sol["p"], final=i == steps - 1)
             sol = _solve_normal(N, rhs, opts.rcond)
+        self.N_plain = N
         if self.whitened:
             # generalised least squares with the same weights (the kernel's sums give counts and E)
             N, rhs, sbb, sw, tiles = self.whitened_sums(self.p_w)
+            if self.mix is not None:
+                self.rho_gain = _signal_gain(self.N_plain, N)
             sol = _solve_normal(N, rhs, opts.rcond)
         stats = st.sum(axis=1)                                  # (F, 25)
         E = np.zeros((6, 6))
@@ -848,6 +870,18 @@ class _Solver:
                    base_n=int(tot[1]), inliers=int(tot[2]) if steps else None,
                    texture=math.sqrt(tot[3] / sw) if sw > 0 else 0.0)
         return sol
+
+
+def _signal_gain(N_plain: np.ndarray, N_white: np.ndarray) -> float:
+    """How much the whitening scales the energy of the signal ``L_u, L_v`` (the factor of the
+    ``L_u² var(ρ̂)`` part of the Eq. 6 regressors' noise, :class:`~polycam.eq5.RegressorMix`):
+    the mean ratio of the rotation columns' diagonals of the whitened and plain normal
+    matrices N_white, N_plain (6, 6) with the same weights (those columns are L_u, L_v with
+    smooth coefficients, and carry little noise: ~0.2 % of N at 8 grey levels); 1 when
+    they are empty."""
+    d0, d1 = np.diag(N_plain)[3:], np.diag(N_white)[3:]
+    ok = (d0 > 0) & (d1 > 0)
+    return float(np.mean(d1[ok] / d0[ok])) if ok.any() else 1.0
 
 
 @dataclass(frozen=True)
