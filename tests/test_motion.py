@@ -620,8 +620,7 @@ def test_whitened_resolves_use_the_whitened_noise_of_the_eq6_regressors(scene, m
     """With ``whiten="on"`` and the Eq. 6 regressors, the noise energy E of the whitened re-solves
     is that of the whitened metric for every regressor: L_u, L_v's whitened variances, and ρ̂ L_u's
     mix (:class:`polycam.eq5.RegressorMix`) of those and of the signal's whitening gain, not the
-    plain mix (which under-states it 2.5x for L_u, L_v; at 32 grey levels the estimate, which
-    stops early there, was then 3.6 % short of the translation, docs/motion_log.md)."""
+    plain mix (which under-states it 2.5x for L_u, L_v); before whitening, the plain mix."""
     grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
     rt = np.array([0.002, -0.003, 0.001, 0.004, -0.003, 0.001])
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
