@@ -22,7 +22,11 @@ estimator reaches), and the ratio measured / bound (goal ≤ 1.5). Further colum
 give the noise-only ratio (RMS of the deviation from the draws' mean / bound), the draws'
 mean error / bound (the bias under noise, which can exceed the σ = 0 row's: model error
 that the robust weights discard on noise-free frames, docs/motion_log.md, "Noise" →
-Session 19; the mean of n draws also carries noise-only / √n), and the
+Session 19; the mean of n draws also carries noise-only / √n), ``6-D``: the RMS error in
+the bound's own metric, sqrt(mean eᵀ CRB⁻¹ e / 6) over the six parameters (:func:`efficiency_6d`;
+1 for an efficient unbiased estimator; it weights every direction of (t, ω) by its own bound,
+the per-block ratios weight the worst-determined ones most; the goal is judged on the
+per-block ratios), and the
 σ predicted for the solver's own weighted estimator by :func:`polycam.design.predict_pair`
 (which knows the discontinuity and Tukey weights but not the errors-in-variables step,
 the noise-aware weight or the whitening); ``GLS`` counts the estimates in which
@@ -363,6 +367,15 @@ def errors(L0, L1, grid, M, sigma: float, draws: int, opts: MotionOptions, seed:
     return np.array(out)
 
 
+def efficiency_6d(e: np.ndarray, crb: np.ndarray) -> float:
+    """sqrt(mean eᵀ CRB⁻¹ e / 6) of the (draws, 6) errors e (t, r) against the (6, 6) bound: the
+    RMS error in the bound's own metric, every direction of (t, ω) weighted by its bound (1 for
+    an efficient unbiased estimator, whatever the units; unlike the per-block ratios, which
+    sqrt(trace) weights towards the worst-determined directions)."""
+    q = np.einsum("ni,ij,nj->n", e, np.linalg.inv(crb), e)
+    return float(np.sqrt(np.mean(q) / crb.shape[0]))
+
+
 def rms_norm(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(e * e, axis=-1))))
 
@@ -404,9 +417,9 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
           f"|w| = {np.degrees(np.linalg.norm(rt_from_T(M)[:3])):.2f} deg, {draws} draws per level"
           f"{' (antithetic pairs)' if antithetic else ''}\n")
     print("| σ [grey] | RMS err t [mm] | CRB t [mm] | ratio t | noise-only t | RMS err ω [µrad] | "
-          "CRB ω [µrad] | ratio ω | noise-only ω | mean / CRB t, ω | OLS/CRB t, ω | "
+          "CRB ω [µrad] | ratio ω | noise-only ω | mean / CRB t, ω | 6-D | OLS/CRB t, ω | "
           "solver σ t, ω (design) / CRB | GLS | time/est [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for s in sigmas:
         sig = s / 255.0
@@ -425,6 +438,7 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
         corr = math.sqrt(len(e) / (len(e) - 1)) if len(e) > 1 else math.nan
         n_t, n_w = rms_norm(dev[:, :3]) * corr, rms_norm(dev[:, 3:]) * corr
         a_t, a_w = float(np.linalg.norm(mean[:3])), float(np.linalg.norm(mean[3:]))
+        six = efficiency_6d(e, crb) if s > 0 else math.nan
         pred = ""
         if predict and s > 0:
             src0 = L0.reshape(F * Ny * Nx, Nv, Nu)
@@ -433,14 +447,15 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
                               rng=np.random.default_rng(5))
             pred = f"{pr.std_t / b_t:.2f}, {pr.std_w / b_w:.2f}"
         row = dict(sigma=s, err_t=m_t, err_w=m_w, crb_t=b_t, crb_w=b_w, noise_t=n_t, noise_w=n_w, mean_t=a_t, mean_w=a_w,
+                   six=six,
                    ols_t=math.sqrt(np.trace(ols[:3, :3])), ols_w=math.sqrt(np.trace(ols[3:, 3:])))
         rows.append(row)
         if s == 0:
-            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | {gls} | "
+            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | – | {gls} | "
                   f"{dt:.1f} |", flush=True)
             continue
         print(f"| {s:g} | {1e3 * m_t:.4f} | {1e3 * b_t:.4f} | {m_t / b_t:.2f} | {n_t / b_t:.2f} | "
-              f"{1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {n_w / b_w:.2f} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | "
+              f"{1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {n_w / b_w:.2f} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | {six:.2f} | "
               f"{row['ols_t'] / b_t:.2f}, {row['ols_w'] / b_w:.2f} | {pred or '–'} | {gls} | {dt:.1f} |", flush=True)
     snr = regressor_snr(L0, L1, grid, filters)
     print("\nregressor signal / noise RMS at σ = 1 grey level (divide by σ for other levels): "
