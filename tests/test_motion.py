@@ -90,6 +90,18 @@ def make_grid(faces=("+z",), views: int = 5, directions: int = 24, spacing: floa
     return LightFieldGrid.cube(list(faces), f=f, z_pi=max(half, 0.01), x=xy, y=xy, u=uv, v=uv)
 
 
+def noisy_face_pair(scene, rt, sigma: float, seed: int):
+    """(grid, L0, L1): the ``scene`` on one face (+z, 9 x 9 views 1 cm apart, 24 x 24
+    directions) at the identity and at the pose ``T_from_rt(rt)`` (rt (6,): rotation vector
+    [rad], translation [m]), each frame with white noise of std ``sigma`` (seeded)."""
+    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(np.asarray(rt, float)))
+    rng = np.random.default_rng(seed)
+    L0 = L0 + rng.normal(0.0, sigma, L0.shape).astype(np.float32)
+    L1 = L1 + rng.normal(0.0, sigma, L1.shape).astype(np.float32)
+    return grid, L0, L1
+
+
 ALL = ("+z", "-z", "+x", "-x", "+y", "-y")
 T_STEP = 0.006          # [m] typical translation between frames
 R_STEP = 0.005          # [rad] typical rotation (0.29 deg)
@@ -479,12 +491,7 @@ def test_rho_windows_in_the_warped_frames_memory(scene, monkeypatch, with_w):
     the fused kernel; where the disparity gate's check falls back to the measured
     regressors (forced here), the fused kernel runs again, so the warp is redone first: the
     estimate is the same to the last bit as with buffers of their own."""
-    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
-    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])
-    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
-    rng = np.random.default_rng(4)
-    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
-    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    grid, L0, L1 = noisy_face_pair(scene, [0.002, -0.003, 0.001, 0.014, -0.01, 0.004], 0.01, seed=4)
     W = {"W0": np.ones_like(L0), "W1": np.ones_like(L1)} if with_w else {}
     increment = pm._Solver._increment_and_sigma
     calls = {"check": 0, "warp": 0, "lent": 0}
@@ -585,12 +592,8 @@ def test_extrapolation_marks_share_the_derivatives_memory(scene, monkeypatch, wi
     """The warp's marks of extrapolated samples live in the derivatives' memory (free from the
     warp to the fused kernel, which follows the marks' only use): the estimate is the same
     to the last bit as with marks of their own."""
-    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
-    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])       # 1.4 views: extrapolated rays
-    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
-    rng = np.random.default_rng(2)
-    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
-    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    # 1.4 views: extrapolated rays
+    grid, L0, L1 = noisy_face_pair(scene, [0.002, -0.003, 0.001, 0.014, -0.01, 0.004], 0.01, seed=2)
     W = {"W0": np.ones_like(L0), "W1": np.ones_like(L1)} if with_w else {}
     shared = []
     marks = pm._Solver._marks
@@ -621,12 +624,7 @@ def test_whitened_resolves_use_the_whitened_noise_of_the_eq6_regressors(scene, m
     is that of the whitened metric for every regressor: L_u, L_v's whitened variances, and ρ̂ L_u's
     mix (:class:`polycam.eq5.RegressorMix`) of those and of the signal's whitening gain, not the
     plain mix (which under-states it 2.5x for L_u, L_v); before whitening, the plain mix."""
-    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
-    rt = np.array([0.002, -0.003, 0.001, 0.004, -0.003, 0.001])
-    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
-    rng = np.random.default_rng(4)
-    L0 = L0 + rng.normal(0.0, 0.02, L0.shape).astype(np.float32)
-    L1 = L1 + rng.normal(0.0, 0.02, L1.shape).astype(np.float32)
+    grid, L0, L1 = noisy_face_pair(scene, [0.002, -0.003, 0.001, 0.004, -0.003, 0.001], 0.02, seed=4)
     seen = []
     solve = pm._Solver.solve
 
@@ -661,12 +659,7 @@ def test_discontinuity_weight_in_the_base_weights_sign(scene, monkeypatch, optio
     from polycam.eq5 import _store_weights
     from polycam.motion_weights import _level_discontinuity_weight
 
-    grid = make_grid(("+z",), views=9, directions=24, spacing=0.01)
-    rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])       # 1.4 views
-    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
-    rng = np.random.default_rng(3)
-    L0 = L0 + rng.normal(0.0, 0.01, L0.shape).astype(np.float32)
-    L1 = L1 + rng.normal(0.0, 0.01, L1.shape).astype(np.float32)
+    grid, L0, L1 = noisy_face_pair(scene, [0.002, -0.003, 0.001, 0.014, -0.01, 0.004], 0.01, seed=3)  # 1.4 views
     opts = MotionOptions(**options)
     negative = []
     prepare = pm._Solver.prepare
