@@ -150,15 +150,16 @@ def cmd_depth(args: argparse.Namespace) -> int:
     mode = args.scale_selection
     if mode == "auto":
         mode = "face" if args.views == "central" else "off"
+    g0, g1 = grey_frame(L0), grey_frame(L1)
     # the sensor noise, whose energy the depth fusion takes out (docs/depth.md)
-    noise_var = frame_noise_variance(grey_frame(L0), grey_frame(L1), grid, W0, W1)
+    noise_var = frame_noise_variance(g0, g1, grid, W0, W1)
     if mode == "off":
-        dm = depth_of_pair(L0, L1, grid, M, noise_var=noise_var)
+        dm = depth_of_pair(g0, g1, grid, M, noise_var=noise_var)
         scale_info = {}
     else:
         from .scales import depth_scale_selected
 
-        dm, sel = depth_scale_selected(L0, L1, grid, M, per=mode, W0=W0, noise_var=noise_var)
+        dm, sel = depth_scale_selected(g0, g1, grid, M, per=mode, W0=W0, noise_var=noise_var)
         scale_info = {"face_scales": [s.name for s in sel.face_scales()]}
     mask = confident_mask(dm, keep=args.keep, W=W0)
     views = view_mask(grid, 1 if args.views == "central" else None)

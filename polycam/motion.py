@@ -765,7 +765,7 @@ class _Solver:
                       s2, s2 / noise, noise, "on" if on else "off")
         self.whitened = on
         if on:
-            if self.mix is not None and self.N_plain is not None:
+            if self.mix is not None:              # the signal's whitening gain for the mix's ρ̂ part
                 Nw = self.whitened_sums(self.p_w)[0] if Nw is None else Nw
                 self.rho_gain = _signal_gain(self.N_plain, Nw)
             self.var = self._regressor_noise()
@@ -778,7 +778,7 @@ class _Solver:
         if not self.whitened:
             return self.var_dr if self.var_dr is not None else self.derivative_noise()
         var_w = self.whitened_derivative_noise(_noise_variance(self.lev))
-        return self.mix.variances(var_w, self.rho_gain) if self.mix is not None and self.var_dr is not None else var_w
+        return self.mix.variances(var_w, self.rho_gain) if self.mix is not None else var_w
 
     def whitened_derivative_noise(self, var_n: float) -> np.ndarray:
         """(4,) :meth:`derivative_noise` in the whitened metric: along the differentiated

@@ -406,18 +406,15 @@ def _plot_calibration(path: Path, cal) -> None:
     plt.close(fig)
 
 
-def _grey(L):
-    """Grey (T-less) light field: the colour axis, if any, averaged."""
-    return L.mean(axis=-1) if L.ndim == 6 else L
-
-
 def _plot_mosaic(path: Path, grid, L0) -> None:
     """All perspective views of face 0 tiled as on the array (frame 0)."""
     import numpy as np
 
     from PIL import Image
 
-    L = _grey(L0)[0]                                          # (Ny, Nx, Nv, Nu)
+    from .depth import grey_frame
+
+    L = grey_frame(L0)[0]                                     # (Ny, Nx, Nv, Nu)
     Ny, Nx, Nv, Nu = L.shape
     step = max(1, int(math.ceil(max(Nv, Nu) * max(Ny, Nx) / 1600)))  # keep it under ~1600 px
     tiles = L[:, :, ::step, ::step]
@@ -437,8 +434,10 @@ def _plot_epi(path: Path, grid, L0) -> None:
     central y and v, and the vertical EPI L(y, v) at the central x and u."""
     import numpy as np
 
+    from .depth import grey_frame
+
     plt = _pyplot()
-    L = _grey(L0)[0]
+    L = grey_frame(L0)[0]
     Ny, Nx, Nv, Nu = L.shape
     jc, ic, vc, uc = Ny // 2, Nx // 2, Nv // 2, Nu // 2
     epi_h = L[jc, :, vc, :]                                    # (Nx, Nu)
@@ -514,11 +513,11 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
     depth, and the confident rays' relative depth error is reported."""
     import numpy as np
 
-    from .depth import DEPTH_FILTERS, depth_from_derivatives
+    from .depth import DEPTH_FILTERS, depth_from_derivatives, grey_frame
     from .derivatives import derivative_noise, plenoptic_derivatives
     from .motion_weights import frame_noise_variance
 
-    g0, g1 = _grey(L0).astype(np.float32), _grey(L1).astype(np.float32)
+    g0, g1 = grey_frame(L0), grey_frame(L1)
     der = plenoptic_derivatives(g0, g1, grid, filters=DEPTH_FILTERS)
     noise = derivative_noise(frame_noise_variance(g0, g1, grid, W0), grid, DEPTH_FILTERS)
     dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next, noise=noise)

@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .depth import DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, window_sum
+from .depth import (DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, grey_frame,
+                    window_sum)
 from .derivatives import correlate_axis, derivative_noise, plenoptic_derivatives
 from .lightfield import LightFieldGrid
 from .motion_weights import frame_noise_variance
@@ -425,8 +426,8 @@ def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFi
     """
     from .motion import estimate_motion
 
-    L0 = _grey(L0, grid)
-    L1 = _grey(L1, grid)
+    L0 = grey_frame(L0)
+    L1 = grey_frame(L1)
     res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, T_init=T_init, options=options, index=index)
     history = []
     sel = None
@@ -460,8 +461,8 @@ def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: 
     a point moves by ``Δx / λ`` in u from one viewpoint to the next. The median runs over
     the rays with a positive λ (and W0 > 0.5 when given); NaN for a face without any.
     """
-    L0 = _grey(L0, grid)
-    L1 = _grey(L1, grid)
+    L0 = grey_frame(L0)
+    L1 = grey_frame(L1)
     der, ok = scale_derivatives(L0, L1, grid, Scale())
     if W0 is not None:
         ok = ok & (np.asarray(W0) > 0.5)
@@ -511,8 +512,8 @@ class ScaleTracker:
         from .motion import estimate_motion
 
         grid = self.grid
-        L0 = _grey(L0, grid)
-        L1 = _grey(L1, grid)
+        L0 = grey_frame(L0)
+        L1 = grey_frame(L1)
         if self.selection is None or self._pairs % self.reselect_every == 0:
             self.disparity = view_disparity(L0, L1, grid, W0=W0)
             cap = np.nan_to_num(self.factor * self.disparity, nan=0.0)
@@ -533,11 +534,6 @@ class ScaleTracker:
         return res
 
 
-def _grey(L: np.ndarray, grid: LightFieldGrid) -> np.ndarray:
-    L = np.asarray(L)
-    if L.ndim == 6 and L.shape[:5] == grid.shape:
-        L = L.mean(axis=-1)
-    return np.ascontiguousarray(L, dtype=np.float32)
 
 
 def depth_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T_prev_next: np.ndarray, *,
@@ -553,8 +549,8 @@ def depth_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T
     Returns the :class:`~polycam.depth.DepthMap` (F, Ny, Nx, Nv, Nu) and the selection
     used (computed unless ``selection`` is given; ``per`` as in :func:`select_scales`).
     """
-    L0 = _grey(L0, grid)
-    L1 = _grey(L1, grid)
+    L0 = grey_frame(L0)
+    L1 = grey_frame(L1)
     if selection is None:
         selection = select_scales(L0, L1, grid, T_prev_next, scales=scales, per=per, tile=tile,
                                   window=window, W0=W0)
