@@ -140,7 +140,8 @@ from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import LightFieldGrid
 from .motion_options import MotionOptions
 from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
-                             min_over_support, robust_scale, robust_slope, robust_weight, solver_filter_pairs)
+                             min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
+                             solver_filter_pairs)
 from .pyramid import _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _face_abs_max,
@@ -728,6 +729,19 @@ class _Solver:
                           box, self.vo, stride, a, w)
         return 1.4826 * float(_weighted_median(a.reshape(-1), w.reshape(-1)))
 
+    def model_weight(self, p_rig: np.ndarray) -> None:
+        """``model_weight``: scale the base weights by the model-validity weight of the
+        residuals at p_rig (:func:`~polycam.motion_weights.model_error_weights`, robust scale
+        self.scale); the next :meth:`prepare` rewrites the base weights."""
+        box = self.box
+        dims = (self.shape[0],) + tuple(int(box[2 * k + 1] - box[2 * k]) for k in range(4))
+        n = math.prod(dims[:4])
+        res = _work_array("model_res", (n, dims[4]))
+        w = _work_array("model_w", (n, dims[4]))
+        _sample_residuals(*self.der, self.dsc, self.base, *self.vals, self.zs, self.fs, self._face_params(p_rig),
+                          box, self.vo, 1, res, w)
+        model_error_weights(res.reshape(dims), w.reshape(dims), self.base, box, self.scale)
+
     def derivative_noise(self) -> np.ndarray:
         """(4,) expected variance of sensor noise in L_x, L_y, L_u, L_v (the frames' mean)."""
         return derivative_noise(_noise_variance(self.lev), self.g, self.filters)[:4]
@@ -845,6 +859,8 @@ class _Solver:
             # the scale may grow but never shrinks within a level: weights do not
             # tighten as the warp converges
             self.scale = mad if self.scale is None else max(self.scale, mad)
+            if i == 0 and opts.model_weight and self.level == 0:
+                self.model_weight(sol["p"])
             self.p_w = sol["p"]
             (N, rhs, sbb, sw, tiles), st = self.reweighted(sol["p"], final=i == steps - 1)
             sol = _solve_normal(N, rhs, opts.rcond)

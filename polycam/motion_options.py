@@ -50,6 +50,15 @@ class MotionOptions:
     stops short of the answer (benchmarks/bench_noise.py: ~3x less translation error at 16
     grey levels, unchanged noise-free). Off: the covariance then under-predicts the scatter
     of repeated estimates by up to ~2x where t and ω couple (docs/motion.md)."""
+    model_weight: bool = False
+    """Model-validity weight at the finest level (:func:`~polycam.motion_weights.model_error_weights`):
+    before the IRLS passes of each warp, a ray's weight becomes ``s² / (s² + ê²)`` with ê² the
+    Eq. 5 residual energy pooled over 3 x 3 views x 5 x 5 directions beyond what noise of the
+    robust scale s explains: the model error (silhouettes, aliasing) that the IRLS weights
+    stop singling out once the noise is as large as it (their cut-off grows with the noise).
+    With the noise options at 4 m (benchmarks/bench_noise.py, 48 draws) the translation
+    error / CRB drops from 3.65 to ~1.9 at 1 grey level and 2.39 to ~1.5 at 2, unchanged
+    from 4 on (docs/motion_log.md, session 21)."""
     smooth_noise: bool = False
     """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
     reaches (its 99th percentile for the noise variance estimated from the frames), so that

@@ -31,6 +31,7 @@ __all__ = [
     "robust_scale",
     "robust_weight",
     "robust_slope",
+    "model_error_weights",
 ]
 
 
@@ -398,3 +399,125 @@ def robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarr
     if opts.robust == "huber":
         return (z <= 1.0).astype(np.float32)
     return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
+
+
+_MODEL_HALF = (1, 1, 2, 2)
+"""Half-widths (y, x, v, u) of the window :func:`model_error_weights` pools residual energy
+over: 3 x 3 views x 5 x 5 directions (225 rays; session 21, docs/motion_log.md: 5 x 5
+directions alone, 9 x 9, and 9 x 9 x 3 x 3 measured)."""
+
+_MODEL_MARGIN = 0.5
+"""The pooled residual energy counts as model error only above ``(1 + margin) s²``, so that
+where noise dominates the weights stay near 1 (the prefilters correlate the residuals: the
+window holds far fewer than 225 independent ones; mean weight 0.99 at 8 grey levels on
+bench_noise's 4 m scene, 0.92 with no margin)."""
+
+
+@numba.njit(parallel=True, cache=True)
+def _box_sum_axis(a, h):
+    """In place: a (pre, n, post) float32 ← its sums over ±h along the middle axis (clipped
+    at the ends), accumulated in float64."""
+    pre, n, post = a.shape
+    cb = 512
+    nb = (post + cb - 1) // cb
+    for k in numba.prange(pre * nb):
+        p = k // nb
+        c0 = (k % nb) * cb
+        c1 = min(post, c0 + cb)
+        buf = a[p, :, c0:c1].astype(np.float64)
+        s = np.zeros(c1 - c0)
+        for j in range(min(h, n)):
+            s += buf[j]
+        for j in range(n):
+            if j + h < n:
+                s += buf[j + h]
+            if j - h - 1 >= 0:
+                s -= buf[j - h - 1]
+            for c in range(c1 - c0):
+                a[p, j, c0 + c] = s[c]
+
+
+@numba.njit(parallel=True, cache=True)
+def _box_sum_last(a, h):
+    """In place: a (lines, n) float32 ← its sums over ±h along each line (clipped at the
+    ends), accumulated in float64; lines in chunks (one buffer per chunk)."""
+    lines, n = a.shape
+    chunk = 256
+    for c in numba.prange((lines + chunk - 1) // chunk):
+        buf = np.empty(n)
+        for ln in range(c * chunk, min(lines, (c + 1) * chunk)):
+            row = a[ln]
+            for j in range(n):
+                buf[j] = row[j]
+            s = 0.0
+            for j in range(min(h, n)):
+                s += buf[j]
+            for j in range(n):
+                if j + h < n:
+                    s += buf[j + h]
+                if j - h - 1 >= 0:
+                    s -= buf[j - h - 1]
+                row[j] = s
+
+
+def _box_sums(a: np.ndarray, half: tuple) -> None:
+    """In place: a (F, ny, nx, nv, nu) float32 ← its sums over the window ±half (y, x, v, u)
+    (clipped at the array's ends)."""
+    F = a.shape[0]
+    for k, h in enumerate(half):
+        ax = k + 1
+        if h > 0 and a.shape[ax] > 1:
+            if ax == a.ndim - 1:
+                _box_sum_last(a.reshape(-1, a.shape[ax]), h)
+            else:
+                _box_sum_axis(a.reshape(F * math.prod(a.shape[1:ax]), a.shape[ax], -1), h)
+
+
+@numba.njit(parallel=True, cache=True)
+def _square_mask(r, w):
+    """In place: r ← r² where w > 0 (else 0), w ← 1 where w > 0 (else 0); flat float32 arrays."""
+    for i in numba.prange(r.size):
+        ok = w[i] > 0.0
+        r[i] = r[i] * r[i] if ok else np.float32(0.0)
+        w[i] = np.float32(1.0) if ok else np.float32(0.0)
+
+
+@numba.njit(parallel=True, cache=True)
+def _scale_base(base, e, n, s2, margin, v0, u0):
+    """base[f, j, i, v0 + v, u0 + u] (int16 weights) ×= s2 / (s2 + ê²), ê² = max(e / n −
+    (1 + margin) s2, 0) of the pooled sums e (F, ny, nx, nv, nu) of r² over n rays."""
+    F, ny, nx, nv, nu = e.shape
+    for k in numba.prange(F * ny * nx):
+        f = k // (ny * nx)
+        j = (k // nx) % ny
+        i = k % nx
+        for v in range(nv):
+            b = base[f, j, i, v0 + v]
+            ev = e[f, j, i, v]
+            nvv = n[f, j, i, v]
+            for u in range(nu):
+                if b[u0 + u] > 0 and nvv[u] > 0.0:
+                    e2 = max(np.float64(ev[u]) / nvv[u] - (1.0 + margin) * s2, 0.0)
+                    b[u0 + u] = np.int16(np.float64(b[u0 + u]) * s2 / (s2 + e2) + 0.5)
+
+
+def model_error_weights(res: np.ndarray, w: np.ndarray, base: np.ndarray, box: np.ndarray, scale: float,
+                        half: tuple = _MODEL_HALF, margin: float = _MODEL_MARGIN) -> None:
+    """Scale the solver's int16 base weights ``base`` (F, ny, nx, Nv, Nu: the views of
+    ``box``) by a model-validity weight that does not depend on the noise level: where the
+    Eq. 5 residuals ``res`` (F, ny, nx, nv, nu, the rays of ``box`` (8,) y0 y1 x0 x1 v0 v1 u0
+    u1; weights ``w`` of the same dims, > 0 where used) are larger, on average over a window
+    (``half``: 3 x 3 views x 5 x 5 directions), than noise of the robust residual ``scale``
+    explains, a ray's weight becomes ``s² / (s² + ê²)`` with ``ê² = max(mean r² − (1 +
+    margin) s², 0)`` the window's model-error energy: the weight of a ray whose variance is
+    noise plus that model error. A ray's own residual is mostly noise; the window's mean
+    energy is the model error (silhouettes, aliasing, the warp's interpolation) to within
+    ~30 % of s², whatever the noise. ``res`` and ``w`` are overwritten (work arrays)."""
+    if not scale > 0:
+        return
+    r = res.reshape(-1)
+    m = w.reshape(-1)
+    _square_mask(r, m)
+    _box_sums(res, half)
+    _box_sums(w, half)
+    _scale_base(base, res, w, float(scale) ** 2, float(margin), int(box[4]), int(box[6]))

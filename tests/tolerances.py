@@ -31,6 +31,8 @@ MOTION_COV_RATIO_MIN = 0.4    # empirical std / predicted std under noise (10 se
 MOTION_COV_RATIO_MAX = 2.0
 DERIV_LINEAR_ATOL = 1e-4      # derivative of a linear light field (relative to its slope)
 DERIV_SINE_REL_FS5 = 0.01     # fs5 derivative of a 0.5 rad/sample sinusoid, relative
+MOTION_MODEL_WEIGHT_ATOL = 0.02  # model-validity weight in a patch of 3 s model error vs s² / (s² + 8.5 s²) (pooled noise: ~±0.01)
+MOTION_MODEL_BUMP_GAIN = 0.6   # error with / without model_weight, model-error bump (measured 0.47)
 MOTION_DEPTH_MEDIAN_REL = 0.02  # median relative depth error (Eq. 6-7) on confident rays, room sphere
 # capture (tests/test_capture_*.py)
 CAPTURE_JITTER_STD_REL = 0.15  # measured timestamp-jitter std of the mock vs [mock] jitter_ms (1200 draws)
