@@ -115,9 +115,11 @@ import dataclasses  # noqa: E402
 
 from polycam.derivatives import FILTERS, plenoptic_derivatives  # noqa: E402
 from polycam.eq5 import depth_regularise  # noqa: E402
+from polycam.errors import InputError  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
+from polycam.motion_options import options_from_strings  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid  # noqa: E402
 from polycam.synth.scenes import make_scene  # noqa: E402
 from polycam.synth.raycast import trace_outer  # noqa: E402
@@ -654,10 +656,22 @@ def main() -> None:
                     help="draws in pairs n, -n (errors()): the draws' mean (bias) far more precise")
     ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
                     help="the main table with MotionOptions(depth_regressors=True / False) (else the defaults)")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a MotionOptions field for the main and the --high-noise table, on top of their own "
+                         "options (as polycam motion --option; repeatable)")
     args = ap.parse_args()
     main_opts = MotionOptions() if args.depth_regressors is None else \
         MotionOptions(depth_regressors=args.depth_regressors == "on")
     main_name = "default options" if args.depth_regressors is None else f"depth_regressors {args.depth_regressors}"
+    high_opts, high_name = HIGH_NOISE, "smooth_c=0, eiv, whiten"
+    if args.option:
+        try:
+            main_opts = options_from_strings(args.option, main_opts)
+            high_opts = options_from_strings(args.option, high_opts)
+        except InputError as e:
+            ap.error(str(e))
+        main_name += ", " + ", ".join(args.option)
+        high_name += ", " + ", ".join(args.option)
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
     ss = args.supersample or (2 if args.quick else 3)
@@ -685,8 +699,8 @@ def main() -> None:
                 noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
                             main_opts, not args.no_predict, args.antithetic)
             if args.high_noise:
-                noise_table(f"{label}, D = {args.distance:g} m, smooth_c=0, eiv, whiten", grid, L0, L1, M,
-                            sigmas, draws, HIGH_NOISE, not args.no_predict, args.antithetic)
+                noise_table(f"{label}, D = {args.distance:g} m, {high_name}", grid, L0, L1, M,
+                            sigmas, draws, high_opts, not args.no_predict, args.antithetic)
         if args.probe or args.probe_only:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.probe_sigmas), draws)
         if args.variants or args.variants_only:
