@@ -11,9 +11,10 @@ Gaussian noise of σ = 0, 0.5, 1, 2, 4, 8, 16, 32 grey levels (of 255) per light
 sample (float, not quantised); several seeded draws per level, always the same motion.
 The high levels are where the noise-free error (model bias, the σ = 0 row) is small
 next to the bound; ``--high-noise`` adds the same table for the noise options measured
-best together (``smooth_c=0, eiv=True, whiten="on"``: no discontinuity weight,
-errors-in-variables steps, whitened re-solves; with the default Eq. 6 positional
-regressors), measured in the same run.
+best together (``smooth_c=0, eiv=True, whiten="on", model_weight=True``: no discontinuity
+weight, errors-in-variables steps, whitened re-solves, the model-validity weight; with the
+default Eq. 6 positional regressors), measured in the same run; ``--option KEY=VALUE`` changes
+a solver option in both tables.
 
 Table per level: RMS over the draws of the vector error |t̂ − t| and |ω̂ − ω| (nothing
 removed; the noise-free error, i.e. the bias, is the σ = 0 row), the bound (sqrt of
@@ -119,7 +120,7 @@ from polycam.errors import InputError  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
-from polycam.motion_options import options_from_strings  # noqa: E402
+from polycam.motion_options import changed_options, options_from_strings  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid  # noqa: E402
 from polycam.synth.scenes import make_scene  # noqa: E402
 from polycam.synth.raycast import trace_outer  # noqa: E402
@@ -369,6 +370,12 @@ def errors(L0, L1, grid, M, sigma: float, draws: int, opts: MotionOptions, seed:
     return np.array(out)
 
 
+def options_name(opts: MotionOptions) -> str:
+    """A table's title for the solver options: the fields that differ from the defaults."""
+    changed = changed_options(opts)
+    return ", ".join(f"{k}={v!r}" for k, v in changed.items()) if changed else "default options"
+
+
 def efficiency_6d(e: np.ndarray, crb: np.ndarray) -> float:
     """sqrt(mean eᵀ CRB⁻¹ e / 6) of the (draws, 6) errors e (t, r) against the (6, 6) bound: the
     RMS error in the bound's own metric, every direction of (t, ω) weighted by its bound (1 for
@@ -469,11 +476,13 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     return rows
 
 
-HIGH_NOISE = MotionOptions(smooth_c=0.0, eiv=True, whiten="on")
-"""The noise options measured best together from σ ≈ 4 grey levels on (with the default Eq. 6
-positional regressors): no discontinuity weight (computed from noisy frames it discards rays
-at random), errors-in-variables steps, whitened re-solves (docs/motion.md, "Noise"; until
-session 18 ``eiv=True, smooth_noise=True``, which the blurred set-up measured worse for t)."""
+HIGH_NOISE = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True)
+"""The noise options measured best together (with the default Eq. 6 positional regressors): no
+discontinuity weight (computed from noisy frames it discards rays at random), errors-in-variables
+steps, whitened re-solves, and the model-validity weight (docs/motion.md, "Noise"; until
+session 18 ``eiv=True, smooth_noise=True``, which the blurred set-up measured worse for t;
+``model_weight`` since session 21: the same from σ ≈ 4 grey levels on, far less translation
+error below)."""
 
 VARIANTS = {
     "default": MotionOptions(),
@@ -646,7 +655,8 @@ def main() -> None:
     ap.add_argument("--probe-sigmas", type=float, nargs="+", default=[4.0, 16.0], help="noise levels of --probe")
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
-                    help="also the table for the noise options smooth_c=0, eiv=True, whiten=on (HIGH_NOISE)")
+                    help="also the table for the noise options smooth_c=0, eiv=True, whiten=on, model_weight=True "
+                         "(HIGH_NOISE)")
     ap.add_argument("--oracle-depth", action="store_true",
                     help="diagnostic: the main table with the true disparity in the Eq. 6 regressors instead of "
                          "the solver's estimate")
@@ -662,16 +672,14 @@ def main() -> None:
     args = ap.parse_args()
     main_opts = MotionOptions() if args.depth_regressors is None else \
         MotionOptions(depth_regressors=args.depth_regressors == "on")
-    main_name = "default options" if args.depth_regressors is None else f"depth_regressors {args.depth_regressors}"
-    high_opts, high_name = HIGH_NOISE, "smooth_c=0, eiv, whiten"
+    high_opts = HIGH_NOISE
     if args.option:
         try:
             main_opts = options_from_strings(args.option, main_opts)
             high_opts = options_from_strings(args.option, high_opts)
         except InputError as e:
             ap.error(str(e))
-        main_name += ", " + ", ".join(args.option)
-        high_name += ", " + ", ".join(args.option)
+    main_name, high_name = options_name(main_opts), options_name(high_opts)
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
     ss = args.supersample or (2 if args.quick else 3)

@@ -60,7 +60,12 @@ Tukey's biweight of the residual normalised by a robust scale (1.4826 ·
 weighted MAD) that may grow but never shrinks within a pyramid level, so the
 weights do not tighten as the warp converges. On the paper's sphere scene the two together bring the
 bias of the translation from several percent to a few tenths of a percent
-(benchmarks/bench_motion.py). The weights: :mod:`polycam.motion_weights`.
+(benchmarks/bench_motion.py). Both single out model error only where it stands out of the
+noise: the IRLS cut-off grows with the noise, so model error of the noise's size passes
+once the noise is there. ``MotionOptions.model_weight`` (opt-in) adds a weight that does not
+depend on the noise level: the residual energy pooled over 7 x 7 views x 5 x 5 directions,
+beyond what the noise explains, is the window's model error ê², and a ray weighs
+``s² / (s² + ê²)``. The weights: :mod:`polycam.motion_weights`.
 
 Positional regressors (paper Eq. 6)
 -----------------------------------

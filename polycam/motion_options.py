@@ -53,12 +53,15 @@ class MotionOptions:
     model_weight: bool = False
     """Model-validity weight at the finest level (:func:`~polycam.motion_weights.model_error_weights`):
     before the IRLS passes of each warp, a ray's weight becomes ``s² / (s² + ê²)`` with ê² the
-    Eq. 5 residual energy pooled over 3 x 3 views x 5 x 5 directions beyond what noise of the
+    Eq. 5 residual energy pooled over 7 x 7 views x 5 x 5 directions beyond what noise of the
     robust scale s explains: the model error (silhouettes, aliasing) that the IRLS weights
     stop singling out once the noise is as large as it (their cut-off grows with the noise).
-    With the noise options at 4 m (benchmarks/bench_noise.py, 48 draws) the translation
-    error / CRB drops from 3.65 to ~1.9 at 1 grey level and 2.39 to ~1.5 at 2, unchanged
-    from 4 on (docs/motion_log.md, session 21)."""
+    With the noise options (benchmarks/bench_noise.py, blurred set-up, 48 draws) at 1 / 2 grey
+    levels: at 4 m the translation error / CRB drops from 3.65 / 2.39 to 1.79 / 1.90 and the
+    rotation's from 1.95 / 1.50 to 1.44 / 1.31; at 8 m the translation's from 11.1 / 5.68 to
+    5.69 / 4.21; from 4 grey levels on it changes nothing (to ±0.02: where noise dominates the
+    weights stay near 1; docs/motion.md, "Noise"). With the default options it does not help
+    (their discontinuity weight already discards the model error). ~+35 % time per estimate."""
     smooth_noise: bool = False
     """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
     reaches (its 99th percentile for the noise variance estimated from the frames), so that

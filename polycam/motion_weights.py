@@ -6,7 +6,9 @@ support (:func:`solver_filter_pairs`, :func:`min_over_support`) × validity × a
 discontinuity weight (:func:`discontinuity_weight`: large second derivatives in (u, v)
 near the ray, optionally above the level sensor noise alone reaches, with the noise
 variance estimated from second differences across viewpoints) × an IRLS weight
-(:func:`robust_weight` of the residual over :func:`robust_scale`).
+(:func:`robust_weight` of the residual over :func:`robust_scale`), and with
+``MotionOptions.model_weight`` × a model-validity weight (:func:`model_error_weights`: the
+residual energy pooled over a window, beyond the noise's).
 """
 
 from __future__ import annotations
@@ -401,10 +403,12 @@ def robust_slope(res: np.ndarray, scale: float, opts: MotionOptions) -> np.ndarr
     return np.where(z < 1.0, (1.0 - z * z) * (1.0 - 5.0 * z * z), 0.0).astype(np.float32)
 
 
-_MODEL_HALF = (1, 1, 2, 2)
+_MODEL_HALF = (3, 3, 2, 2)
 """Half-widths (y, x, v, u) of the window :func:`model_error_weights` pools residual energy
-over: 3 x 3 views x 5 x 5 directions (225 rays; session 21, docs/motion_log.md: 5 x 5
-directions alone, 9 x 9, and 9 x 9 x 3 x 3 measured)."""
+over: 7 x 7 views x 5 x 5 directions (session 21, docs/motion_log.md: pooling across more
+views tells the model error apart better, for the rotation most: 3 x 3 views gave ω 1.2–1.9x
+the error of 7 x 7 at 1–2 grey levels; more directions than 5 x 5 lose the translation's
+gain)."""
 
 _MODEL_MARGIN = 0.5
 """The pooled residual energy counts as model error only above ``(1 + margin) s²``, so that
@@ -507,7 +511,7 @@ def model_error_weights(res: np.ndarray, w: np.ndarray, base: np.ndarray, box: n
     ``box``) by a model-validity weight that does not depend on the noise level: where the
     Eq. 5 residuals ``res`` (F, ny, nx, nv, nu, the rays of ``box`` (8,) y0 y1 x0 x1 v0 v1 u0
     u1; weights ``w`` of the same dims, > 0 where used) are larger, on average over a window
-    (``half``: 3 x 3 views x 5 x 5 directions), than noise of the robust residual ``scale``
+    (``half``: 7 x 7 views x 5 x 5 directions), than noise of the robust residual ``scale``
     explains, a ray's weight becomes ``s² / (s² + ê²)`` with ``ê² = max(mean r² − (1 +
     margin) s², 0)`` the window's model-error energy: the weight of a ray whose variance is
     noise plus that model error. A ray's own residual is mostly noise; the window's mean
