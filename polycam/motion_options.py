@@ -61,7 +61,8 @@ class MotionOptions:
     rotation's from 1.95 / 1.50 to 1.44 / 1.31; at 8 m the translation's from 11.1 / 5.68 to
     5.69 / 4.21; from 4 grey levels on it changes nothing (to ±0.02: where noise dominates the
     weights stay near 1; docs/motion.md, "Noise"). With the default options it does not help
-    (their discontinuity weight already discards the model error). ~+35 % time per estimate."""
+    (their discontinuity weight already discards the model error). ~+35 % time per estimate
+    and two float32 work arrays of the finest level's rays (about one frame more memory)."""
     smooth_noise: bool = False
     """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
     reaches (its 99th percentile for the noise variance estimated from the frames), so that
