@@ -419,51 +419,52 @@ grey levels (with a 3 x 3 x 5 x 5 window: 0.99 at 8, 0.92 there with no margin, 
 gains at 1–2)."""
 
 
+@numba.njit(cache=True, inline="always")
+def _window_sums(src, h, dst):
+    """dst[j] ← Σ src[j − h .. j + h] (clipped at the ends), a float64 running sum; src and
+    dst 1-D of one length, not overlapping."""
+    n = src.shape[0]
+    s = 0.0
+    for j in range(min(h, n)):
+        s += src[j]
+    for j in range(n):
+        if j + h < n:
+            s += src[j + h]
+        if j - h - 1 >= 0:
+            s -= src[j - h - 1]
+        dst[j] = s
+
+
 @numba.njit(parallel=True, cache=True)
 def _box_sum_axis(a, h):
     """In place: a (pre, n, post) float32 ← its sums over ±h along the middle axis (clipped
-    at the ends), accumulated in float64."""
+    at the ends); a task per block of ≤ 512 columns of a pre line."""
     pre, n, post = a.shape
     cb = 512
     nb = (post + cb - 1) // cb
     for k in numba.prange(pre * nb):
         p = k // nb
         c0 = (k % nb) * cb
-        c1 = min(post, c0 + cb)
-        buf = a[p, :, c0:c1].astype(np.float64)
-        s = np.zeros(c1 - c0)
-        for j in range(min(h, n)):
-            s += buf[j]
+        w = min(post, c0 + cb) - c0
+        buf = np.empty((w, n))                  # transposed: each column a contiguous line
         for j in range(n):
-            if j + h < n:
-                s += buf[j + h]
-            if j - h - 1 >= 0:
-                s -= buf[j - h - 1]
-            for c in range(c1 - c0):
-                a[p, j, c0 + c] = s[c]
+            for c in range(w):
+                buf[c, j] = a[p, j, c0 + c]
+        for c in range(w):
+            _window_sums(buf[c], h, a[p, :, c0 + c])
 
 
 @numba.njit(parallel=True, cache=True)
 def _box_sum_last(a, h):
-    """In place: a (lines, n) float32 ← its sums over ±h along each line (clipped at the
-    ends), accumulated in float64; lines in chunks (one buffer per chunk)."""
+    """In place: a (lines, n) float32 ← its sums over ±h along each (contiguous) line; a task
+    per 256 lines, one buffer each."""
     lines, n = a.shape
     chunk = 256
     for c in numba.prange((lines + chunk - 1) // chunk):
         buf = np.empty(n)
         for ln in range(c * chunk, min(lines, (c + 1) * chunk)):
-            row = a[ln]
-            for j in range(n):
-                buf[j] = row[j]
-            s = 0.0
-            for j in range(min(h, n)):
-                s += buf[j]
-            for j in range(n):
-                if j + h < n:
-                    s += buf[j + h]
-                if j - h - 1 >= 0:
-                    s -= buf[j - h - 1]
-                row[j] = s
+            buf[:] = a[ln]
+            _window_sums(buf, h, a[ln])
 
 
 def _box_sums(a: np.ndarray, half: tuple) -> None:
