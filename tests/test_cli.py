@@ -185,11 +185,13 @@ def test_motion_takes_solver_options_and_records_them(tmp_path):
     report's options.toml records every field."""
     lf = _small_lightfield(tmp_path, 2)
     res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"),
-                  "--option", "smooth_c=0", "--option", "eiv=true", "--option", "whiten=on", "--option", "levels=2")
+                  "--option", "smooth_c=0", "--option", "eiv=true", "--option", "whiten=on",
+                  "--option", "model_weight=true", "--option", "levels=2")
     assert res.returncode == 0, res.stderr
-    assert "solver options: levels=2, smooth_c=0.0, eiv=True, whiten=on" in res.stdout
+    assert "solver options: levels=2, smooth_c=0.0, eiv=True, model_weight=True, whiten=on" in res.stdout
     doc = tomllib.loads((tmp_path / "rep" / "options.toml").read_text())["motion"]
     assert doc["smooth_c"] == 0.0 and doc["eiv"] is True and doc["whiten"] == "on" and doc["levels"] == 2
+    assert doc["model_weight"] is True
     assert doc["uv_taps"] == 6 and doc["scale_selection"] is False       # the others: the defaults
 
 
