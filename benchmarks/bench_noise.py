@@ -120,7 +120,7 @@ from polycam.errors import InputError  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
-from polycam.motion_options import changed_options, options_from_strings  # noqa: E402
+from polycam.motion_options import describe_options, options_from_strings  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid  # noqa: E402
 from polycam.synth.scenes import make_scene  # noqa: E402
 from polycam.synth.raycast import trace_outer  # noqa: E402
@@ -368,12 +368,6 @@ def errors(L0, L1, grid, M, sigma: float, draws: int, opts: MotionOptions, seed:
             lg.removeHandler(counter)
             lg.setLevel(old_level)
     return np.array(out)
-
-
-def options_name(opts: MotionOptions) -> str:
-    """A table's title for the solver options: the fields that differ from the defaults."""
-    changed = changed_options(opts)
-    return ", ".join(f"{k}={v!r}" for k, v in changed.items()) if changed else "default options"
 
 
 def efficiency_6d(e: np.ndarray, crb: np.ndarray) -> float:
@@ -679,7 +673,7 @@ def main() -> None:
             high_opts = options_from_strings(args.option, high_opts)
         except InputError as e:
             ap.error(str(e))
-    main_name, high_name = options_name(main_opts), options_name(high_opts)
+    main_name, high_name = (describe_options(o) or "default options" for o in (main_opts, high_opts))
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
     ss = args.supersample or (2 if args.quick else 3)

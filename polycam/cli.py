@@ -114,7 +114,7 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
 
 def cmd_motion(args: argparse.Namespace) -> int:
     from .depth_cli import open_source
-    from .motion_options import changed_options, options_from_strings
+    from .motion_options import describe_options, options_from_strings
 
     opts = options_from_strings(args.option)          # before anything is read or written
     src = Path(args.source)
@@ -127,9 +127,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
-    changed = changed_options(opts)
-    if changed:
-        print("solver options: " + ", ".join(f"{k}={v}" for k, v in changed.items()))
+    if describe_options(opts):
+        print("solver options: " + describe_options(opts))
     scale_selection = args.scale_selection == "on"
     with _progress(f"motion {src.name}", len(store) - 1) as advance:
         traj, results = estimate_trajectory(store, progress=advance, options=opts, scale_selection=scale_selection)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, fields, replace
 
 from .errors import InputError
 
-__all__ = ["MotionOptions", "options_from_strings", "changed_options"]
+__all__ = ["MotionOptions", "options_from_strings", "changed_options", "describe_options"]
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,9 @@ class MotionOptions:
     5.69 / 4.21; from 4 grey levels on it changes nothing (to ±0.02: where noise dominates the
     weights stay near 1; docs/motion.md, "Noise"). With the default options it does not help
     (their discontinuity weight already discards the model error). ~+35 % time per estimate
-    and two float32 work arrays of the finest level's rays (about one frame more memory)."""
+    and two float32 work arrays of the finest level's rays (about one frame more memory).
+    It needs the IRLS passes (``robust`` not ``none``, ``irls_steps`` ≥ 1): it acts in the
+    first and takes their robust scale s; without them it does nothing."""
     smooth_noise: bool = False
     """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
     reaches (its 99th percentile for the noise variance estimated from the frames), so that
@@ -245,3 +247,9 @@ def changed_options(opts: MotionOptions) -> dict[str, object]:
     """The fields of ``opts`` that differ from the defaults, by name (for reports)."""
     return {f.name: getattr(opts, f.name) for f in fields(MotionOptions)
             if getattr(opts, f.name) != _default(f)}
+
+
+def describe_options(opts: MotionOptions) -> str:
+    """``KEY=VALUE, ...`` of the fields of ``opts`` that differ from the defaults, in field
+    order ("" when none do): how the CLI and the benchmarks name a set of options."""
+    return ", ".join(f"{k}={v}" for k, v in changed_options(opts).items())
