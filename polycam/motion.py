@@ -745,7 +745,8 @@ class _Solver:
         w = _work_array("model_w", (n, dims[4]))
         _sample_residuals(*self.der, self.dsc, self.base, *self.vals, self.zs, self.fs, self._face_params(p_rig),
                           box, self.vo, 1, res, w)
-        model_error_weights(res.reshape(dims), w.reshape(dims), self.base, box, self.scale)
+        model_error_weights(res.reshape(dims), w.reshape(dims), self.base, box, self.scale,
+                            gain=self.opts.model_weight_gain)
 
     def derivative_noise(self) -> np.ndarray:
         """(4,) expected variance of sensor noise in L_x, L_y, L_u, L_v (the frames' mean)."""

@@ -490,8 +490,8 @@ def _square_mask(r, w):
 
 
 @numba.njit(parallel=True, cache=True)
-def _scale_base(base, e, n, s2, margin, v0, u0):
-    """base[f, j, i, v0 + v, u0 + u] (int16 weights) ×= s2 / (s2 + ê²), ê² = max(e / n −
+def _scale_base(base, e, n, s2, margin, gain, v0, u0):
+    """base[f, j, i, v0 + v, u0 + u] (int16 weights) ×= s2 / (s2 + gain ê²), ê² = max(e / n −
     (1 + margin) s2, 0) of the pooled sums e (F, ny, nx, nv, nu) of r² over n rays."""
     F, ny, nx, nv, nu = e.shape
     for k in numba.prange(F * ny * nx):
@@ -504,12 +504,12 @@ def _scale_base(base, e, n, s2, margin, v0, u0):
             nvv = n[f, j, i, v]
             for u in range(nu):
                 if b[u0 + u] > 0 and nvv[u] > 0.0:
-                    e2 = max(np.float64(ev[u]) / nvv[u] - (1.0 + margin) * s2, 0.0)
+                    e2 = gain * max(np.float64(ev[u]) / nvv[u] - (1.0 + margin) * s2, 0.0)
                     b[u0 + u] = np.int16(np.float64(b[u0 + u]) * s2 / (s2 + e2) + 0.5)
 
 
 def model_error_weights(res: np.ndarray, w: np.ndarray, base: np.ndarray, box: np.ndarray, scale: float,
-                        half: tuple = _MODEL_HALF, margin: float = _MODEL_MARGIN) -> None:
+                        half: tuple = _MODEL_HALF, margin: float = _MODEL_MARGIN, gain: float = 1.0) -> None:
     """Scale the solver's int16 base weights ``base`` (F, ny, nx, Nv, Nu: the views of
     ``box``) by a model-validity weight that does not depend on the noise level: where the
     Eq. 5 residuals ``res`` (F, ny, nx, nv, nu, the rays of ``box`` (8,) y0 y1 x0 x1 v0 v1 u0
@@ -520,7 +520,10 @@ def model_error_weights(res: np.ndarray, w: np.ndarray, base: np.ndarray, box: n
     noise plus that model error. A ray's own residual is mostly noise; the window's mean
     energy minus the noise's is the model error (silhouettes, aliasing, the warp's
     interpolation), which is systematic and so does not average out, whatever the noise
-    level. ``res`` and ``w`` are overwritten (work arrays)."""
+    level. ``gain`` κ > 0 weighs the model error against the noise: ``s² / (s² + κ ê²)``
+    (:attr:`~polycam.motion_options.MotionOptions.model_weight_gain`: model error is
+    systematic, so over many rays it adds up as a bias where noise averages out; κ = 1 is the
+    variance weight). ``res`` and ``w`` are overwritten (work arrays)."""
     if not scale > 0:
         return
     r = res.reshape(-1)
@@ -528,4 +531,4 @@ def model_error_weights(res: np.ndarray, w: np.ndarray, base: np.ndarray, box: n
     _square_mask(r, m)
     _box_sums(res, half)
     _box_sums(w, half)
-    _scale_base(base, res, w, float(scale) ** 2, float(margin), int(box[4]), int(box[6]))
+    _scale_base(base, res, w, float(scale) ** 2, float(margin), float(gain), int(box[4]), int(box[6]))

@@ -186,18 +186,20 @@ def test_motion_takes_solver_options_and_records_them(tmp_path):
     lf = _small_lightfield(tmp_path, 2)
     res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"),
                   "--option", "smooth_c=0", "--option", "eiv=true", "--option", "whiten=on",
-                  "--option", "model_weight=true", "--option", "levels=2")
+                  "--option", "model_weight=true", "--option", "model_weight_gain=8", "--option", "levels=2")
     assert res.returncode == 0, res.stderr
-    assert "solver options: levels=2, smooth_c=0.0, eiv=True, model_weight=True, whiten=on" in res.stdout
+    assert ("solver options: levels=2, smooth_c=0.0, eiv=True, model_weight=True, model_weight_gain=8.0, "
+            "whiten=on") in res.stdout
     doc = tomllib.loads((tmp_path / "rep" / "options.toml").read_text())["motion"]
     assert doc["smooth_c"] == 0.0 and doc["eiv"] is True and doc["whiten"] == "on" and doc["levels"] == 2
-    assert doc["model_weight"] is True
+    assert doc["model_weight"] is True and doc["model_weight_gain"] == 8.0
     assert doc["uv_taps"] == 6 and doc["scale_selection"] is False       # the others: the defaults
 
 
 @pytest.mark.parametrize("option, problem", [("nope=1", "not a solver option"), ("eiv=maybe", "true or false"),
                                              ("levels=2.5", "integer"), ("robust=bogus", "robust"),
-                                             ("filters=foo", "unknown filter"), ("smooth_c", "KEY=VALUE")])
+                                             ("filters=foo", "unknown filter"), ("smooth_c", "KEY=VALUE"),
+                                             ("model_weight_gain=0", "model_weight_gain")])
 def test_motion_rejects_a_bad_option_before_writing(tmp_path, two_frame_lightfield, option, problem):
     lf = two_frame_lightfield
     assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--option", option), problem)

@@ -396,28 +396,34 @@ def test_covariance_matches_scatter_under_noise(scene):
 def test_model_weight_discounts_model_error_the_irls_weights_keep(scene):
     """A smooth bump of 3 noise std added to frame 2 of two faces (on every view: no motion
     explains it) is within the Tukey cut-off, so the IRLS weights keep it and it biases the
-    estimate; ``model_weight`` pools the residual energy over windows and discounts it."""
+    estimate; ``model_weight`` pools the residual energy over windows and discounts it, with
+    the default ``model_weight_gain`` and with the noise options' 8 (which weighs the model
+    error more: its estimates differ)."""
     grid = make_grid(ALL, views=5, directions=24)
     rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
     C0, C1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
     sigma = 0.002
     u = np.arange(24)
     bump = (3 * sigma * np.exp(-((u[:, None] - 8) ** 2 + (u[None, :] - 14) ** 2) / 18.0)).astype(np.float32)
-    err = {}
+    err, est = {}, {}
     for A in (0.0, 1.0):
-        for on in (False, True):
+        for on, gain in ((False, 1.0), (True, 1.0), (True, 8.0)):
             e = []
             for seed in range(3):
                 rng = np.random.default_rng(seed)
                 L0 = (C0 + rng.normal(0, sigma, C0.shape)).astype(np.float32)
                 L1 = (C1 + rng.normal(0, sigma, C1.shape)).astype(np.float32)
                 L1[[0, 2]] += A * bump
-                res = estimate_motion(L0, L1, grid, options=MotionOptions(smooth_c=0.0, model_weight=on))
+                opts = MotionOptions(smooth_c=0.0, model_weight=on, model_weight_gain=gain)
+                res = estimate_motion(L0, L1, grid, options=opts)
                 e.append(np.linalg.norm(rt_from_T(res.T_prev_next) - rt) / np.linalg.norm(rt))
-            err[A, on] = float(np.mean(e))
-    assert err[1.0, False] > 2 * err[0.0, False], err                   # the bump matters
-    assert err[1.0, True] < MOTION_MODEL_BUMP_GAIN * err[1.0, False], err
-    assert err[0.0, True] < 1.2 * err[0.0, False], err                  # noise alone: no loss
+                est[A, on, gain, seed] = rt_from_T(res.T_prev_next)
+            err[A, on, gain] = float(np.mean(e))
+    assert err[1.0, False, 1.0] > 2 * err[0.0, False, 1.0], err               # the bump matters
+    for gain in (1.0, 8.0):
+        assert err[1.0, True, gain] < MOTION_MODEL_BUMP_GAIN * err[1.0, False, 1.0], err
+        assert err[0.0, True, gain] < 1.2 * err[0.0, False, 1.0], err          # noise alone: no loss
+    assert not np.array_equal(est[1.0, True, 1.0, 0], est[1.0, True, 8.0, 0])   # the gain reaches the weights
 
 
 def test_warp_by_true_motion_predicts_frame_two(scene):

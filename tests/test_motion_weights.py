@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from polycam.motion_weights import _box_sums, model_error_weights
 from tolerances import MOTION_MODEL_WEIGHT_ATOL
@@ -29,10 +30,11 @@ def test_box_sums_are_the_clipped_window_sums():
     np.testing.assert_allclose(a, ref, rtol=1e-6)
 
 
-def test_model_error_weights_find_model_error_and_leave_noise_alone():
+@pytest.mark.parametrize("gain", [1.0, 8.0])
+def test_model_error_weights_find_model_error_and_leave_noise_alone(gain):
     """Residuals of pure noise (scale s) keep their weights; a patch with a model error of
-    3 s on every ray gets s² / (s² + (1 + 9 − 1.5) s²); zero weights and rays outside the
-    box stay as they were."""
+    3 s on every ray gets s² / (s² + κ (1 + 9 − 1.5) s²) (κ: ``gain``); zero weights and rays
+    outside the box stay as they were."""
     rng = np.random.default_rng(1)
     F, ny, nx, nv, nu, m = 1, 5, 5, 24, 24, 2                 # box: all views, (u, v) inset by m
     s = 0.01
@@ -44,14 +46,14 @@ def test_model_error_weights_find_model_error_and_leave_noise_alone():
     w = (base[:, :, :, m:-m, m:-m] > 0).astype(np.float32)
     box = np.array([0, ny, 0, nx, m, m + nv, m, m + nu])
     before = base.copy()
-    model_error_weights(res, w, base, box, s)
+    model_error_weights(res, w, base, box, s, gain=gain)
     ratio = base[:, :, :, m:-m, m:-m] / 16384.0
     clean = np.ones((nv, nu), bool)
     clean[3:21, 3:21] = False                                   # the patch and its window's reach
     assert np.mean(ratio[..., clean] == 1.0) > 0.9
     assert np.mean(ratio[..., clean]) > 0.97
     core = ratio[:, 1:-1, 1:-1, 8:16, 8:16]                     # whole windows inside the patch
-    np.testing.assert_allclose(np.median(core), 1 / (1 + 10 - 1.5), atol=MOTION_MODEL_WEIGHT_ATOL)
+    np.testing.assert_allclose(np.median(core), 1 / (1 + gain * (10 - 1.5)), atol=MOTION_MODEL_WEIGHT_ATOL)
     assert base[0, 2, 2, m + 20, m + 3] == 0
     np.testing.assert_array_equal(base[:, :, :, :m], before[:, :, :, :m])
     np.testing.assert_array_equal(base[..., -m:], before[..., -m:])
