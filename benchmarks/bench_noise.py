@@ -11,8 +11,9 @@ Gaussian noise of σ = 0, 0.5, 1, 2, 4, 8, 16, 32 grey levels (of 255) per light
 sample (float, not quantised); several seeded draws per level, always the same motion.
 The high levels are where the noise-free error (model bias, the σ = 0 row) is small
 next to the bound; ``--high-noise`` adds the same table for the noise options measured
-best together (``smooth_c=0, eiv=True, whiten="on", model_weight=True``: no discontinuity
-weight, errors-in-variables steps, whitened re-solves, the model-validity weight; with the
+best together (``smooth_c=0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8``:
+no discontinuity weight, errors-in-variables steps, whitened re-solves, the model-validity
+weight with the model error weighed 8x its energy; with the
 default Eq. 6 positional regressors), measured in the same run; ``--option KEY=VALUE`` changes
 a solver option in both tables.
 
@@ -650,8 +651,8 @@ def main() -> None:
     ap.add_argument("--probe-sigmas", type=float, nargs="+", default=[4.0, 16.0], help="noise levels of --probe")
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
-                    help="also the table for the noise options smooth_c=0, eiv=True, whiten=on, model_weight=True "
-                         "(HIGH_NOISE)")
+                    help="also the table for the noise options smooth_c=0, eiv=True, whiten=on, model_weight=True, "
+                         "model_weight_gain=8 (HIGH_NOISE)")
     ap.add_argument("--oracle-depth", action="store_true",
                     help="diagnostic: the main table with the true disparity in the Eq. 6 regressors instead of "
                          "the solver's estimate")

@@ -56,8 +56,8 @@ class MotionOptions:
     Eq. 5 residual energy pooled over 7 x 7 views x 5 x 5 directions beyond what noise of the
     robust scale s explains: the model error (silhouettes, aliasing) that the IRLS weights
     stop singling out once the noise is as large as it (their cut-off grows with the noise).
-    With the noise options (benchmarks/bench_noise.py, blurred set-up, 48 draws) at 1 / 2 grey
-    levels: at 4 m the translation error / CRB drops from 3.65 / 2.39 to 1.79 / 1.90 and the
+    With the noise options (benchmarks/bench_noise.py, blurred set-up, 48 draws;
+    ``model_weight_gain=1``) at 1 / 2 grey levels: at 4 m the translation error / CRB drops from 3.65 / 2.39 to 1.79 / 1.90 and the
     rotation's from 1.95 / 1.50 to 1.44 / 1.31; at 8 m the translation's from 11.1 / 5.68 to
     5.69 / 4.21; from 4 grey levels on it changes nothing (to ±0.02: where noise dominates the
     weights stay near 1; docs/motion.md, "Noise"). With the default options it does not help
@@ -72,8 +72,8 @@ class MotionOptions:
     bias, where noise averages out, and a larger κ discounts it more. Measured with the noise
     options (benchmarks/bench_noise.py, blurred set-up, 48 antithetic draws; docs/motion.md,
     "Noise"), κ = 8 against 1: at 8 m the translation error / CRB at 1 / 2 grey levels drops
-    from 5.69 / 4.21 to 2.68 / 2.88; on the textured room (8 m, 16 draws) t / ω from 4.08 /
-    3.64 to 2.79 / 2.65 at 1 grey level; at 4 m it rises at 1 grey level (t 1.79 → 2.37) and
+    from 5.69 / 4.21 to 2.68 / 2.88; on the textured room (4 m, 24 draws) t / ω from 4.26 /
+    3.16 to 2.84 / 2.61 at 1 grey level; at 4 m it rises at 1 grey level (t 1.79 → 2.37) and
     drops at 2 (1.90 → 1.64); from 4 grey levels on it changes nothing to within ±0.05 (the
     weights stay near 1 where noise dominates). Only with ``model_weight``."""
     smooth_noise: bool = False
