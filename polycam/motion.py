@@ -514,6 +514,7 @@ class _Solver:
         self.rho_gain = 1.0                    # whitened / plain energy of the signal L_u (whitened re-solves)
         self.N_plain: np.ndarray | None = None  # the last solve's normal matrix before whitening
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
+        self.rho_extrapolated = False          # rho was computed from a warp with the extrapolation
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
         self.n_base = 0
@@ -561,14 +562,18 @@ class _Solver:
         # moved since (ρ̂ of a warp a step before the converged one costs accuracy)
         dr = opts.depth_regressors and self.level < _DR_LEVELS
         moved = self.warp_change(self.M_rho, M) if dr and self.M_rho is not None else math.inf
-        first_dr = dr and moved > _RHO_SETTLED
+        rho_bar = self.rho_bar if not opts.symmetric else None     # the extrapolation's (None: none)
+        extrapolate = rho_bar is not None
+        # a fresh ρ̂ also when the extrapolation starts: ρ̂ of a warp without it has none for
+        # the rays whose support then holds extrapolated samples, which would keep their
+        # measured L_x, L_y (the copies' noise) instead of the view mean
+        first_dr = dr and (moved > _RHO_SETTLED or (extrapolate and not self.rho_extrapolated))
         if dr:
             log.debug("depth regressors: warp moved %.3g samples since rho: %s", moved,
                       "fresh" if first_dr else "reused")
         if first_dr:
             self.M_rho = np.array(M, float)
-        rho_bar = self.rho_bar if not opts.symmetric else None     # the extrapolation's (None: none)
-        extrapolate = rho_bar is not None
+            self.rho_extrapolated = extrapolate
         marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
         L0 = self._warp(H, H1, rho_bar, marks)
         # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an

@@ -18,6 +18,7 @@ from polycam.lightfield import Axis, LightFieldGrid
 from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory, free_work_buffers,
                             ray_motion_coefficients, solve_ray_motion, warp_lightfield)
 from polycam.derivatives import plenoptic_derivatives
+from polycam.eq5 import _RHO_NONE
 from polycam.trajectory import Trajectory
 
 from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
@@ -516,6 +517,41 @@ def test_solver_extrapolates_beyond_the_views(scene):
         t_est = rt_from_T(noisy.T_prev_next)[3:]
         ratios.append(t_est @ rt[3:] / (rt[3:] @ rt[3:]))
     assert abs(np.mean(ratios) - 1.0) < MOTION_NOISE_EXTRAPOLATION_REL
+
+
+def test_rays_near_extrapolated_samples_take_the_view_mean_disparity(scene):
+    """The finest level's first warp has no extrapolation (its view-mean ρ̂ is what the
+    extrapolation needs), so its ρ̂ has no value for the rays whose (x, y) support later holds
+    extrapolated samples. When the extrapolation starts ρ̂ is computed afresh, even where the
+    warp has not moved, and those rays get the view mean (``extrapolate_views``), instead of
+    keeping their measured L_x, L_y, which mix the copies' noise."""
+    from polycam.derivatives import FILTERS
+    from polycam.motion import _Solver
+    from polycam.pyramid import _pyramid
+    from polycam.warp import _near_marks
+
+    grid = make_grid(("+z",), views=9, directions=32, spacing=0.01)
+    M = T_from_rt(np.array([0.001, -0.001, 0.0005, 0.004, -0.003, 0.001]))      # 0.4 views
+    opts = MotionOptions()
+    filters = {k: FILTERS[opts.filters[k]] for k in "xyuv"}
+    lev = _pyramid(scene.render(grid, np.eye(4)), scene.render(grid, M), None, None, grid, opts,
+                   {k: fp.radius for k, fp in filters.items()})[0]
+    solver = _Solver(lev, opts, filters, 0)
+    solver.solve(M)                                         # no extrapolation yet: ρ̂ and its view mean
+    assert solver.rho_bar is not None and not solver.rho_extrapolated
+    solver.solve(M)                                         # the same warp, now extrapolated
+    assert solver.rho_extrapolated
+    marks = np.zeros(solver.shape, np.uint8)                # the extrapolated samples of that warp
+    pm._warp_into(solver.src1, grid, T_inverse(M), opts.uv_taps, np.empty_like(solver.out1),
+                  np.empty_like(solver.conf), solver.rho_bar, opts.extrapolate_views, marks=marks, ratio=solver.units1)
+    near = _near_marks(marks, solver.radius["y"], solver.radius["x"], np.zeros(solver.cshape, np.uint8),
+                       *solver.vo[:2])
+    box = solver.box
+    inner = (slice(None),) * 3 + (slice(box[4], box[5]), slice(box[6], box[7]))
+    sel = (near[inner] != 0) & (solver.base[inner] > 0) & np.isfinite(solver.rho_bar[:, None, None, box[4]:box[5],
+                                                                                      box[6]:box[7]])
+    assert sel.sum() > 100
+    assert np.all(solver.rho[inner][sel] != _RHO_NONE)
 
 
 @pytest.mark.parametrize("with_w", [False, True])
