@@ -72,10 +72,9 @@ class MotionOptions:
     bias, where noise averages out, and a larger κ discounts it more. Measured with the noise
     options (benchmarks/bench_noise.py, blurred set-up, 48 antithetic draws; docs/motion.md,
     "Noise"), κ = 8 against 1: at 8 m the translation error / CRB at 1 / 2 grey levels drops
-    from 5.69 / 4.21 to 2.68 / 2.88; on the textured room (4 m, 24 draws) t / ω from 4.26 /
-    3.16 to 2.84 / 2.61 at 1 grey level; at 4 m it rises at 1 grey level (t 1.79 → 2.37) and
-    drops at 2 (1.90 → 1.64); from 4 grey levels on it changes nothing to within ±0.05 (the
-    weights stay near 1 where noise dominates). Only with ``model_weight``."""
+    from 2.53 / 2.19 to 1.98 / 1.83, at 4 m it rises at 1 grey level (2.04 → 2.27), the
+    rotation's by 0.1–0.2 below 4 grey levels; from 4 grey levels on it changes nothing to
+    within ±0.05 (the weights stay near 1 where noise dominates). Only with ``model_weight``."""
     smooth_noise: bool = False
     """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
     reaches (its 99th percentile for the noise variance estimated from the frames), so that
