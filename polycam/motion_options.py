@@ -73,7 +73,7 @@ class MotionOptions:
     options (benchmarks/bench_noise.py, blurred set-up, 48 antithetic draws; docs/motion.md,
     "Noise"), κ = 8 against 1: at 8 m the translation error / CRB at 1 / 2 grey levels drops
     from 2.53 / 2.19 to 1.98 / 1.83, at 4 m it rises at 1 grey level (2.04 → 2.27), the
-    rotation's by 0.1–0.2 below 4 grey levels; from 4 grey levels on it changes nothing to
+    rotation's by up to 0.2 below 4 grey levels; from 4 grey levels on it changes nothing to
     within ±0.05 (the weights stay near 1 where noise dominates). Only with ``model_weight``."""
     smooth_noise: bool = False
     """Noise-aware discontinuity weight: subtract from e the level that sensor noise alone
