@@ -127,8 +127,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
-    if describe_options(opts):
-        print("solver options: " + describe_options(opts))
+    described = describe_options(opts)
+    if described:
+        print("solver options: " + described)
     scale_selection = args.scale_selection == "on"
     with _progress(f"motion {src.name}", len(store) - 1) as advance:
         traj, results = estimate_trajectory(store, progress=advance, options=opts, scale_selection=scale_selection)

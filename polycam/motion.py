@@ -65,7 +65,7 @@ noise: the IRLS cut-off grows with the noise, so model error of the noise's size
 once the noise is there. ``MotionOptions.model_weight`` (opt-in) adds a weight that does not
 depend on the noise level: the residual energy pooled over 7 x 7 views x 5 x 5 directions,
 beyond what the noise explains, is the window's model error ê², and a ray weighs
-``s² / (s² + ê²)``. The weights: :mod:`polycam.motion_weights`.
+``s² / (s² + κ ê²)`` (κ: ``model_weight_gain``). The weights: :mod:`polycam.motion_weights`.
 
 Positional regressors (paper Eq. 6)
 -----------------------------------

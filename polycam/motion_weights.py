@@ -415,8 +415,8 @@ _MODEL_MARGIN = 0.5
 where noise dominates the weights stay near 1 (the prefilters correlate the residuals, so the
 window's mean of pure noise scatters more than its ray count suggests). On bench_noise's 4 m
 scene with the noise options (gain 1) the mean weight is 0.43 / 0.90 / 0.98 / 1.00 at 0 / 1 /
-2 / 4–16 grey levels (with a 3 x 3 x 5 x 5 window: 0.99 at 8, 0.92 there with no margin, at the same
-gains at 1–2)."""
+2 / 4–16 grey levels (with a 3 x 3 x 5 x 5 window: 0.99 at 8, 0.92 there with no margin, at
+the same gains at 1–2)."""
 
 
 @numba.njit(cache=True, inline="always")
