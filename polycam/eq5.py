@@ -979,6 +979,13 @@ depth (the noisy one-face 5 x 5 room of tests/test_design.py: 28-310x; replacing
 makes the translation columns nearly collinear with the rotation's, condition 11 → 60, and
 the scatter 2.3x). docs/motion_log.md, "Noise"."""
 
+_RHO_DENOISED_MIN = 0.5
+"""ρ̂'s denominator is the window's energy ``S_uu = Σ (L_u² + L_v²)`` less the part the sensor
+noise of ``L_u, L_v`` adds to it (``n (var_u + var_v)``, n the window's ray weight), which
+would otherwise shrink ρ̂ towards 0 by ``var / (signal + var)`` (errors in variables: at 32 grey
+levels ~4 % on the sphere scene); it is kept at least this fraction of ``S_uu`` (windows whose
+``L_u`` is mostly noise)."""
+
 _DEPTH_RHO_KAPPA = 0.0856
 """Variance of ρ̂'s pooled noise, in units of var(L_x) / Σ_window (L_u² + L_v²): Σ (w ⋆ k)² /
 Σ k² over the four axes for the window w (fs3 across x and y, fs5 ∗ fs5 along u and v) and
@@ -1029,7 +1036,8 @@ def _depth_rho_noise(var: np.ndarray) -> tuple[float, float]:
 def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0,
                      gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
     """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
-    (:attr:`MotionOptions.depth_regressors`) where valid (bool, same dims), their expected
+    (:attr:`MotionOptions.depth_regressors`; ρ̂ = Σ (L_x L_u + L_y L_v) / (Σ (L_u² + L_v²) less
+    its noise part, ``_RHO_DENOISED_MIN``) over the window) where valid (bool, same dims), their expected
     noise is at most that of the measured pair (:func:`_depth_rho_noise`; ``var`` (4,): noise
     variances of L_x, L_y, L_u, L_v), and either one depth explains the window to within the
     noise (misfit ≤ ``_DEPTH_KEEP`` x the noise) or ``|ρ̂| ≤ rho_max`` (ρ̂ in units of u per
@@ -1055,8 +1063,9 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     suu = win(gu * gu + gv * gv)
     sxu = win(gx * gu + gy * gv)
     sxx = win(gx * gx + gy * gy)
-    rho = np.where(suu > 0, sxu / np.maximum(suu, np.float32(1e-30)), np.float32(0.0)).astype(np.float32)
     n = win(np.ones_like(m))
+    den = np.maximum(suu - np.float32(var[2] + var[3]) * n, np.float32(_RHO_DENOISED_MIN) * suu)
+    rho = np.where(suu > 0, sxu / np.maximum(den, np.float32(1e-30)), np.float32(0.0)).astype(np.float32)
     res = sxx - rho * sxu
     vxy = var[0] + var[1]
     a, b = _depth_rho_noise(var)
@@ -1153,7 +1162,7 @@ def _window_uv_row(A, Brow, Crow, t9, box, v):
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                    rho, rho_sc, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
+                    var_uv, rho, rho_sc, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
     """One run of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds its
     statistics to st (4,). Scratch (float32): px (3, 4, Nv, Nu) the products of three view
     rows, A (4, Nv + 8, Nu + 8) and Brow (4, Nu + 8) zero outside the box's (v, u) range
@@ -1207,7 +1216,8 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
                 ok = (b[u] > 0.0) & (nr[u] == 0)
                 has = suu[u] > 0.0
                 inv = np.float32(1.0) / max(suu[u], np.float32(1e-30))
-                q = sxu[u] * inv if has else np.float32(0.0)
+                den = max(suu[u] - np.float32(var_uv) * sn[u], np.float32(_RHO_DENOISED_MIN) * suu[u])
+                q = sxu[u] / max(den, np.float32(1e-30)) if has else np.float32(0.0)
                 a = np.float32(gu[u]) * su
                 c = np.float32(gv[u]) * sv
                 e = (a * a + c * c) * np.float32(nb) * inv if has else np.float32(0.0)
@@ -1229,7 +1239,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                      rho, rho_sc, stats, scratch):
+                      var_uv, rho, rho_sc, stats, scratch):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho int16 in units of rho_sc
     per view image (all arrays with view origin ``vo``, derivatives with scales ``dsc``, module
     docstring), ``_RHO_NONE`` where the measured L_x, L_y are kept (inside the box: base <= 0,
@@ -1238,7 +1248,9 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
     are separable: fs3 across x (per view row, rolling over y), fs3 across y, then t9 =
     fs5 ∗ fs5 along v and u with zeros outside the box (= :func:`depth_regularise`'s two fs5
     passes with "nearest" borders on every ray at least 2 samples inside the (u, v) border).
-    A ray is replaced where ``ρ̂² na + (L_u² + L_v²) nb / S_uu ≤ 1`` (:func:`_depth_rho_noise`)
+    ρ̂ = S_xu / (S_uu − n var_uv) (``var_uv`` = var_u + var_v, n the window's ray weight;
+    at least ``_RHO_DENOISED_MIN`` S_uu in the denominator). A ray is replaced where
+    ``ρ̂² na + (L_u² + L_v²) nb / S_uu ≤ 1`` (:func:`_depth_rho_noise`)
     and its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
     and the misfit at least ``thr_gate`` x the weight.
     Work: the box's view rows, column (face, x) after column, cut into one equal share per
@@ -1271,8 +1283,8 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
             jb = min(r_end - col * ny, ny)
             fc = col // nx
             _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb,
-                            rho_max, rho, rho_sc, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny, box[0] + jb,
-                            px, A, Brow, Crow, vb)
+                            rho_max, var_uv, rho, rho_sc, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny,
+                            box[0] + jb, px, A, Brow, Crow, vb)
             r = col * ny + jb
 
 
@@ -1399,7 +1411,8 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
         has_near = near is not None
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
         _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
-                          float(gate_misfit) * vxy, na, nb, float(rho_max), out, out_scale, stats, scratch)
+                          float(gate_misfit) * vxy, na, nb, float(rho_max), float(var[2] + var[3]), out, out_scale,
+                          stats, scratch)
     else:
         out[...] = _RHO_NONE
         out_scale[...] = 0.0

@@ -85,7 +85,8 @@ class MotionOptions:
     depth_regressors: bool = True
     """Replace the positional derivatives by ``ρ̂ L_u, ρ̂ L_v`` (paper Eq. 6, Lambertian:
     ``L_x = ρ L_u``), ρ̂ = Σ (L_x L_u + L_y L_v) / Σ (L_u² + L_v²) pooled over a window (fs5
-    twice in (u, v), fs3 once across the views), except where one ρ does not explain the
+    twice in (u, v), fs3 once across the views; the denominator less the energy the noise of
+    L_u, L_v adds to it, which would shrink ρ̂ at high noise), except where one ρ does not explain the
     window (its residual energy above 3x the expected noise of L_x, L_y: occlusions, and
     noise-free data, where that noise is ~0; but see ``depth_gate``) and where ρ̂ L_u, ρ̂ L_v
     would be noisier than the measured pair (ρ̂² var_u + L_u² var(ρ̂) above var_x, e.g. a ray

@@ -25,7 +25,8 @@ from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION
                         MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
-                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_FLIPS, MOTION_DEPTH_RHO_RTOL,
+                        MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_DENOISED, MOTION_DEPTH_RHO_FLIPS,
+                        MOTION_DEPTH_RHO_RTOL,
                         MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
 
@@ -1352,6 +1353,44 @@ def test_depth_regressors_only_where_less_noisy(kernel):
     assert quiet[0, 1, 1, 12, 13] and quiet[0, 1, 1, 11, 12]
     assert quiet.sum() >= valid.sum() - 3
     assert not used([1e-2, 1e-2, 5e-3, 5e-3]).any()        # ρ̂² var_u / var_x = 2
+
+
+@pytest.mark.parametrize("kernel", [False, True], ids=["numpy", "kernel"])
+def test_depth_rho_is_not_shrunk_by_the_noise_of_L_u(kernel):
+    """ρ̂ = Σ L_x L_u / Σ L_u² (and v) over a window is shrunk towards 0 by the noise energy of
+    L_u in its denominator (errors in variables: here by 1 / (1 + 1/4)); with that energy
+    (the window's weight x (var_u + var_v)) taken out, its mean is ρ."""
+    from polycam.eq5 import _scaled_views, depth_regularise, depth_rho
+
+    rng = np.random.default_rng(17)
+    shape = (1, 3, 3, 40, 40)
+    box = np.array([1, 2, 1, 2, 2, 38, 2, 38], np.int64)
+    valid = np.zeros(shape, bool)
+    valid[:, 1:2, 1:2, 2:38, 2:38] = True
+    rho, s_u, s_x = 2.0, 0.5, 1.5                       # noise std of L_u, L_v and of L_x, L_y
+    Su, Sv = (rng.normal(size=shape) for _ in range(2))  # the noise-free L_u, L_v (unit energy)
+    der = [rho * Su + s_x * rng.normal(size=shape), rho * Sv + s_x * rng.normal(size=shape),
+           Su + s_u * rng.normal(size=shape), Sv + s_u * rng.normal(size=shape), np.zeros(shape)]
+    der = [a.astype(np.float32) for a in der]
+
+    def mean_rho(var_u):
+        var = np.array([s_x ** 2, s_x ** 2, var_u, var_u])
+        if kernel:
+            out = np.empty(shape, np.float32)
+            q, dsc = _scaled_views(der, box)
+            depth_rho(q, np.ones(shape, np.float32), box, var, out, dsc=dsc)
+            used = np.isfinite(out)
+            values = out[used]
+        else:
+            reg = [a.copy() for a in der]
+            depth_regularise(reg, valid, var)
+            used = valid & (reg[0] != der[0])
+            values = reg[0][used] / der[2][used]
+        assert used.sum() > 0.9 * valid.sum()
+        return float(np.mean(values))
+
+    assert abs(mean_rho(s_u ** 2) / rho - 1.0) < MOTION_DEPTH_RHO_DENOISED
+    assert mean_rho(0.0) / rho < 1.0 - 4 * MOTION_DEPTH_RHO_DENOISED   # the noise not taken out
 
 
 @pytest.mark.parametrize("gate", [0.0, 0.5])
