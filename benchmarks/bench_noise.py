@@ -5,7 +5,7 @@ Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--sigma
 
 Set-up (paper Sect. 5, as benchmarks/bench_motion.py): unit spheres filling the
 horizon at D = 8 m, f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions per face
-(3 x 3 rays averaged per sample), one motion |t| = 1.5 cm, |ω| = 0.2 deg (seeded),
+(8 x 8 rays averaged per sample: :data:`SUPERSAMPLE`), one motion |t| = 1.5 cm, |ω| = 0.2 deg (seeded),
 on all six faces and on the ``+z`` face alone. Both frames get independent white
 Gaussian noise of σ = 0, 0.5, 1, 2, 4, 8, 16, 32 grey levels (of 255) per light-field
 sample (float, not quantised); several seeded draws per level, always the same motion.
@@ -42,7 +42,8 @@ keeps, with plain or whitened least squares, against the measured and the Eq. 6 
 ``--oracle-depth`` (a diagnostic) gives the solver the scene's true disparity in place of its
 estimate ρ̂ (:class:`OracleDepth`): the same rays get Eq. 6 regressors, ``ρ L_u, ρ L_v`` with
 the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
-``--supersample`` sets the rays the renderer averages per sample (k x k; default 3).
+``--supersample`` sets the rays the renderer averages per sample (k x k; default
+:data:`SUPERSAMPLE`).
 ``--antithetic`` draws the noise in pairs n, −n (:func:`errors`): the same kind of draws, but the
 draws' mean, the bias under noise, is measured several times more precisely.
 ``--scene room`` replaces the spheres by the mock rig's textured room (far wall at
@@ -132,6 +133,17 @@ from bench_motion import params, random_motion  # noqa: E402  (the same motions 
 
 SIGMAS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 """Noise levels [grey levels of 255]."""
+SUPERSAMPLE = 8
+"""Rays the renderer averages per sample, k x k (the pixel's area integral, by quadrature). A
+camera integrates over the pixel exactly; with few rays the quadrature error at the spheres'
+silhouettes and in their texture is model error of the frames themselves, which no estimator
+removes: warped by the true motion, the 8 m pair's prefiltered difference is 0.27 / 0.14 /
+0.074 / 0.052 / 0.045 grey levels RMS near depth jumps with k = 3 / 5 / 8 / 12 / 16 (0.20 /
+0.10 / 0.054 / 0.042 / 0.038 elsewhere; the noise's at σ = 1 is 0.18), and plain least
+squares with Eq. 6 instruments on it is off by 16 / 3.7 / 1.1 / 0.1 / 0.3 bounds (σ = 1)
+along t (docs/motion_log.md, Session 23). k = 8 (19 s to render the pair) brings the
+quadrature error below half the noise of one grey level; until session 22 it was 3."""
+
 AXES = ("y", "x", "v", "u")
 """Order of the per-face array axes (F, Ny, Nx, Nv, Nu) after the face."""
 
@@ -658,7 +670,7 @@ def main() -> None:
                     help="diagnostic: the main table with the true disparity in the Eq. 6 regressors instead of "
                          "the solver's estimate")
     ap.add_argument("--supersample", type=int, default=None,
-                    help="k x k rays averaged per sample by the renderer (default 3; --quick 2)")
+                    help=f"k x k rays averaged per sample by the renderer (default {SUPERSAMPLE}; --quick 2)")
     ap.add_argument("--antithetic", action="store_true",
                     help="draws in pairs n, -n (errors()): the draws' mean (bias) far more precise")
     ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
@@ -679,7 +691,7 @@ def main() -> None:
     main_name, high_name = (describe_options(o) or "default options" for o in (main_opts, high_opts))
     draws = args.draws or (3 if args.quick else 6)
     sigmas = tuple(args.sigmas) if args.sigmas else ((0.0, 1.0, 4.0, 16.0) if args.quick else SIGMAS)
-    ss = args.supersample or (2 if args.quick else 3)
+    ss = args.supersample or (2 if args.quick else SUPERSAMPLE)
     if args.oracle_depth:
         main_name += ", true disparity in the Eq. 6 regressors (--oracle-depth)"
     for faces in args.faces:
