@@ -110,7 +110,7 @@ _stack_f64 = _stack_buffer(numba.types.float64)
 @numba.njit(cache=True, inline="always")
 def _lagrange(a, n, w):
     """n-point Lagrange weights for samples at 1 - n/2, ..., n/2 and fraction a ∈ [0, 1]
-    (n = 2: linear, 4: cubic, 6: quintic)."""
+    (n = 2: linear, 4: cubic, 6: quintic, 8)."""
     o = n // 2 - 1
     for q in range(n):
         pq = q - o
@@ -266,12 +266,12 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
 
 @numba.njit(cache=True, inline="always")
 def _lagrange_stencil(fi, n, taps, den, w, idx):
-    """Lagrange weights and clamped indices (``taps`` points, padded to 6 with zero weights)
-    at the fractional sample position fi of an n-sample axis into w (6,), idx (6,);
+    """Lagrange weights and clamped indices (``taps`` points, padded to 8 with zero weights)
+    at the fractional sample position fi of an n-sample axis into w (8,), idx (8,);
     den[q] = Π_{m≠q} (q − m) for the number of points used (:func:`_lagrange_dens`)."""
     T = max(1, min(taps, n - n % 2))
     if n == 1:
-        for q in range(6):
+        for q in range(8):
             w[q] = 1.0 if q == 0 else 0.0
             idx[q] = 0
         return
@@ -288,16 +288,16 @@ def _lagrange_stencil(fi, n, taps, den, w, idx):
     for q in range(T - 1, -1, -1):
         w[q] *= suf / den[q]
         suf *= a - (q - o)
-    for q in range(T, 6):
+    for q in range(T, 8):
         w[q] = 0.0
         idx[q] = idx[0]
 
 
 @numba.njit(cache=True)
 def _lagrange_dens(Nv, Nu, taps):
-    """(2, 6): the Lagrange denominators Π_{m≠q} (q − m) of :func:`_lagrange_stencil` for
+    """(2, 8): the Lagrange denominators Π_{m≠q} (q − m) of :func:`_lagrange_stencil` for
     the v and u axes (Nv, Nu samples; ``taps`` points at most)."""
-    dens = np.ones((2, 6))
+    dens = np.ones((2, 8))
     for k, n in enumerate((Nv, Nu)):
         T = max(1, min(taps, n - n % 2))
         for q in range(T):
@@ -331,8 +331,8 @@ def _moved_uv(us, vs, R, f, jv, ju):
 
 @numba.njit(cache=True)
 def _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu):
-    """The Lagrange stencils of direction row jv (:func:`_uv_stencils`) into wv, wu (Nu, 6)
-    float64 and iv, iu (Nu, 6) int64. Not inlined, and compiled without fast-math flags,
+    """The Lagrange stencils of direction row jv (:func:`_uv_stencils`) into wv, wu (Nu, 8)
+    float64 and iv, iu (Nu, 8) int64. Not inlined, and compiled without fast-math flags,
     so the weights are those of :func:`_uv_stencils` to the last bit wherever it is called."""
     for ju in range(us.shape[0]):
         fv, fu, _, _, _ = _moved_uv(us, vs, R, f, jv, ju)
@@ -362,7 +362,7 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
     ``R (u, v, f)`` re-projected on the face's image plane depends on (u, v) only.
 
     Returns per-(v, u) Lagrange weights and clamped indices along v and u
-    (``(Nv, Nu, 6)`` float64 / int64 each; fewer taps are padded with zero weights),
+    (``(Nv, Nu, 8)`` float64 / int64 each; fewer taps are padded with zero weights),
     ``ok_uv`` (Nv, Nu) bool and the moved direction's slopes d_x / d_z, d_y / d_z (Nv, Nu).
     Without ``weights`` the first four are None (:func:`_warp_rows_kernel` computes each
     row's stencils itself: 0.6 frames less memory at 128 x 128 directions).
@@ -370,7 +370,7 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
     us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
     vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
     shape = (vs.size, us.size)
-    st = shape + (6,) if weights else (1, 1, 6)
+    st = shape + (8,) if weights else (1, 1, 8)
     wv, wu = np.empty(st), np.empty(st)
     iv, iu = np.empty(st, np.int64), np.empty(st, np.int64)
     ok = np.empty(shape, bool)
@@ -384,7 +384,7 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes):
     """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m] (srcT float32, or int16
     in its channels' units: :func:`_warp_into`): one direction row of
-    the (u, v) part of the warp (6 x 6 taps; stencils (Nu, 6) of :func:`_uv_stencil_row`),
+    the (u, v) part of the warp (up to 8 x 8 taps; stencils (Nu, 8) of :func:`_uv_stencil_row`),
     shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
     and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
     multiple of 16: no scalar remainder). With ``has_lanes`` only the first lanes[u] (Nu,)
@@ -394,12 +394,12 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes):
         o = Ur[u]
         o[:] = 0.0
         mu = lanes[u] if has_lanes else M
-        for q in range(6):
+        for q in range(8):
             wq = wv[u, q]
             if wq == 0.0:
                 continue
             row = srcT[iv[u, q]]
-            for r in range(6):
+            for r in range(8):
                 w = np.float32(wq * wu[u, r])
                 if w == 0.0:
                     continue
@@ -648,10 +648,10 @@ def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_
     nxy = Ny * Nx
     Ur = np.empty((Nu, M), np.float32)
     Uv = Ur.reshape(Nu * M)
-    wv = np.empty((Nu, 6))
-    wu = np.empty((Nu, 6))
-    iv = np.empty((Nu, 6), np.int64)
-    iu = np.empty((Nu, 6), np.int64)
+    wv = np.empty((Nu, 8))
+    wu = np.empty((Nu, 8))
+    iv = np.empty((Nu, 8), np.int64)
+    iu = np.empty((Nu, 8), np.int64)
     lanes = np.full(Nu if has_nd else 1, M, np.int64)     # (one allocation less without)
     for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
         _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
@@ -659,7 +659,7 @@ def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_
             for u in range(Nu):                  # the stencil's box of taps
                 v0 = v1 = iv[u, 0]
                 u0 = u1 = iu[u, 0]
-                for q in range(1, 6):
+                for q in range(1, 8):
                     v0 = min(v0, iv[u, q])
                     v1 = max(v1, iv[u, q])
                     u0 = min(u0, iu[u, q])
@@ -1147,7 +1147,7 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     ``arrays``: (K, F, Ny, Nx, Nv, Nu) stacked fields (e.g. L and W) sharing the
     warp. Returns ``out`` (same dims, float32) with ``out(ρ) = in(T_ray ρ)`` and
     ``ok`` (F, Ny, Nx, Nv, Nu) bool: the moved ray lies inside the grid. Interpolation
-    is linear in (x, y) and ``uv_taps``-point Lagrange (2, 4 or 6) in (u, v). The
+    is linear in (x, y) and ``uv_taps``-point Lagrange (2, 4, 6 or 8) in (u, v). The
     moved direction, hence the (u, v) stencil, does not depend on the viewpoint, so
     every view image is first resampled in (u, v), then views are blended.
     ``rho`` (F, Nv, Nu): the disparity ρ = f / Z per direction (u per unit of x; NaN:

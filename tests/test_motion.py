@@ -26,7 +26,7 @@ from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_DENOISED, MOTION_DEPTH_RHO_FLIPS,
-                        MOTION_DEPTH_RHO_RTOL,
+                        MOTION_DEPTH_RHO_RTOL, MOTION_WARP_TAPS_GAIN,
                         MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
 
@@ -1149,9 +1149,41 @@ def test_depth_inside_textured_sphere(scene, with_motion):
                                                / 60.0**2), grid.shape)[good], rtol=1e-5)
 
 
+def test_more_lagrange_taps_interpolate_the_directions_more_accurately():
+    """The warp's (u, v) interpolation of a band-limited pattern (1.2 and 1.5 rad per sample)
+    moved by a small rotation, against the pattern at the moved directions: each step of
+    uv_taps (4, 6, 8) is several times more accurate (what the noise options' 8 taps are for:
+    docs/motion_log.md, Session 23)."""
+    from polycam.warp import _moved_uv
+
+    grid = make_grid(("+z",), views=1, directions=40)
+    Nv, Nu = grid.shape[3:]
+    jv, ju = np.meshgrid(np.arange(Nv, dtype=float), np.arange(Nu, dtype=float), indexing="ij")
+
+    def pattern(fv, fu):
+        return np.cos(1.2 * fu + 0.3) * np.cos(1.5 * fv - 0.2)
+
+    L = pattern(jv, ju)[None, None, None].astype(np.float32)
+    M = T_from_rt(np.array([0.004, -0.003, 0.002, 0.0, 0.0, 0.0]))
+    us, vs = grid.u.values.astype(float), grid.v.values.astype(float)
+    R = M[:3, :3]                              # warp_lightfield(L, grid, M) samples L at the directions moved by M
+    errors = []
+    for taps in (4, 6, 8):
+        w, ok = warp_lightfield(L[None], grid, M, uv_taps=taps)
+        err = []
+        for v in range(4, Nv - 4):             # away from the border, where the stencils are clamped
+            for u in range(4, Nu - 4):
+                fv, fu, good, _, _ = _moved_uv(us, vs, R, float(grid.faces[0].f), v, u)
+                if good and ok[0, 0, 0, v, u]:
+                    err.append(abs(w[0, 0, 0, 0, v, u] - pattern(fv, fu)))
+        assert len(err) > 500
+        errors.append(max(err))
+    assert errors[1] < MOTION_WARP_TAPS_GAIN * errors[0] and errors[2] < MOTION_WARP_TAPS_GAIN * errors[1], errors
+
+
 @pytest.mark.parametrize("faces,views,directions", [(("+z", "-y"), 5, 24), (("+x",), 1, 16),
                                                      (("+z",), 9, 7)])
-@pytest.mark.parametrize("taps", [2, 4, 6])
+@pytest.mark.parametrize("taps", [2, 4, 6, 8])
 @pytest.mark.parametrize("channels", [1, 3, 5])
 def test_two_stage_warp_matches_reference(rng, faces, views, directions, taps, channels):
     """Any number of stacked channels: the (x, y) blend takes up to three in one pass."""
