@@ -59,6 +59,10 @@ from .lightfield import LightFieldGrid
 
 __all__ = ["warp_lightfield", "warp_lightfield_reference"]
 
+_UV_TAPS_MAX = 8
+"""Most Lagrange points along u and v (``MotionOptions.uv_taps``): the stencils' length (fewer
+taps are padded with zero weights, which the blends skip)."""
+
 
 def _store(a, idx, val):
     """a[idx] = val: as it is into a float array; rounded to the nearest integer and clipped
@@ -184,10 +188,10 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
     nu_t = max(nu_t, 1)
     nv_t = max(nv_t, 1)
     for jy in numba.prange(Ny):
-        wu = np.empty(8)
-        wv = np.empty(8)
-        iu_idx = np.empty(8, np.int64)
-        iv_idx = np.empty(8, np.int64)
+        wu = np.empty(_UV_TAPS_MAX)
+        wv = np.empty(_UV_TAPS_MAX)
+        iu_idx = np.empty(_UV_TAPS_MAX, np.int64)
+        iv_idx = np.empty(_UV_TAPS_MAX, np.int64)
         for ix in range(Nx):
             ox = xs[ix]
             oy = ys[jy]
@@ -271,7 +275,7 @@ def _lagrange_stencil(fi, n, taps, den, w, idx):
     den[q] = Π_{m≠q} (q − m) for the number of points used (:func:`_lagrange_dens`)."""
     T = max(1, min(taps, n - n % 2))
     if n == 1:
-        for q in range(8):
+        for q in range(_UV_TAPS_MAX):
             w[q] = 1.0 if q == 0 else 0.0
             idx[q] = 0
         return
@@ -288,7 +292,7 @@ def _lagrange_stencil(fi, n, taps, den, w, idx):
     for q in range(T - 1, -1, -1):
         w[q] *= suf / den[q]
         suf *= a - (q - o)
-    for q in range(T, 8):
+    for q in range(T, _UV_TAPS_MAX):
         w[q] = 0.0
         idx[q] = idx[0]
 
@@ -297,7 +301,7 @@ def _lagrange_stencil(fi, n, taps, den, w, idx):
 def _lagrange_dens(Nv, Nu, taps):
     """(2, 8): the Lagrange denominators Π_{m≠q} (q − m) of :func:`_lagrange_stencil` for
     the v and u axes (Nv, Nu samples; ``taps`` points at most)."""
-    dens = np.ones((2, 8))
+    dens = np.ones((2, _UV_TAPS_MAX))
     for k, n in enumerate((Nv, Nu)):
         T = max(1, min(taps, n - n % 2))
         for q in range(T):
@@ -370,7 +374,7 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
     us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
     vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
     shape = (vs.size, us.size)
-    st = shape + (8,) if weights else (1, 1, 8)
+    st = shape + (_UV_TAPS_MAX,) if weights else (1, 1, _UV_TAPS_MAX)
     wv, wu = np.empty(st), np.empty(st)
     iv, iu = np.empty(st, np.int64), np.empty(st, np.int64)
     ok = np.empty(shape, bool)
@@ -394,12 +398,12 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes):
         o = Ur[u]
         o[:] = 0.0
         mu = lanes[u] if has_lanes else M
-        for q in range(8):
+        for q in range(_UV_TAPS_MAX):
             wq = wv[u, q]
             if wq == 0.0:
                 continue
             row = srcT[iv[u, q]]
-            for r in range(8):
+            for r in range(_UV_TAPS_MAX):
                 w = np.float32(wq * wu[u, r])
                 if w == 0.0:
                     continue
@@ -648,10 +652,10 @@ def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_
     nxy = Ny * Nx
     Ur = np.empty((Nu, M), np.float32)
     Uv = Ur.reshape(Nu * M)
-    wv = np.empty((Nu, 8))
-    wu = np.empty((Nu, 8))
-    iv = np.empty((Nu, 8), np.int64)
-    iu = np.empty((Nu, 8), np.int64)
+    wv = np.empty((Nu, _UV_TAPS_MAX))
+    wu = np.empty((Nu, _UV_TAPS_MAX))
+    iv = np.empty((Nu, _UV_TAPS_MAX), np.int64)
+    iu = np.empty((Nu, _UV_TAPS_MAX), np.int64)
     lanes = np.full(Nu if has_nd else 1, M, np.int64)     # (one allocation less without)
     for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
         _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
@@ -659,7 +663,7 @@ def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_
             for u in range(Nu):                  # the stencil's box of taps
                 v0 = v1 = iv[u, 0]
                 u0 = u1 = iu[u, 0]
-                for q in range(1, 8):
+                for q in range(1, _UV_TAPS_MAX):
                     v0 = min(v0, iv[u, q])
                     v1 = max(v1, iv[u, q])
                     u0 = min(u0, iu[u, q])
