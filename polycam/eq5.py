@@ -52,6 +52,7 @@ from numba.extending import overload
 
 from .derivatives import _FASTMATH, FILTERS, Derivatives, _filt_u, _filt_v, correlate_axis, parallel_chunks, xy_view
 from .lightfield import LightFieldGrid
+from .rho_pool import pool_over_views
 
 __all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho", "rho_values", "RegressorMix"]
 
@@ -1034,7 +1035,7 @@ def _depth_rho_noise(var: np.ndarray) -> tuple[float, float]:
 
 
 def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: float = 0.0,
-                     gate_misfit: float = _DEPTH_GATE_MISFIT) -> np.ndarray:
+                     gate_misfit: float = _DEPTH_GATE_MISFIT, pool_views: bool = False) -> np.ndarray:
     """In place on der = [Lx, Ly, Lu, Lv, Lt] (F, Ny, Nx, Nv, Nu): L_x, L_y ← ρ̂ L_u, ρ̂ L_v
     (:attr:`MotionOptions.depth_regressors`; ρ̂ = Σ (L_x L_u + L_y L_v) / (Σ (L_u² + L_v²) less
     its noise part, ``_RHO_DENOISED_MIN``) over the window) where valid (bool, same dims), their expected
@@ -1044,7 +1045,10 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     unit x: the views are nearly parallel there, :attr:`MotionOptions.depth_gate`) with a
     misfit of at least ``gate_misfit`` x the noise (aliasing, not signal); returns (4,)
     ``var`` updated for the replaced rays (ρ̂² var_u + L_u² var(ρ̂) there, a ray-count mix).
-    The numpy reference of :func:`depth_rho`."""
+    ``pool_views`` (:attr:`MotionOptions.depth_pool_views`; with noise, var_x + var_y > 0): the
+    replaced rays' ρ̂ are first pooled over the views (:func:`polycam.rho_pool.pool_over_views`,
+    var(ρ̂) = κ (var_x + var_y) / (2 S_uu), ``_DEPTH_RHO_KAPPA``), the mix with the pooled
+    noise. The numpy reference of :func:`depth_rho`."""
     Lx, Ly, Lu, Lv, _ = der
     m = valid.astype(np.float32)
     t5 = FILTERS["fs5"].prefilter.astype(np.float32)
@@ -1075,14 +1079,29 @@ def depth_regularise(der: list, valid: np.ndarray, var: np.ndarray, rho_max: flo
     fits = res <= _DEPTH_KEEP * vxy * n
     gated = (np.abs(rho) <= rho_max) & (res >= gate_misfit * vxy * n)
     use = valid & quiet & (fits | gated)
-    Lx[use] = rho[use] * gu[use]
-    Ly[use] = rho[use] * gv[use]
     nv = int(valid.sum())
     if not (nv and use.any()):
         return np.asarray(var, float).copy()
-    mix = RegressorMix(frac=float(use.sum()) / nv, rho2=float(np.mean(rho[use].astype(np.float64) ** 2)),
-                       rho_noise=0.5 * float(np.mean(e_rho[use].astype(np.float64))) * vxy)   # per component
+    rho2 = float(np.mean(rho[use].astype(np.float64) ** 2))
+    rho_noise = 0.5 * float(np.mean(e_rho[use].astype(np.float64))) * vxy     # per component
+    if pool_views and vxy > 0:
+        kv = 0.5 * _DEPTH_RHO_KAPPA * vxy
+        pooled = pool_over_views(np.where(use, rho, np.nan), np.where(use, kv / np.maximum(suu, 1e-30), np.nan))
+        rho = np.where(use, pooled.rho, rho)
+        rho2, rho_noise = _pooled_mix(pooled, gu, gv)
+    Lx[use] = rho[use] * gu[use]
+    Ly[use] = rho[use] * gv[use]
+    mix = RegressorMix(frac=float(use.sum()) / nv, rho2=rho2, rho_noise=rho_noise)
     return mix.variances(var)
+
+
+def _pooled_mix(pooled, Lu: np.ndarray, Lv: np.ndarray) -> tuple[float, float]:
+    """(mean ρ̃², mean (L_u² + L_v²) var(ρ̃) / 2) over the rays with a pooled ρ̃ (finite), for
+    :class:`RegressorMix` (``rho2``, ``rho_noise``); Lu, Lv float (F, ny, nx, Nv, Nu)."""
+    use = np.isfinite(pooled.rho)
+    r = pooled.rho[use].astype(np.float64)
+    w2 = (Lu[use].astype(np.float64) ** 2 + Lv[use].astype(np.float64) ** 2)
+    return float(np.mean(r * r)), 0.5 * float(np.mean(w2 * pooled.var[use]))
 
 
 @numba.njit(cache=True, inline="always")
@@ -1162,7 +1181,7 @@ def _window_uv_row(A, Brow, Crow, t9, box, v):
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                    var_uv, rho, rho_sc, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
+                    var_uv, rho, rho_sc, rv, kv, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
     """One run of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds its
     statistics to st (4,). Scratch (float32): px (3, 4, Nv, Nu) the products of three view
     rows, A (4, Nv + 8, Nu + 8) and Brow (4, Nu + 8) zero outside the box's (v, u) range
@@ -1212,6 +1231,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
             nr = near[fc, jw, iw, v] if has_near else near[0, 0, 0, 0]
             gu = Lu[fc, jw, iw, v]
             gv = Lv[fc, jw, iw, v]
+            rvr = rv[fc, jw, iw, v] if kv > 0.0 else rv[0, 0, 0, 0]
             for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
                 ok = (b[u] > 0.0) & (nr[u] == 0)
                 has = suu[u] > 0.0
@@ -1226,6 +1246,8 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
                 quiet = q * q * np.float32(na) + e <= np.float32(1.0)
                 use = ok and quiet and (res <= thr * nw or (abs(q) <= rho_max and res >= thr_gate * nw))
                 o[u] = q if use else np.float32(np.nan)
+                if kv > 0.0:
+                    rvr[u] = np.float32(kv) * inv if use else np.float32(np.nan)
                 n_valid += 1.0 if ok else 0.0
                 n_use += 1.0 if use else 0.0
                 r2 += np.float64(q) * np.float64(q) if use else 0.0
@@ -1239,7 +1261,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                      var_uv, rho, rho_sc, stats, scratch):
+                      var_uv, rho, rho_sc, rv, kv, stats, scratch):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho int16 in units of rho_sc
     per view image (all arrays with view origin ``vo``, derivatives with scales ``dsc``, module
     docstring), ``_RHO_NONE`` where the measured L_x, L_y are kept (inside the box: base <= 0,
@@ -1252,7 +1274,8 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
     at least ``_RHO_DENOISED_MIN`` S_uu in the denominator). A ray is replaced where
     ``ρ̂² na + (L_u² + L_v²) nb / S_uu ≤ 1`` (:func:`_depth_rho_noise`)
     and its window's misfit is at most ``thr`` x the window's ray weight, or ``|ρ̂| ≤ rho_max``
-    and the misfit at least ``thr_gate`` x the weight.
+    and the misfit at least ``thr_gate`` x the weight. With ``kv`` > 0 also each used ray's
+    var(ρ̂) = kv / S_uu into rv (float32, same dims as rho; else a (1, 1, 1, 1, Nu) dummy).
     Work: the box's view rows, column (face, x) after column, cut into one equal share per
     chunk; a chunk takes its share as runs of one column each (each run recomputes the
     products of the two view rows around it). scratch (chunks, _depth_rho_scratch(Nv, Nu))
@@ -1283,7 +1306,7 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
             jb = min(r_end - col * ny, ny)
             fc = col // nx
             _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb,
-                            rho_max, var_uv, rho, rho_sc, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny,
+                            rho_max, var_uv, rho, rho_sc, rv, kv, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny,
                             box[0] + jb, px, A, Brow, Crow, vb)
             r = col * ny + jb
 
@@ -1365,7 +1388,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
               near: np.ndarray | None = None, vo: np.ndarray | None = None,
               dsc: np.ndarray | None = None, scratch: np.ndarray | None = None,
-              out_scale: np.ndarray | None = None, return_mix: bool = False):
+              out_scale: np.ndarray | None = None, return_mix: bool = False, pool_views: bool = False):
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
@@ -1381,7 +1404,9 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     memory the kernel may use as its work arrays (about 17 view images per thread:
     the solver lends it the warped frame, dead by then), allocated when None or too small.
     Returns (4,) the variances for the replaced regressors, as depth_regularise; with
-    ``return_mix`` also their make-up, a :class:`RegressorMix` (None: no ray replaced)."""
+    ``return_mix`` also their make-up, a :class:`RegressorMix` (None: no ray replaced).
+    ``pool_views``: then ρ̂ pooled over the views (:func:`polycam.rho_pool.pool_over_views`,
+    as depth_regularise; needs noise: var_x + var_y > 0)."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
@@ -1398,9 +1423,12 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     box = np.asarray(box, np.int64)
     if out.dtype != np.int16:
         rho, rho_sc = np.empty(out.shape, np.int16), np.empty(out.shape[:3], np.float32)
-        res = depth_rho(der, base, box, var, rho, rho_max, gate_misfit, near, vo, dsc, scratch, rho_sc, return_mix)
+        res = depth_rho(der, base, box, var, rho, rho_max, gate_misfit, near, vo, dsc, scratch, rho_sc, return_mix,
+                        pool_views)
         out[...] = rho_values(rho, rho_sc)
         return res
+    kv = 0.5 * _DEPTH_RHO_KAPPA * float(var[0] + var[1]) if pool_views else 0.0     # var(ρ̂) = kv / S_uu
+    rv = np.full(out.shape, np.nan, np.float32) if kv > 0.0 else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.float32)
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
         y0, y1, x0, x1 = box[0] - vo[0], box[1] - vo[0], box[2] - vo[1], box[3] - vo[1]
         for sl in (np.s_[:, :y0], np.s_[:, y1:], np.s_[:, :, :x0], np.s_[:, :, x1:]):
@@ -1412,12 +1440,17 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
         _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
                           float(gate_misfit) * vxy, na, nb, float(rho_max), float(var[2] + var[3]), out, out_scale,
-                          stats, scratch)
+                          rv, kv, stats, scratch)
     else:
         out[...] = _RHO_NONE
         out_scale[...] = 0.0
     n_valid, n_use, r2, er = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0, 0.0)
-    mix = RegressorMix(frac=n_use / n_valid, rho2=r2 / n_use,
-                       rho_noise=0.5 * er / n_use * float(var[0] + var[1])) if n_valid and n_use else None
+    rho2 = r2 / n_use if n_use else 0.0
+    rho_noise = 0.5 * er / n_use * float(var[0] + var[1]) if n_use else 0.0
+    if kv > 0.0 and n_use:
+        pooled = pool_over_views(rho_values(out, out_scale), rv)
+        _rho_store(pooled.rho, out, out_scale, box)
+        rho2, rho_noise = _pooled_mix(pooled, _unscaled(Lu, dsc, 2), _unscaled(Lv, dsc, 3))
+    mix = RegressorMix(frac=n_use / n_valid, rho2=rho2, rho_noise=rho_noise) if n_valid and n_use else None
     res = mix.variances(var) if mix is not None else np.asarray(var, float).copy()
     return (res, mix) if return_mix else res

@@ -676,7 +676,7 @@ class _Solver:
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
         var_dr, self.mix = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor,
                                      near, self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc,
-                                     return_mix=True)                             # out1: read by now
+                                     return_mix=True, pool_views=self.opts.depth_pool_views)   # out1: read by now
         if near is not None:
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
             _fill_rho(self.rho, self.rho_sc, near, self.base, self.rho_bar, self.box, self.vo)

@@ -97,6 +97,15 @@ class MotionOptions:
     accurate as the measured regressors in every benchmark and test, 4x less translation
     error on the paper's Fig. 5c scene at 8-16 m); ``False``: Eq. 5 with the measured
     L_x, L_y everywhere."""
+    depth_pool_views: bool = False
+    """``depth_regressors``: pool each ray's ρ̂ with the other views' at its direction (they see
+    nearly the same scene point): shrink it towards their mean by as much as its own noise
+    warrants, an empirical-Bayes estimate that keeps ρ̂ where the depth differs across the
+    views (:mod:`polycam.rho_pool`). Helps where ρ̂'s window alone is noisy (far scenes, high
+    noise: benchmarks/bench_noise.py at 8 m and 32 grey levels, translation error / CRB
+    1.74 → 1.36); needs the frames' noise estimate (does nothing on noise-free frames). Off by
+    default: one more light field of float32 and ~ms of numpy per ρ̂ (docs/motion_log.md,
+    Session 24)."""
     depth_gate: float = 0.25
     """``depth_regressors``: also replace where the window's disparity is at most this many
     (u, v) samples per view step and its misfit is far above the noise (at least 1000x the

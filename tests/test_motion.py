@@ -26,7 +26,7 @@ from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_DENOISED, MOTION_DEPTH_RHO_FLIPS,
-                        MOTION_DEPTH_RHO_RTOL, MOTION_WARP_TAPS_GAIN,
+                        MOTION_DEPTH_POOL_GAIN, MOTION_DEPTH_RHO_POOLED_RTOL, MOTION_DEPTH_RHO_RTOL, MOTION_WARP_TAPS_GAIN,
                         MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
 
@@ -496,11 +496,15 @@ def test_warp_scratch_holds_the_edge_copy():
     assert (runs["fits"][2] != -7.0).any() and (runs["small"][2] == -7.0).all()
 
 
-def test_solver_extrapolates_beyond_the_views(scene):
+@pytest.mark.parametrize("pool", [False, True], ids=["window", "pooled-over-views"])
+def test_solver_extrapolates_beyond_the_views(scene, pool):
+    """Also with ρ̂ pooled over the views (``depth_pool_views``), which the extrapolation's
+    view-mean ρ̂ and the near rays then take."""
     grid = make_grid(ALL, views=9, directions=16, spacing=0.01)
     rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])      # 1.6 views
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
-    on = estimate_motion(L0, L1, grid)
+    opts = MotionOptions(depth_pool_views=pool)
+    on = estimate_motion(L0, L1, grid, options=opts)
     off = estimate_motion(L0, L1, grid, options=MotionOptions(extrapolate_views=0.0))
     assert on and off
     assert on.num_rays > 1.1 * off.num_rays
@@ -513,7 +517,7 @@ def test_solver_extrapolates_beyond_the_views(scene):
         noise = np.random.default_rng(seed)
         a = L0 + noise.normal(0.0, 0.01, L0.shape).astype(np.float32)
         b = L1 + noise.normal(0.0, 0.01, L1.shape).astype(np.float32)
-        noisy = estimate_motion(a, b, grid)
+        noisy = estimate_motion(a, b, grid, options=opts)
         assert noisy.num_rays > 1.1 * off.num_rays
         t_est = rt_from_T(noisy.T_prev_next)[3:]
         ratios.append(t_est @ rt[3:] / (rt[3:] @ rt[3:]))
@@ -1348,6 +1352,35 @@ def test_depth_regressors_reduce_positional_noise(scene):
     assert var_after[0] < var[0] and var_after[1] < var[1]
 
 
+def test_depth_regressors_pooled_over_the_views_are_closer_to_the_noise_free_ones(scene):
+    """With ``pool_views`` (MotionOptions.depth_pool_views) the Eq. 6 regressors of a noisy
+    9 x 9-view light field are closer to the noise-free L_x than with ρ̂ from its window
+    alone (the views see one depth along a direction away from the spheres' edges), and the
+    noise the mix reports for them is lower."""
+    from polycam.eq5 import depth_regularise
+
+    grid = make_grid(("+z",), views=9, directions=32, spacing=0.01)
+    M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
+    names = MotionOptions().filters
+    clean = plenoptic_derivatives(L0, L1, grid, filters=names)
+    rng = np.random.default_rng(3)
+    sigma = 0.05
+    noisy = plenoptic_derivatives((L0 + rng.normal(0, sigma, L0.shape)).astype(np.float32),
+                                  (L1 + rng.normal(0, sigma, L1.shape)).astype(np.float32), grid, filters=names)
+    noise = plenoptic_derivatives(rng.normal(0, sigma, L0.shape).astype(np.float32),
+                                  rng.normal(0, sigma, L0.shape).astype(np.float32), grid, filters=names)
+    valid = np.ascontiguousarray(np.broadcast_to(noisy.valid, L0.shape))
+    var = np.array([0.5 * np.mean(getattr(noise, a)[valid].astype(np.float64) ** 2) for a in ("Lx", "Ly", "Lu", "Lv")])
+    err, var_after = {}, {}
+    for pool in (False, True):
+        der = [np.array(a) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
+        var_after[pool] = depth_regularise(der, valid, var, pool_views=pool)
+        err[pool] = np.sqrt(np.mean((der[0] - clean.Lx)[valid] ** 2))
+    assert err[True] < MOTION_DEPTH_POOL_GAIN * err[False], err            # measured 0.81
+    assert var_after[True][0] < var_after[False][0] and var_after[True][1] < var_after[False][1]
+
+
 @pytest.mark.parametrize("kernel", [False, True], ids=["numpy", "kernel"])
 def test_depth_regressors_only_where_less_noisy(kernel):
     """A ray's ρ̂ L_u, ρ̂ L_v replace the measured L_x, L_y only where their expected noise,
@@ -1505,6 +1538,51 @@ def test_depth_rho_kernel_matches_numpy(scene, gate):
         # ρ̂ L_u from the float32 sums, then each view re-quantised (half a step of its scale)
         assert err.max() <= (MOTION_DEPTH_RHO_RTOL + MOTION_SCALED_VIEWS_RTOL) * scale
     np.testing.assert_allclose(var_k, var_ref, rtol=MOTION_DEPTH_RHO_RTOL)
+
+
+def test_depth_rho_pooled_over_the_views_matches_numpy(scene):
+    """With ``pool_views`` (MotionOptions.depth_pool_views) the kernel's ρ̂, pooled over the
+    views on its int16 ρ̂ (polycam.rho_pool), gives the replaced regressors and their noise
+    variances of the numpy reference; noisy enough that ρ̂'s window alone is noisy, the
+    pooling moves ρ̂ and lowers the noise the mix reports for it; noise-free (var = 0) it
+    does nothing."""
+    from polycam.eq5 import _scaled_views, _unscaled, depth_regularise, depth_rho
+
+    grid = make_grid(("+z", "-x"), views=9, directions=32, spacing=0.01)
+    M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
+    rng = np.random.default_rng(6)
+    L0, L1 = (scene.render(grid, T) + rng.normal(0, 0.01, grid.shape) for T in (np.eye(4), M))
+    noisy = plenoptic_derivatives(L0.astype(np.float32), L1.astype(np.float32), grid, filters=MotionOptions().filters)
+    F, Ny, Nx, Nv, Nu = grid.shape
+    base = np.ones(grid.shape, np.float32)
+    box = np.array([1, Ny - 1, 1, Nx - 1, 2, Nv - 2, 2, Nu - 2], np.int64)
+    q, dsc = _scaled_views([noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt], box)
+    der = [_unscaled(a, dsc, k) for k, a in enumerate(q)]
+    valid = np.zeros(grid.shape, bool)
+    valid[:, 1:Ny - 1, 1:Nx - 1, 2:Nv - 2, 2:Nu - 2] = True
+    var = np.array([0.5 * np.mean(a[valid].astype(np.float64) ** 2) for a in der[:4]]) * 0.3
+    ref, plain = [a.copy() for a in der], [a.copy() for a in der]
+    var_ref = depth_regularise(ref, valid, var, pool_views=True)
+    var_plain = depth_regularise(plain, valid, var)
+    rho, rho_plain = np.empty(grid.shape, np.float32), np.empty(grid.shape, np.float32)
+    var_k = depth_rho(q, base, box, var, rho, dsc=dsc, pool_views=True)
+    depth_rho(q, base, box, var, rho_plain, dsc=dsc)
+    used = np.isfinite(rho)
+    assert np.array_equal(used, np.isfinite(rho_plain)) and used.sum() > 0.2 * valid.sum()
+    for k in (0, 1):
+        scale = np.abs(ref[k][valid]).max()
+        kernel = np.where(used, rho * der[2 + k], der[k])
+        assert np.abs(kernel - ref[k])[valid].max() <= MOTION_DEPTH_RHO_POOLED_RTOL * scale
+    np.testing.assert_allclose(var_k, var_ref, rtol=MOTION_DEPTH_RHO_POOLED_RTOL)
+    moved = np.abs(rho - rho_plain)[used]
+    assert np.median(moved) > 0.02 * np.median(np.abs(rho_plain[used]))      # measured 0.05
+    assert var_ref[0] < var_plain[0] and var_ref[1] < var_plain[1]
+    assert np.array_equal(var_ref[2:], var_plain[2:])
+    again = np.empty(grid.shape, np.float32)
+    depth_rho(q, base, box, np.zeros(4), again, dsc=dsc, pool_views=True)
+    quiet = np.empty(grid.shape, np.float32)
+    depth_rho(q, base, box, np.zeros(4), quiet, dsc=dsc)
+    assert np.array_equal(again, quiet, equal_nan=True)
 
 
 @pytest.mark.parametrize("n_cams, oversample", [(5, 1), (5, 2), (5, 3), (3, 2)])

@@ -95,6 +95,8 @@ MOTION_DEPTH_REGRESSOR_GAIN = 0.6  # RMS error of the Eq. 6 regressor ρ̂ L_u /
 MOTION_WARP_TAPS_GAIN = 0.5     # max warp error of a band-limited pattern with uv_taps n + 2 / with n (measured 0.38 for 4 → 6, 0.40 for 6 → 8)
 MOTION_DEPTH_RHO_DENOISED = 0.03  # |mean ρ̂ / ρ − 1| with L_u noise of a quarter of its signal energy, ρ̂ denominator less the noise (measured +0.006; uncorrected −0.21)
 MOTION_DEPTH_RHO_RTOL = 1e-5     # ρ̂ L_u of the Eq. 6 kernel (depth_rho) vs the numpy depth_regularise, relative to max |L_x| (float32 sums; measured 3e-7)
+MOTION_DEPTH_POOL_GAIN = 0.9     # RMS error of the Eq. 6 regressors with ρ̂ pooled over the views / without (9 x 9 views, noise 0.05; measured 0.81)
+MOTION_DEPTH_RHO_POOLED_RTOL = 1e-4  # the same with ρ̂ pooled over the views (the kernel pools its int16 ρ̂: 1.5e-5 of each view's max)
 MOTION_DEPTH_RHO_FLIPS = 1e-3    # share of valid rays whose keep / replace decision differs between the two (threshold ties in float32; measured 0)
 MOTION_WARP_SOURCE_UNITS = 1.0   # warp of the int16 warp source vs the float32 warp, in source units (half a unit x the stencil gain, <= 1.93 for 6 x 6 Lagrange taps; measured 0.48)
 MOTION_SCALED_VIEWS_RTOL = 1.6e-5  # int16 scaled views (polycam.eq5): rounding error relative to the view's max |value| (half a step of 1/32767, plus float32 rounding)
@@ -102,3 +104,8 @@ MOTION_INT16_WEIGHTS_REL = 1e-4  # normal sums with int16 base weights (units of
 RESAMPLE_VIEWFILL_OFFGRID_GAIN = 2.0   # view fill from cameras ~0.15 view steps off their views (textured plane): RMS error with offsets from the grid indices / from the camera centres, at least (measured 0.0142 / 0.0046 = 3.1)
 MOTION_NOISE_SIGMA_REL = 0.05  # sensor-noise sigma from second differences of 3x3 or 5x5 cameras x 32x32 directions (two frames; 0.5-1.5 % expected)
 DERIV_NOISE_VAR_REL = 0.05     # predicted vs measured variance of the derivatives of white noise (9x9x64x64 per frame; measured within 1.6 %)
+# ρ̂ pooled over the views (tests/test_rho_pool.py, synthetic ρ fields)
+RHO_POOL_GAIN_MAX = 0.1        # median share g of a ray's own ρ̂ kept where 49 views see one depth through noise 1.5x ρ
+RHO_POOL_VAR_REL = 0.25        # |mean reported var(ρ̃) / mean squared error − 1| (measured 0.18: τ²'s own noise is not counted)
+RHO_POOL_KEEP_REL = 0.5        # RMS change of ρ̂ where the views see different depths, in units of its noise
+RHO_POOL_VAR_CORRELATED_REL = 0.5  # the same with noise shared by 3 x 3 neighbouring views (measured 0.32: q underestimates)
