@@ -44,6 +44,7 @@ The ray loops are branch-free with unsigned indices and re-associated sums
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -52,7 +53,7 @@ from numba.extending import overload
 
 from .derivatives import _FASTMATH, FILTERS, Derivatives, _filt_u, _filt_v, correlate_axis, parallel_chunks, xy_view
 from .lightfield import LightFieldGrid
-from .rho_pool import pool_over_views
+from .rho_pool import _CHI2_1_MEDIAN, pool_over_views
 
 __all__ = ["ray_motion_coefficients", "depth_regularise", "depth_rho", "rho_values", "RegressorMix"]
 
@@ -1384,6 +1385,130 @@ def _fill_rho(rho, rho_sc, near, base, rho_bar, box, vo):
         rho_sc[fc, ja, ia] = _put_rho_view(a, rho[fc, ja, ia], box[4], box[5], box[6], box[7])
 
 
+@numba.njit(parallel=True, cache=True)
+def _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d):
+    """Per direction (f, v, u) over the views of the int16 ρ̂ (F, ny, nx, Nv, Nu; units of scales
+    (F, ny, nx), ``_RHO_NONE``: none) with their variances rv (float32, same dims): the mean ρ̄,
+    τ² = max(spread − mean var, 0) (0 with fewer than 4 rays) and the mean var into mean, tau2,
+    mvar (F, Nv, Nu) float64, and (ρ̄_a − ρ̄_b)² / (n (1 / n_a + 1 / n_b)) / mean var into d (NaN
+    where it is not defined) for view columns with half[i] = 1 (a) or 2 (b)
+    (:func:`polycam.rho_pool.pool_over_views`, whose numpy this is)."""
+    F, ny, nx, Nv, Nu = rho.shape
+    none = np.int16(_RHO_NONE)
+    for fv in numba.prange(F * Nv):
+        f = fv // Nv
+        v = fv - f * Nv
+        acc = np.zeros((8, Nu))                 # n, Σρ, Σρ², Σvar, n_a, Σρ_a, n_b, Σρ_b
+        for j in range(ny):
+            for i in range(nx):
+                row = rho[f, j, i, v]
+                vr = rv[f, j, i, v]
+                sc = np.float64(scales[f, j, i])
+                hk = half[i]
+                for u in range(Nu):
+                    if row[u] != none:
+                        r = np.float64(row[u]) * sc
+                        acc[0, u] += 1.0
+                        acc[1, u] += r
+                        acc[2, u] += r * r
+                        acc[3, u] += np.float64(vr[u])
+                        if hk == 1:
+                            acc[4, u] += 1.0
+                            acc[5, u] += r
+                        elif hk == 2:
+                            acc[6, u] += 1.0
+                            acc[7, u] += r
+        for u in range(Nu):
+            n = acc[0, u]
+            m = acc[1, u] / n if n > 0 else np.nan
+            mv = acc[3, u] / n if n > 0 else np.nan
+            spread = (acc[2, u] - n * m * m) / (n - 1.0) if n > 1 else np.nan
+            live = n >= 4 and mv > 0
+            mean[f, v, u] = m
+            mvar[f, v, u] = mv
+            tau2[f, v, u] = max(spread - mv, 0.0) if live else 0.0
+            ok = acc[4, u] > 0 and acc[6, u] > 0 and mv > 0
+            dd = acc[5, u] / acc[4, u] - acc[7, u] / acc[6, u] if ok else 0.0
+            d[f, v, u] = dd * dd / (n * (1.0 / acc[4, u] + 1.0 / acc[6, u])) / mv if ok else np.nan
+
+
+@numba.njit(parallel=True, cache=True)
+def _pool_apply_kernel(rho, scales, rv, mean, tau2, mvar, live, q, Lu, Lv, dsc, box, vo, stats):
+    """ρ̂ ← ρ̄ + g (ρ̂ − ρ̄), g = τ² / (τ² + var), per ray of the box's views where ``live`` (the
+    direction's statistics of :func:`_pool_stats_kernel`; else g = 1), each view image
+    re-quantised (:func:`_put_rho_view`); stats (F · ny · nx, 3) per view: the rays, Σ ρ̃²,
+    Σ (L_u² + L_v²) var(ρ̃) with var(ρ̃) = g² var + (1 − g)² q mean var (L_u, L_v scaled views,
+    module docstring; arrays with view origin ``vo``)."""
+    ny = box[1] - box[0]
+    nx = box[3] - box[2]
+    F, Nv, Nu = rho.shape[0], rho.shape[3], rho.shape[4]
+    none = np.int16(_RHO_NONE)
+    for idx in numba.prange(F * ny * nx):
+        fc, j, i = _box_view(idx, box, ny, nx)
+        ja = j - vo[0]
+        ia = i - vo[1]
+        a = np.empty((Nv, Nu), np.float32)
+        sc = np.float64(scales[fc, ja, ia])
+        su = np.float64(dsc[fc, ja, ia, 2])
+        sv = np.float64(dsc[fc, ja, ia, 3])
+        n = 0.0
+        r2 = 0.0
+        e = 0.0
+        for v in range(box[4], box[5]):
+            row = rho[fc, ja, ia, v]
+            vr = rv[fc, ja, ia, v]
+            gu = Lu[fc, ja, ia, v]
+            gv = Lv[fc, ja, ia, v]
+            for u in range(box[6], box[7]):
+                if row[u] == none:
+                    a[v, u] = np.nan
+                    continue
+                r = np.float64(row[u]) * sc
+                var = np.float64(vr[u])
+                if live[fc, v, u]:
+                    t = tau2[fc, v, u]
+                    g = t / (t + var) if t + var > 0 else 1.0
+                    m = mean[fc, v, u]
+                    r = m + g * (r - m)
+                    var = g * g * var + (1.0 - g) * (1.0 - g) * q * mvar[fc, v, u]
+                a[v, u] = np.float32(r)
+                x = np.float64(gu[u]) * su
+                y = np.float64(gv[u]) * sv
+                n += 1.0
+                r2 += r * r
+                e += (x * x + y * y) * var
+        scales[fc, ja, ia] = _put_rho_view(a, rho[fc, ja, ia], box[4], box[5], box[6], box[7])
+        stats[idx, 0] = n
+        stats[idx, 1] = r2
+        stats[idx, 2] = e
+
+
+def _pool_rho(rho: np.ndarray, scales: np.ndarray, rv: np.ndarray, Lu: np.ndarray, Lv: np.ndarray,
+              dsc: np.ndarray, box: np.ndarray, vo: np.ndarray) -> tuple[float, float]:
+    """The solver's int16 ρ̂ (F, ny, nx, Nv, Nu, units of scales (F, ny, nx)) pooled over the
+    views in place (:func:`polycam.rho_pool.pool_over_views` on :func:`rho_values`, within
+    the int16 rounding), with rv its variances (float32, same dims); returns (mean ρ̃²,
+    mean (L_u² + L_v²) var(ρ̃) / 2) over the rays with ρ̃, for :class:`RegressorMix`."""
+    F, ny, nx, Nv, Nu = rho.shape
+    cols = np.flatnonzero((rho != _RHO_NONE).any(axis=(0, 1, 3, 4)))
+    h = (len(cols) - 1) // 2
+    half = np.zeros(nx, np.int64)
+    if h >= 1:
+        half[cols[:h]] = 1
+        half[cols[-h:]] = 2
+    mean, tau2, mvar, d = (np.empty((F, Nv, Nu)) for _ in range(4))
+    _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d)
+    d = d[np.isfinite(d)]
+    q = float(np.median(d)) / _CHI2_1_MEDIAN if (h >= 1 and d.size) else math.nan
+    counts = (rho != _RHO_NONE).sum(axis=(1, 2))
+    live = (counts >= 4) & np.isfinite(mvar) & (mvar > 0) & math.isfinite(q)
+    stats = np.zeros((F * int(box[1] - box[0]) * int(box[3] - box[2]), 3))
+    _pool_apply_kernel(rho, scales, rv, mean, tau2, mvar, live, q if math.isfinite(q) else 0.0, Lu, Lv, dsc,
+                       box, vo, stats)
+    n, r2, e = stats.sum(axis=0)
+    return (r2 / n, 0.5 * e / n) if n else (0.0, 0.0)
+
+
 def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out: np.ndarray,
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
               near: np.ndarray | None = None, vo: np.ndarray | None = None,
@@ -1448,9 +1573,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     rho2 = r2 / n_use if n_use else 0.0
     rho_noise = 0.5 * er / n_use * float(var[0] + var[1]) if n_use else 0.0
     if kv > 0.0 and n_use:
-        pooled = pool_over_views(rho_values(out, out_scale), rv)
-        _rho_store(pooled.rho, out, out_scale, box)
-        rho2, rho_noise = _pooled_mix(pooled, _unscaled(Lu, dsc, 2), _unscaled(Lv, dsc, 3))
+        rho2, rho_noise = _pool_rho(out, out_scale, rv, Lu, Lv, dsc, box, vo)
     mix = RegressorMix(frac=n_use / n_valid, rho2=rho2, rho_noise=rho_noise) if n_valid and n_use else None
     res = mix.variances(var) if mix is not None else np.asarray(var, float).copy()
     return (res, mix) if return_mix else res

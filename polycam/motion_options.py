@@ -102,10 +102,12 @@ class MotionOptions:
     nearly the same scene point): shrink it towards their mean by as much as its own noise
     warrants, an empirical-Bayes estimate that keeps ρ̂ where the depth differs across the
     views (:mod:`polycam.rho_pool`). Helps where ρ̂'s window alone is noisy (far scenes, high
-    noise: benchmarks/bench_noise.py at 8 m and 32 grey levels, translation error / CRB
-    1.74 → 1.36); needs the frames' noise estimate (does nothing on noise-free frames). Off by
-    default: one more light field of float32 and ~ms of numpy per ρ̂ (docs/motion_log.md,
-    Session 24)."""
+    noise: benchmarks/bench_noise.py's noise options at 32 grey levels, translation error / CRB
+    1.74 → 1.36 at 8 m, 1.67 → 1.32 at 6 m; unchanged below 8 grey levels); needs the frames'
+    noise estimate (does nothing without noise). Costs one float32 array of the light field's
+    size while ρ̂ is computed and 4–6 % time. Part of the noise options
+    (``bench_noise.HIGH_NOISE``); off by default, which is tuned for low noise and has not
+    been measured with it (docs/motion_log.md, Session 24)."""
     depth_gate: float = 0.25
     """``depth_regressors``: also replace where the window's disparity is at most this many
     (u, v) samples per view step and its misfit is far above the noise (at least 1000x the
