@@ -14,7 +14,9 @@ holds
 - their drivers ``_accumulate`` / ``_reduce`` (per-face tile sums → rig-frame N, rhs);
 - the depth-regularised regressors of paper Eq. 6 (``depth_regularise``, numpy reference;
   ``depth_rho``, the kernel the solver uses;
-  :attr:`~polycam.motion_options.MotionOptions.depth_regressors`).
+  :attr:`~polycam.motion_options.MotionOptions.depth_regressors`), with ρ̂ optionally pooled
+  over the views (``_pool_rho`` on the solver's int16 ρ̂; the method and its numpy reference:
+  :mod:`polycam.rho_pool`; :attr:`~polycam.motion_options.MotionOptions.depth_pool_views`).
 
 Per-ray work arrays (derivatives, base weights, ρ̂) may hold only the views of the
 valid box (the solver's: the views whose (x, y) filter support lies inside the grid; the

@@ -31,6 +31,9 @@ direction whose difference has variance ≈ var ρ̄ n (1 / n_a + 1 / n_b) (n, n
 ray counts); its median over the directions, in units of the directions' mean var ρ̂, is
 the factor ``q`` (robust to the few directions where the halves see different depths).
 
+This module is the method and its numpy form (used by :func:`polycam.eq5.depth_regularise`);
+the solver runs the same on its int16 ρ̂ in numba (``polycam.eq5._pool_rho``, tested equal).
+
 Dims: (F, ny, nx, Nv, Nu) arrays over faces, views (y, x) and directions (v, u), as the
 solver keeps them (docs/conventions.md); NaN marks a ray without ρ̂ (measured regressors
 kept, or outside the valid views). Units: ρ in u per unit of x (the solver's), its

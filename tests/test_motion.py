@@ -1325,27 +1325,33 @@ def test_whitening_auto_and_on(scene):
     assert err[0] < MOTION_WHITEN_VS_PLAIN * err[1], err
 
 
-def test_depth_regressors_reduce_positional_noise(scene):
-    """Eq. 6 regressors ρ̂ L_u, ρ̂ L_v (ρ̂ pooled over a window) are closer to the noise-free
-    L_x, L_y than the measured noisy ones (the scene is Lambertian: one depth per ray)."""
-    from polycam.eq5 import depth_regularise
-
-    grid = make_grid(("+z",), views=7, directions=32, spacing=0.01)
+def _noisy_regressors(scene, views: int, sigma: float):
+    """One face, views x views views, 32 x 32 directions, a small motion: the noise-free
+    derivatives, those of the frames with noise σ, the valid rays and the expected noise
+    variances (4,) of L_x, L_y, L_u, L_v (of the frames' mean: σ² / 2 per sample)."""
+    grid = make_grid(("+z",), views=views, directions=32, spacing=0.01)
     M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
     names = MotionOptions().filters
     clean = plenoptic_derivatives(L0, L1, grid, filters=names)
     rng = np.random.default_rng(3)
-    sigma = 0.02
     noisy = plenoptic_derivatives((L0 + rng.normal(0, sigma, L0.shape)).astype(np.float32),
                                   (L1 + rng.normal(0, sigma, L1.shape)).astype(np.float32), grid, filters=names)
     noise = plenoptic_derivatives(rng.normal(0, sigma, L0.shape).astype(np.float32),
                                   rng.normal(0, sigma, L0.shape).astype(np.float32), grid, filters=names)
-    valid = np.broadcast_to(noisy.valid, L0.shape)
-    # the expected noise variances of the regressors (of the frames' mean: σ²/2 per sample)
+    valid = np.ascontiguousarray(np.broadcast_to(noisy.valid, L0.shape))
     var = np.array([0.5 * np.mean(getattr(noise, a)[valid].astype(np.float64) ** 2) for a in ("Lx", "Ly", "Lu", "Lv")])
+    return clean, noisy, valid, var
+
+
+def test_depth_regressors_reduce_positional_noise(scene):
+    """Eq. 6 regressors ρ̂ L_u, ρ̂ L_v (ρ̂ pooled over a window) are closer to the noise-free
+    L_x, L_y than the measured noisy ones (the scene is Lambertian: one depth per ray)."""
+    from polycam.eq5 import depth_regularise
+
+    clean, noisy, valid, var = _noisy_regressors(scene, 7, 0.02)
     der = [np.array(a) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
-    var_after = depth_regularise(der, np.ascontiguousarray(valid), var)
+    var_after = depth_regularise(der, valid, var)
     err_before = np.sqrt(np.mean((noisy.Lx - clean.Lx)[valid] ** 2))
     err_after = np.sqrt(np.mean((der[0] - clean.Lx)[valid] ** 2))
     assert err_after < MOTION_DEPTH_REGRESSOR_GAIN * err_before, (err_after, err_before)
@@ -1359,19 +1365,7 @@ def test_depth_regressors_pooled_over_the_views_are_closer_to_the_noise_free_one
     noise the mix reports for them is lower."""
     from polycam.eq5 import depth_regularise
 
-    grid = make_grid(("+z",), views=9, directions=32, spacing=0.01)
-    M = T_from_rt(np.array([0.001, -0.001, 0.001, 0.002, 0.001, -0.001]))
-    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, M)
-    names = MotionOptions().filters
-    clean = plenoptic_derivatives(L0, L1, grid, filters=names)
-    rng = np.random.default_rng(3)
-    sigma = 0.05
-    noisy = plenoptic_derivatives((L0 + rng.normal(0, sigma, L0.shape)).astype(np.float32),
-                                  (L1 + rng.normal(0, sigma, L1.shape)).astype(np.float32), grid, filters=names)
-    noise = plenoptic_derivatives(rng.normal(0, sigma, L0.shape).astype(np.float32),
-                                  rng.normal(0, sigma, L0.shape).astype(np.float32), grid, filters=names)
-    valid = np.ascontiguousarray(np.broadcast_to(noisy.valid, L0.shape))
-    var = np.array([0.5 * np.mean(getattr(noise, a)[valid].astype(np.float64) ** 2) for a in ("Lx", "Ly", "Lu", "Lv")])
+    clean, noisy, valid, var = _noisy_regressors(scene, 9, 0.05)
     err, var_after = {}, {}
     for pool in (False, True):
         der = [np.array(a) for a in (noisy.Lx, noisy.Ly, noisy.Lu, noisy.Lv, noisy.Lt)]
