@@ -26,10 +26,13 @@ The pooled ρ̃'s noise variance, which the errors-in-variables correction of th
 needs (:class:`polycam.eq5.RegressorMix`), is ``g² var ρ̂ + (1 − g)² var ρ̄``. The mean's
 variance is not var ρ̂ / n: neighbouring views share their filters' samples, so their ρ̂
 errors correlate. It is measured from the data: two halves of the views (the first and
-the last columns across x, the middle one left out) give two nearly independent means per
-direction whose difference has variance ≈ var ρ̄ n (1 / n_a + 1 / n_b) (n, n_a, n_b their
-ray counts); its median over the directions, in units of the directions' mean var ρ̂, is
-the factor ``q`` (robust to the few directions where the halves see different depths).
+the last (k − 1) // 2 of the k view columns across x, the middle one or two left out) give
+two nearly independent means per direction whose difference has variance ≈ var ρ̄ n (1 /
+n_a + 1 / n_b) (n, n_a, n_b their ray counts); its median over the directions, in units of
+the directions' mean var ρ̂, is the factor ``q`` (robust to the few directions where the
+halves see different depths). The count scaling holds for independent views; where the
+noise is shared over more than the gap (tests/test_rho_pool.py: a 3 x 3 box across the
+views) q comes out low (there 0.77 of the truth), and so does the variance reported.
 
 This module is the method and its numpy form (used by :func:`polycam.eq5.depth_regularise`);
 the solver runs the same on its int16 ρ̂ in numba (``polycam.eq5._pool_rho``, tested equal).
