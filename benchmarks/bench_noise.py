@@ -14,8 +14,8 @@ next to the bound; ``--high-noise`` adds the same table for the noise options me
 best together (``smooth_c=0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8,
 uv_taps=8, depth_pool_views=True``: no discontinuity weight, errors-in-variables steps,
 whitened re-solves, the model-validity weight with the model error weighed 8x its energy,
-8-point Lagrange in the warp's (u, v), the Eq. 6 regressors' ρ̂ pooled over the views), measured in the same run; ``--option KEY=VALUE`` changes
-a solver option in both tables.
+8-point Lagrange in the warp's (u, v), the Eq. 6 regressors' ρ̂ pooled over the views),
+measured in the same run; ``--option KEY=VALUE`` changes a solver option in both tables.
 
 Table per level: RMS over the draws of the vector error |t̂ − t| and |ω̂ − ω| (nothing
 removed; the noise-free error, i.e. the bias, is the σ = 0 row), the bound (sqrt of
