@@ -1388,11 +1388,12 @@ def _fill_rho(rho, rho_sc, near, base, rho_bar, box, vo):
 
 
 @numba.njit(parallel=True, cache=True)
-def _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d):
+def _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d, live):
     """Per direction (f, v, u) over the views of the int16 ρ̂ (F, ny, nx, Nv, Nu; units of scales
     (F, ny, nx), ``_RHO_NONE``: none) with their variances rv (float32, same dims): the mean ρ̄,
     τ² = max(spread − mean var, 0) (0 with fewer than 4 rays) and the mean var into mean, tau2,
-    mvar (F, Nv, Nu) float64, and (ρ̄_a − ρ̄_b)² / (n (1 / n_a + 1 / n_b)) / mean var into d (NaN
+    mvar (F, Nv, Nu) float64, whether the direction can be pooled (at least 4 rays, mean var
+    > 0) into live (F, Nv, Nu) bool, and (ρ̄_a − ρ̄_b)² / (n (1 / n_a + 1 / n_b)) / mean var into d (NaN
     where it is not defined) for view columns with half[i] = 1 (a) or 2 (b)
     (:func:`polycam.rho_pool.pool_over_views`, whose numpy this is)."""
     F, ny, nx, Nv, Nu = rho.shape
@@ -1425,10 +1426,11 @@ def _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d):
             m = acc[1, u] / n if n > 0 else np.nan
             mv = acc[3, u] / n if n > 0 else np.nan
             spread = (acc[2, u] - n * m * m) / (n - 1.0) if n > 1 else np.nan
-            live = n >= 4 and mv > 0
+            ok4 = n >= 4 and mv > 0
+            live[f, v, u] = ok4
             mean[f, v, u] = m
             mvar[f, v, u] = mv
-            tau2[f, v, u] = max(spread - mv, 0.0) if live else 0.0
+            tau2[f, v, u] = max(spread - mv, 0.0) if ok4 else 0.0
             ok = acc[4, u] > 0 and acc[6, u] > 0 and mv > 0
             dd = acc[5, u] / acc[4, u] - acc[7, u] / acc[6, u] if ok else 0.0
             d[f, v, u] = dd * dd / (n * (1.0 / acc[4, u] + 1.0 / acc[6, u])) / mv if ok else np.nan
@@ -1499,11 +1501,12 @@ def _pool_rho(rho: np.ndarray, scales: np.ndarray, rv: np.ndarray, Lu: np.ndarra
         half[cols[:h]] = 1
         half[cols[-h:]] = 2
     mean, tau2, mvar, d = (np.empty((F, Nv, Nu)) for _ in range(4))
-    _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d)
+    live = np.empty((F, Nv, Nu), np.bool_)
+    _pool_stats_kernel(rho, scales, rv, half, mean, tau2, mvar, d, live)
     d = d[np.isfinite(d)]
     q = float(np.median(d)) / _CHI2_1_MEDIAN if (h >= 1 and d.size) else math.nan
-    counts = (rho != _RHO_NONE).sum(axis=(1, 2))
-    live = (counts >= 4) & np.isfinite(mvar) & (mvar > 0) & math.isfinite(q)
+    if not math.isfinite(q):
+        live[...] = False
     stats = np.zeros((F * int(box[1] - box[0]) * int(box[3] - box[2]), 3))
     _pool_apply_kernel(rho, scales, rv, mean, tau2, mvar, live, q if math.isfinite(q) else 0.0, Lu, Lv, dsc,
                        box, vo, stats)
