@@ -122,7 +122,7 @@ from polycam.errors import InputError  # noqa: E402
 from polycam.design import RigSampling, Source, predict_pair  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, warp_lightfield  # noqa: E402
-from polycam.motion_options import describe_options, options_from_strings  # noqa: E402
+from polycam.motion_options import NOISY, describe_options, options_from_strings  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid  # noqa: E402
 from polycam.synth.scenes import make_scene  # noqa: E402
 from polycam.synth.raycast import trace_outer  # noqa: E402
@@ -483,11 +483,10 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     return rows
 
 
-HIGH_NOISE = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8.0, uv_taps=8,
-                           depth_pool_views=True)
-"""The noise options measured best together (with the default Eq. 6 positional regressors): no
-discontinuity weight (computed from noisy frames it discards rays at random), errors-in-variables
-steps, whitened re-solves, and the model-validity weight (docs/motion.md, "Noise"; until
+HIGH_NOISE = NOISY
+"""The noise options (``polycam.motion_options.NOISY``; ``polycam motion --preset noisy``), measured
+best together (with the default Eq. 6 positional regressors): no discontinuity weight (computed
+from noisy frames it discards rays at random), errors-in-variables steps, whitened re-solves, and the model-validity weight (docs/motion.md, "Noise"; until
 session 18 ``eiv=True, smooth_noise=True``, which the blurred set-up measured worse for t;
 ``model_weight`` since session 21: the same from σ ≈ 4 grey levels on, far less translation
 error below; ``model_weight_gain=8`` since session 22: the largest ratio over the 4 m and 8 m

@@ -113,10 +113,10 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
 
 
 def cmd_motion(args: argparse.Namespace) -> int:
-    from .depth_cli import open_source
-    from .motion_options import describe_options, options_from_strings
+    from .depth_cli import open_source, solver_options
+    from .motion_options import describe_options
 
-    opts = options_from_strings(args.option)          # before anything is read or written
+    opts = solver_options(args)          # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step)  # validates before the solver import
     truth_name = src / "groundtruth.tum"

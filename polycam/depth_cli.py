@@ -12,8 +12,10 @@ from pathlib import Path
 
 from .cliargs import nonneg_int as _nonneg_int
 from .cliargs import positive_float as _positive_float
+from .motion_options import PRESETS, options_from_strings
 
-__all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory"]
+__all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
+           "add_solver_options", "solver_options"]
 
 TIMESTAMP_TOLERANCE_NS = 1_000_000
 """A --traj pose belongs to a frame when their timestamps differ by at most this (1 ms)."""
@@ -29,12 +31,21 @@ def add_source_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_solver_options(p: argparse.ArgumentParser) -> None:
-    """``--option KEY=VALUE``: fields of the motion solver's MotionOptions
-    (:func:`polycam.motion_options.options_from_strings`); shared by the verbs that estimate motion."""
+    """``--preset NAME`` and ``--option KEY=VALUE``: the motion solver's MotionOptions
+    (:data:`polycam.motion_options.PRESETS`, :func:`polycam.motion_options.options_from_strings`);
+    shared by the verbs that estimate motion. :func:`solver_options` reads them."""
+    p.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                   help="a named set of solver options: default (tuned for 8-bit cameras in good light) or "
+                        "noisy (frames with a grey level of noise or more; docs/motion.md, \"Noise\")")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                   help="a motion solver setting (a MotionOptions field; repeatable), e.g. for frames with several "
-                        "grey levels of noise: --option smooth_c=0 --option eiv=true --option whiten=on "
-                        "(docs/motion.md, \"Noise\")")
+                   help="a motion solver setting (a MotionOptions field; repeatable), on top of --preset, "
+                        "e.g. --option levels=2")
+
+
+def solver_options(args: argparse.Namespace):
+    """The :class:`~polycam.motion_options.MotionOptions` of ``--preset`` and ``--option``
+    (:class:`~polycam.errors.InputError`, one line, for a bad item)."""
+    return options_from_strings(args.option, PRESETS[args.preset])
 
 
 def add_parsers(sub) -> None:
@@ -112,10 +123,10 @@ def cmd_depth(args: argparse.Namespace) -> int:
     from .depth import confident_mask, depth_of_pair, grey_frame, view_mask
     from .depth_io import write_depth_folder
     from .errors import InputError
-    from .motion_options import changed_options, options_from_strings
+    from .motion_options import changed_options
     from .motion_weights import frame_noise_variance
 
-    opts = options_from_strings(args.option)          # before anything is read or written
+    opts = solver_options(args)          # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step)
     n = len(store.timestamps_ns)

@@ -5,7 +5,9 @@ built from (:mod:`polycam.motion_weights`, :mod:`polycam.pyramid`) can take it w
 importing :mod:`polycam.motion`; it is re-exported there. What the options do:
 docs/motion.md and the docstring of :mod:`polycam.motion`. :func:`options_from_strings`
 reads them from ``KEY=VALUE`` strings (``polycam motion --option``), :func:`changed_options`
-lists the ones that differ from the defaults.
+lists the ones that differ from the defaults. :data:`PRESETS` names the two measured sets
+(``default``, and ``noisy`` for frames with a grey level of noise or more: ``polycam motion
+--preset noisy``).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from dataclasses import dataclass, field, fields, replace
 
 from .errors import InputError
 
-__all__ = ["MotionOptions", "options_from_strings", "changed_options", "describe_options"]
+__all__ = ["MotionOptions", "NOISY", "PRESETS", "options_from_strings", "changed_options", "describe_options"]
 
 
 @dataclass(frozen=True)
@@ -106,7 +108,7 @@ class MotionOptions:
     1.74 → 1.36 at 8 m, 1.67 → 1.32 at 6 m; unchanged below 8 grey levels); needs the frames'
     noise estimate (does nothing without noise). Costs one float32 array of the light field's
     size while ρ̂ is computed and 4–6 % time. Part of the noise options
-    (``bench_noise.HIGH_NOISE``); off by default, which is tuned for low noise and has not
+    (:data:`NOISY`, ``--preset noisy``); off by default, which is tuned for low noise and has not
     been measured with it (docs/motion_log.md, Session 24)."""
     depth_gate: float = 0.25
     """``depth_regressors``: also replace where the window's disparity is at most this many
@@ -198,6 +200,21 @@ class MotionOptions:
             raise ValueError(f"extrapolate_views must be >= 0 and finite, got {self.extrapolate_views}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
+
+
+NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8.0, uv_taps=8,
+                      depth_pool_views=True)
+"""The noise options: the set measured best together on frames with noise of a grey level or
+more (benchmarks/bench_noise.py's ``--high-noise`` table, docs/motion.md, "Noise"). No
+discontinuity weight (computed from noisy frames it discards rays at random), errors-in-variables
+steps, whitened re-solves, the model-validity weight with gain 8, 8-point (u, v) interpolation and
+ρ̂ pooled over the views: on blurred frames of the paper's sphere scene at 4–8 m within 1.5x of the
+Cramér–Rao bound from 1 to 32 grey levels, where the defaults are 1.3–2.3x. About 1.4x the
+defaults' time per estimate. The defaults stay tuned for 8-bit cameras in good light (under a
+grey level of noise), where the model bias matters more."""
+
+PRESETS: dict[str, MotionOptions] = {"default": MotionOptions(), "noisy": NOISY}
+"""The named option sets (the CLI's ``--preset``); ``--option`` items apply on top."""
 
 
 _TRUE = ("true", "on", "yes", "1")

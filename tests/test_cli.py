@@ -180,20 +180,19 @@ def two_frame_lightfield(tmp_path_factory) -> Path:
 
 
 def test_motion_takes_solver_options_and_records_them(tmp_path):
-    """``--option KEY=VALUE`` sets MotionOptions fields (typed; the noise options of
-    docs/motion.md here), the command says which differ from the defaults, and the
-    report's options.toml records every field."""
+    """``--preset noisy`` takes the noise options of docs/motion.md and ``--option KEY=VALUE``
+    sets MotionOptions fields on top (typed), the command says which differ from the
+    defaults, and the report's options.toml records every field."""
     lf = _small_lightfield(tmp_path, 2)
     res = polycam("motion", str(lf), "--out", str(tmp_path / "traj.tum"), "--report", str(tmp_path / "rep"),
-                  "--option", "smooth_c=0", "--option", "eiv=true", "--option", "whiten=on",
-                  "--option", "model_weight=true", "--option", "model_weight_gain=8", "--option", "levels=2")
+                  "--preset", "noisy", "--option", "levels=2", "--option", "uv_taps=6")
     assert res.returncode == 0, res.stderr
     assert ("solver options: levels=2, smooth_c=0.0, eiv=True, model_weight=True, model_weight_gain=8.0, "
-            "whiten=on") in res.stdout
+            "depth_pool_views=True, whiten=on\n") in res.stdout
     doc = tomllib.loads((tmp_path / "rep" / "options.toml").read_text())["motion"]
     assert doc["smooth_c"] == 0.0 and doc["eiv"] is True and doc["whiten"] == "on" and doc["levels"] == 2
-    assert doc["model_weight"] is True and doc["model_weight_gain"] == 8.0
-    assert doc["uv_taps"] == 6 and doc["scale_selection"] is False       # the others: the defaults
+    assert doc["model_weight"] is True and doc["model_weight_gain"] == 8.0 and doc["depth_pool_views"] is True
+    assert doc["uv_taps"] == 6 and doc["scale_selection"] is False       # the option over the preset; the defaults
 
 
 @pytest.mark.parametrize("option, problem", [("nope=1", "not a solver option"), ("eiv=maybe", "true or false"),

@@ -11,6 +11,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import tomllib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from polycam.depth import (EQUATIONS, confident_mask, depth_from_derivatives, de
 from polycam.depth_io import read_pfm, read_ply, read_png16, write_pfm, write_ply, write_png16
 from polycam.geometry import T_from_rt
 from polycam.lightfield import Axis, LightFieldGrid
+from polycam.motion_options import NOISY, changed_options
 from polycam import scales as scales_mod
 from polycam.scales import (MOTION_UV_SCALES, Scale, ScaleTracker, depth_estimates, depth_scale_selected,
                             estimate_motion_scale_selected, scale_derivatives, select_scales, view_disparity)
@@ -306,8 +308,10 @@ def test_depth_verb_writes_maps_and_a_ply(tmp_path, repo):
     assert {"red", "green", "blue", "confidence"} <= set(ply)
 
 
-@pytest.mark.parametrize("options", [[], ["--option", "levels=2", "--option", "whiten=on"]])
-def test_depth_verb_estimates_the_motion(tmp_path, capsys, options):
+@pytest.mark.parametrize("options, recorded", [
+    ([], {}), (["--option", "levels=2", "--option", "whiten=on"], {"levels": 2, "whiten": "on"}),
+    (["--preset", "noisy", "--option", "levels=2"], changed_options(replace(NOISY, levels=2)))])
+def test_depth_verb_estimates_the_motion(tmp_path, capsys, options, recorded):
     from polycam.cli import main
 
     _plane_store(tmp_path / "lf.zarr")
@@ -317,7 +321,7 @@ def test_depth_verb_estimates_the_motion(tmp_path, capsys, options):
     assert (tmp_path / "o" / "views" / "face0" / "y02_x02_depth.pfm").exists()
     assert read_ply(tmp_path / "o" / "points.ply")["x"].size > 0
     doc = tomllib.loads((tmp_path / "o" / "depth.toml").read_text())["depth"]
-    assert doc.get("motion_options", {}) == ({"levels": 2, "whiten": "on"} if options else {})
+    assert doc.get("motion_options", {}) == recorded
 
 
 @pytest.mark.parametrize("case", ["single_frame", "missing", "frame_range", "missing_traj", "bad_option"])

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
 from polycam.errors import InputError
-from polycam.motion_options import MotionOptions, changed_options, options_from_strings
+from polycam.motion_options import NOISY, PRESETS, MotionOptions, changed_options, options_from_strings
 
 
 def test_values_take_their_fields_types():
@@ -27,6 +28,14 @@ def test_filters_by_name_or_per_axis_and_later_items_win():
     assert opts.filters == {"x": "central", "y": "fs3", "u": "fs5", "v": "fs5"} and opts.levels == 2
     base = MotionOptions(eiv=True, levels=1)
     assert options_from_strings(["levels=3"], base) == MotionOptions(eiv=True, levels=3)
+
+
+def test_presets_and_options_on_top_of_them():
+    """``--preset noisy`` is the noise options of docs/motion.md; ``--option`` items override it."""
+    assert PRESETS == {"default": MotionOptions(), "noisy": NOISY}
+    assert changed_options(NOISY) == {"smooth_c": 0.0, "eiv": True, "model_weight": True, "model_weight_gain": 8.0,
+                                      "depth_pool_views": True, "whiten": "on", "uv_taps": 8}
+    assert options_from_strings(["uv_taps=6", "levels=2"], NOISY) == replace(NOISY, uv_taps=6, levels=2)
 
 
 @pytest.mark.parametrize("item, fragment", [
