@@ -28,13 +28,16 @@ in numpy / scipy (:func:`numpy_full_solve`: same pyramid, warp stencils, filters
 weights, IRLS, covariance scores and the same number of solves per level as our run),
 the default estimate with confidences W (a resampled session's frames carry them: the
 warp then also moves W), and the peak memory of one full estimate in a fresh process
-relative to one frame (and over three consecutive estimates, as in a session). Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
+relative to one frame (and over three consecutive estimates, as in a session); and the default
+estimate against the noise options (``--preset noisy``) on the frames with 2 grey levels of noise
+added. Timings are the best of ``--repeat`` runs after a warm-up, plus process CPU time; the
 machine (2 cores) may be shared, which inflates both (numba's threads spin-wait).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from dataclasses import replace
@@ -48,6 +51,7 @@ sys.path.insert(0, str(REPO))
 from polycam.derivatives import FILTERS, plenoptic_derivatives  # noqa: E402
 from polycam.geometry import R_from_r, T_from_Rt, rt_from_T  # noqa: E402
 from polycam.motion import MotionOptions, estimate_motion, ray_motion_coefficients, solve_ray_motion  # noqa: E402
+from polycam.motion_options import NOISY  # noqa: E402
 from polycam.synth import LightFieldRenderer, default_lightfield_grid, spheres_scene  # noqa: E402
 
 BASELINE = MotionOptions(filters="central", levels=1, iterations=1, irls_steps=0, robust="none", depth_regressors=False,
@@ -465,6 +469,13 @@ def speed(repeat: int, directions: int) -> None:
     t_full_m = best_time(lambda: estimate_motion(L0, L1, grid, options=meas), repeat)
     t_full = min(t_full, best_time(lambda: estimate_motion(L0, L1, grid), repeat))   # alternate: same load
     t_full_m = min(t_full_m, best_time(lambda: estimate_motion(L0, L1, grid, options=meas), repeat))
+    # frames with 2 grey levels of noise: the default options and the noise options (--preset noisy)
+    rng = np.random.default_rng(2)
+    L0n, L1n = ((L + rng.normal(0.0, 2.0 / 255.0, L.shape)).astype(L.dtype) for L in (L0, L1))
+    t_noisy_d = t_noisy_p = math.inf
+    for _ in range(2):                                  # alternate: same load
+        t_noisy_d = min(t_noisy_d, best_time(lambda: estimate_motion(L0n, L1n, grid), repeat))
+        t_noisy_p = min(t_noisy_p, best_time(lambda: estimate_motion(L0n, L1n, grid, options=NOISY), repeat))
     W = np.ones_like(L0)          # confidences of a resampled session's frames (all measured)
     t_full_w = best_time(lambda: estimate_motion(L0, L1, grid, W0=W, W1=W), repeat)
     W_holes = W.copy()
@@ -502,6 +513,10 @@ def speed(repeat: int, directions: int) -> None:
           f"{1e3 * t_full_w:.0f} | {n / t_full_w / 1e6:.1f} | – |")
     print(f"| the same with samples without data (W = 0 in two direction columns: the warp carries "
           f"a third, \"no data\" channel), ours | {1e3 * t_full_h:.0f} | {n / t_full_h / 1e6:.1f} | – |")
+    print(f"| the default on frames with 2 grey levels of noise, ours | {1e3 * t_noisy_d:.0f} | "
+          f"{n / t_noisy_d / 1e6:.1f} | – |")
+    print(f"| the noise options (`--preset noisy`, `MotionOptions` NOISY) on the same frames, ours | "
+          f"{1e3 * t_noisy_p:.0f} | {n / t_noisy_p / 1e6:.1f} | – |")
     print(f"| that algorithm and solve schedule {schedule} in numpy/scipy | {1e3 * t_full_np:.0f} | "
           f"{n / t_full_np / 1e6:.2f} | {1e3 * c_full_np:.0f} |")
     print(f"\nspeed-up of ours over the baselines: derivatives + solve {t_base / t_ours:.1f}x "
