@@ -43,19 +43,29 @@ def _whitening_factor(taps: tuple, n: int, floor: float = 0.0) -> np.ndarray:
     return np.linalg.cholesky(KK + floor * np.eye(n))
 
 
+_FORWARD_CHUNK = 4096
+"""Columns (of the trailing axis) per parallel task of :func:`_forward_axis`: the leading axis
+alone (1 for the first box axis) would leave one core idle."""
+
+
 @numba.njit(parallel=True, cache=True)
 def _forward_axis(X, C, bw):
     """X (A, n, B) ← C⁻¹ X along axis 1, in place; C (n, n) lower triangular with bandwidth
-    bw (banded forward substitution)."""
+    bw (banded forward substitution). Parallel over A and chunks of B (every element sees
+    the same operations in the same order whatever the split)."""
     A, n, B = X.shape
-    for a in numba.prange(A):
+    nb = (B + _FORWARD_CHUNK - 1) // _FORWARD_CHUNK
+    for ab in numba.prange(A * nb):
+        a = ab // nb
+        b0 = (ab - a * nb) * _FORWARD_CHUNK
+        b1 = min(b0 + _FORWARD_CHUNK, B)
         for j in range(n):
             inv = 1.0 / C[j, j]
             for k in range(max(0, j - bw), j):
                 c = C[j, k]
-                for b in range(B):
+                for b in range(b0, b1):
                     X[a, j, b] -= c * X[a, k, b]
-            for b in range(B):
+            for b in range(b0, b1):
                 X[a, j, b] *= inv
 
 
@@ -206,10 +216,18 @@ def _whitened_noise_gain(fp: FilterPair, n: int, floor: float = 0.0, derivative:
     (:func:`_whitening_factor`) of the pair ``fp``: the whitened variance of the filtered unit
     white noise along that axis (per sample step; Σ d² unwhitened; 1 for the prefilter
     without floor)."""
-    r = fp.radius
-    C = _whitening_factor(tuple(float(t) for t in fp.prefilter), n, floor)
+    taps = tuple(float(t) for t in fp.prefilter)
+    return _noise_gain(taps, tuple(float(t) for t in fp.derivative) if derivative else taps, n, floor)
+
+
+@functools.lru_cache(maxsize=64)
+def _noise_gain(prefilter: tuple, taps: tuple, n: int, floor: float) -> float:
+    """:func:`_whitened_noise_gain` of the filter ``taps`` (2r+1,) whitened by ``prefilter``'s
+    factor (cached: the solver asks for the same few axes at every whitened solve)."""
+    r = len(prefilter) // 2
+    C = _whitening_factor(prefilter, n, floor)
     D = np.zeros((n, n + 2 * r))
     for i in range(n):
-        D[i, i:i + 2 * r + 1] = fp.derivative if derivative else fp.prefilter
+        D[i, i:i + 2 * r + 1] = taps
     X = np.linalg.solve(C, D)
     return float(np.sum(X * X) / n)

@@ -1233,6 +1233,24 @@ def test_bad_options():
         estimate_motion(L, L, grid, options=MotionOptions(filters="sobel"))
 
 
+@pytest.mark.parametrize("A, B", [(1, 9000), (3, 5000), (40, 7)])
+def test_forward_substitution_in_chunks_matches_a_dense_solve(rng, A, B):
+    """The banded forward substitution along one axis, split over the leading axis and over
+    chunks of the trailing one (more than one chunk here), is C⁻¹ X for every column."""
+    from scipy.linalg import solve_triangular
+
+    from polycam.derivatives import FILTERS
+    from polycam.whitening import _FORWARD_CHUNK, _forward_axis, _whitening_factor
+
+    assert B <= 7 or B > _FORWARD_CHUNK
+    n = 20
+    C = _whitening_factor(tuple(float(t) for t in FILTERS["fs5"].prefilter), n, 0.3)
+    X = rng.standard_normal((A, n, B))
+    ref = np.stack([solve_triangular(C, X[a], lower=True) for a in range(A)])
+    _forward_axis(X, C, 4)
+    np.testing.assert_allclose(X, ref, rtol=MOTION_WHITEN_GLS_RTOL, atol=MOTION_WHITEN_GLS_RTOL)
+
+
 def test_whitened_sums_match_dense_gls(scene, rng):
     """The GLS path (rows whitened by banded Cholesky factors per axis) gives the normal sums
     Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box."""
