@@ -485,15 +485,16 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
 
 HIGH_NOISE = NOISY
 """The noise options (``polycam.motion_options.NOISY``; ``polycam motion --preset noisy``), measured
-best together (with the default Eq. 6 positional regressors): no discontinuity weight (computed
-from noisy frames it discards rays at random), errors-in-variables steps, whitened re-solves, and the model-validity weight (docs/motion.md, "Noise"; until
-session 18 ``eiv=True, smooth_noise=True``, which the blurred set-up measured worse for t;
-``model_weight`` since session 21: the same from σ ≈ 4 grey levels on, far less translation
-error below; ``model_weight_gain=8`` since session 22: the largest ratio over the 4 m and 8 m
-scenes 2.31 against 2.53, the translation's at 8 m and 1–2 grey levels 1.98 / 1.83 against 2.53 /
-2.19; ``uv_taps=8`` since session 23: at 8 m the noise-free rotation bias 1.78 → 0.39 µrad, ω at
-1 grey level 1.64 → 1.35x its bound; ``depth_pool_views`` since session 24: ρ̂ pooled over the
-views, at 32 grey levels the translation 1.74 → 1.36x at 8 m, 1.67 → 1.32x at 6 m)."""
+best together (with the default Eq. 6 positional regressors): no discontinuity weight (computed from
+noisy frames it discards rays at random), errors-in-variables steps, whitened re-solves, and the
+model-validity weight (docs/motion.md, "Noise"; until session 18 ``eiv=True, smooth_noise=True``,
+which the blurred set-up measured worse for t; ``model_weight`` since session 21: the same from σ ≈
+4 grey levels on, far less translation error below; ``model_weight_gain=8`` since session 22: the
+largest ratio over the 4 m and 8 m scenes 2.31 against 2.53, the translation's at 8 m and 1–2 grey
+levels 1.98 / 1.83 against 2.53 / 2.19; ``uv_taps=8`` since session 23: at 8 m the noise-free
+rotation bias 1.78 → 0.39 µrad, ω at 1 grey level 1.64 → 1.35x its bound; ``depth_pool_views`` since
+session 24: ρ̂ pooled over the views, at 32 grey levels the translation 1.74 → 1.36x at 8 m, 1.67 →
+1.32x at 6 m)."""
 
 VARIANTS = {
     "default": MotionOptions(),

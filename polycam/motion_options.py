@@ -204,16 +204,16 @@ class MotionOptions:
 
 NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8.0, uv_taps=8,
                       depth_pool_views=True)
-"""The noise options: the set measured best together on frames with noise of a grey level or
-more (benchmarks/bench_noise.py's ``--high-noise`` table, docs/motion.md, "Noise"). No
-discontinuity weight (computed from noisy frames it discards rays at random), errors-in-variables
-steps, whitened re-solves, the model-validity weight with gain 8, 8-point (u, v) interpolation and
-ρ̂ pooled over the views: on blurred frames of the paper's sphere scene at 4–8 m within 1.5x of the
-Cramér–Rao bound from 1 to 32 grey levels, where the defaults are 1.3–2.3x. They cost about
-2x the defaults' time per estimate (mostly the whitened re-solves: 2.15–2.4x on
-benchmarks/bench_motion.py's one face at 2 grey levels) and, while the whitened rows are
-summed, a float64 array of 7 values per ray (about 14 frames of float32). The defaults stay
-tuned for 8-bit cameras in good light (under a grey level of noise), where the model bias
+"""The noise options: the set measured best together on frames with noise of a grey level or more
+(benchmarks/bench_noise.py's ``--high-noise`` table, docs/motion.md, "Noise"). No discontinuity
+weight (computed from noisy frames it discards rays at random), errors-in-variables steps, whitened
+re-solves, the model-validity weight with gain 8, 8-point (u, v) interpolation and ρ̂ pooled over
+the views: on blurred frames of the paper's sphere scene at 4–8 m within 1.5x of the Cramér–Rao
+bound from 1 to 32 grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
+time per estimate (mostly the whitened re-solves: 2.15–2.4x on benchmarks/bench_motion.py's one face
+at 2 grey levels) and, while the whitened rows are summed, a float64 array of 7 values per ray of
+the solved box (~8 frames of float32 on 9 x 9 views: 42 MB at 128 x 128 directions). The defaults
+stay tuned for 8-bit cameras in good light (under a grey level of noise), where the model bias
 matters more."""
 
 PRESETS: dict[str, MotionOptions] = {"default": MotionOptions(), "noisy": NOISY}
