@@ -388,6 +388,7 @@ import sys
 import numpy as np
 sys.path.insert(0, {repo!r})
 from polycam.motion import MotionOptions, estimate_motion
+from polycam.motion_options import NOISY
 from polycam.synth import default_lightfield_grid
 
 
@@ -400,7 +401,8 @@ def status(key):
 small = default_lightfield_grid("+z", views=5, directions=32)
 a = np.random.default_rng(0).random(small.shape).astype(np.float32)
 Ws = np.ones_like(a) if {with_w} else None
-estimate_motion(a, a * 0.99 + 0.005, small, W0=Ws, W1=Ws)   # load the compiled kernels (as a session: with W)
+opts = NOISY if {noisy} else MotionOptions(depth_regressors={dr})
+estimate_motion(a, a * 0.99 + 0.005, small, W0=Ws, W1=Ws, options=opts)   # load the compiled kernels (as a session: with W)
 L0, L1 = np.load({f0!r}), np.load({f1!r})
 W = np.ones_like(L0) if {with_w} else None
 grid = default_lightfield_grid("+z", directions={directions})
@@ -408,20 +410,21 @@ with open("/proc/self/clear_refs", "w") as f:            # reset the peak reside
     f.write("5")
 before = status("VmRSS")
 for _ in range({estimates}):
-    estimate_motion(L0, L1, grid, W0=W, W1=W, options=MotionOptions(depth_regressors={dr}))
+    estimate_motion(L0, L1, grid, W0=W, W1=W, options=opts)
 print(status("VmHWM") - before)
 """
 
 
 def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: bool = False,
-                estimates: int = 1) -> int:
+                estimates: int = 1, noisy: bool = False) -> int:
     """Peak growth of the resident set [bytes] during ``estimates`` consecutive full estimates
     of the pair (as the pairs of a session: the work arrays stay between calls), in a fresh process
     (frames loaded and kernels warmed up on a small grid first; Linux: the peak is reset
     through /proc/self/clear_refs, so earlier peaks such as imports do not hide it).
     ``with_w``: with confidences W = 1 for both frames (allocated before the reset; the
     warm-up has them too, as every pair of a session does: the work arrays' dtypes then
-    match, which the allocator's reuse of freed memory depends on)."""
+    match, which the allocator's reuse of freed memory depends on). ``noisy``: with the noise
+    options (``NOISY``) instead of ``MotionOptions(depth_regressors=depth_regressors)``."""
     import subprocess
     import tempfile
 
@@ -430,7 +433,7 @@ def peak_memory(L0, L1, directions: int, depth_regressors: bool = True, with_w: 
         np.save(f0, L0)
         np.save(f1, L1)
         code = MEMORY_CHILD.format(repo=str(REPO), f0=f0, f1=f1, directions=directions, dr=depth_regressors,
-                                   with_w=with_w, estimates=estimates)
+                                   with_w=with_w, estimates=estimates, noisy=noisy)
         out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
     return int(out.stdout.split()[-1])
 
@@ -493,6 +496,7 @@ def speed(repeat: int, directions: int) -> None:
     mem_w = peak_memory(L0, L1, directions, with_w=True)
     mem_s = peak_memory(L0, L1, directions, estimates=3)
     mem_sw = peak_memory(L0, L1, directions, with_w=True, estimates=3)
+    mem_noisy = peak_memory(L0n, L1n, directions, noisy=True)
     import numba
 
     threads = numba.get_num_threads()
@@ -534,7 +538,8 @@ def speed(repeat: int, directions: int) -> None:
           f"with confidences W {mem_w / 2**20:.0f} MiB = {mem_w / L0.nbytes:.1f} frames; "
           f"over three consecutive estimates (a session's pairs: the work arrays stay, and the coarse levels' "
           f"frames borrow their idle tails) {mem_s / 2**20:.0f} MiB = {mem_s / L0.nbytes:.1f} frames, "
-          f"with W {mem_sw / 2**20:.0f} MiB = {mem_sw / L0.nbytes:.1f} frames")
+          f"with W {mem_sw / 2**20:.0f} MiB = {mem_sw / L0.nbytes:.1f} frames; the noise options (NOISY) on the "
+          f"frames with 2 grey levels of noise {mem_noisy / 2**20:.0f} MiB = {mem_noisy / L0.nbytes:.1f} frames")
     print(f"depth_regressors (the default) costs +{1e3 * (t_full - t_full_m):.1f} ms wall (best of {2 * repeat}, "
           f"alternating), +{1e3 * (c_full - c_full_m):.0f} ms CPU time")
 

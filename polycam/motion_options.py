@@ -211,8 +211,8 @@ re-solves, the model-validity weight with gain 8, 8-point (u, v) interpolation a
 the views: on blurred frames of the paper's sphere scene at 4–8 m within 1.5x of the Cramér–Rao
 bound from 1 to 32 grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
 time per estimate (mostly the whitened re-solves: 2.15–2.4x on benchmarks/bench_motion.py's one face
-at 2 grey levels) and, while the whitened rows are summed, a float64 array of 7 values per ray of
-the solved box (~8 frames of float32 on 9 x 9 views: 42 MB at 128 x 128 directions). The defaults
+at 2 grey levels) and about twice the memory: a peak of 10 frames instead of 4.4 (the whitened
+rows alone, 7 float32 per ray of the solved box, are ~4 frames). The defaults
 stay tuned for 8-bit cameras in good light (under a grey level of noise), where the model bias
 matters more."""
 

@@ -197,8 +197,8 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     acc = np.zeros((F, 1, nt[0] * nt[1], _NACC))
     if min(n) <= 0:
         return acc
-    Z = np.empty(tuple(n) + (7,))
-    Wr = np.empty(tuple(n))
+    Z = np.empty(tuple(n) + (7,), np.float32)      # the rows in float32 (half the memory); arithmetic
+    Wr = np.empty(tuple(n), np.float32)             # and sums in float64
     xs, ys, us, vs = vals
     for k in range(F):
         _weighted_rows(*der, dsc, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),

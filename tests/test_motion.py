@@ -1233,10 +1233,12 @@ def test_bad_options():
         estimate_motion(L, L, grid, options=MotionOptions(filters="sobel"))
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("A, B", [(1, 9000), (3, 5000), (40, 7)])
-def test_forward_substitution_in_chunks_matches_a_dense_solve(rng, A, B):
+def test_forward_substitution_in_chunks_matches_a_dense_solve(rng, A, B, dtype):
     """The banded forward substitution along one axis, split over the leading axis and over
-    chunks of the trailing one (more than one chunk here), is C⁻¹ X for every column."""
+    chunks of the trailing one (more than one chunk here), is C⁻¹ X for every column (also
+    on the solver's float32 rows)."""
     from scipy.linalg import solve_triangular
 
     from polycam.derivatives import FILTERS
@@ -1245,8 +1247,8 @@ def test_forward_substitution_in_chunks_matches_a_dense_solve(rng, A, B):
     assert B <= 7 or B > _FORWARD_CHUNK
     n = 20
     C = _whitening_factor(tuple(float(t) for t in FILTERS["fs5"].prefilter), n, 0.3)
-    X = rng.standard_normal((A, n, B))
-    ref = np.stack([solve_triangular(C, X[a], lower=True) for a in range(A)])
+    X = rng.standard_normal((A, n, B)).astype(dtype)
+    ref = np.stack([solve_triangular(C, X[a].astype(np.float64), lower=True) for a in range(A)])
     _forward_axis(X, C, 4)
     np.testing.assert_allclose(X, ref, rtol=MOTION_WHITEN_GLS_RTOL, atol=MOTION_WHITEN_GLS_RTOL)
 
