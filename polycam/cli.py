@@ -116,7 +116,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
     from .depth_cli import open_source, solver_options
     from .motion_options import describe_options
 
-    opts = solver_options(args)          # before anything is read or written
+    opts = solver_options(args)                       # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step)  # validates before the solver import
     truth_name = src / "groundtruth.tum"

@@ -126,7 +126,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
     from .motion_options import changed_options
     from .motion_weights import frame_noise_variance
 
-    opts = solver_options(args)          # before anything is read or written
+    opts = solver_options(args)                       # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step)
     n = len(store.timestamps_ns)
