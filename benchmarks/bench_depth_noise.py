@@ -5,8 +5,9 @@ Run: ``.venv/bin/python benchmarks/bench_depth_noise.py [--distance 4] [--faces 
 [--sigmas 0 1 2 4 8] [--blur 0.8]``
 
 Set-up (benchmarks/bench_noise.py's blurred set-up): the paper's unit spheres at D = 4 m,
-f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions (3 x 3 rays per sample), every view
-blurred by a Gaussian of 0.8 samples along u and v, a quarter of the seeded motion
+f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions (3 x 3 rays per sample), a Gaussian
+optics blur of 0.8 samples along u and v of every view (before the pixel integration,
+``LightFieldRenderer(psf=)``; session 26), a quarter of the seeded motion
 (|t| = 3.8 mm, |ω| = 0.05°). White Gaussian noise of σ grey levels (of 255) on both frames,
 one seeded draw per level. Depth: :func:`polycam.depth.depth_of_pair` with the true motion,
 uncorrected (``noise_var=0``, the fusion before session 19) and corrected (the noise
@@ -42,7 +43,7 @@ def main() -> None:
     ap.add_argument("--faces", default="+z", help="a face name, or 'all'")
     ap.add_argument("--sigmas", type=float, nargs="+", default=[0.0, 1.0, 2.0, 4.0, 8.0],
                     help="noise levels [grey levels of 255]")
-    ap.add_argument("--blur", type=float, default=0.8, help="optics blur along u, v [samples]")
+    ap.add_argument("--blur", type=float, default=0.8, help="optics PSF along u, v [samples], before the pixel integration")
     args = ap.parse_args()
 
     grid, L0, L1, M, rho = setup(args.faces, args.distance, 3, 64, args.blur, 0.25, True)

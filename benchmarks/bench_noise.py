@@ -291,15 +291,14 @@ def raw_sample_bounds(faces: str, D: float, supersample: int, directions: int,
     linear model (:func:`linear_model_bounds`) already leaves to the estimator: the
     high-frequency content of the raw samples that the derivative filters cannot use."""
     grid = default_lightfield_grid(faces, directions=directions)
-    ren = LightFieldRenderer(make_scene(scene, D, seed=0), grid, supersample)
+    ren = LightFieldRenderer(make_scene(scene, D, seed=0), grid, supersample, psf=blur)
     q = np.concatenate([M[:3, 3], rt_from_T(M)[:3]])
     steps = (1e-3,) * 3 + (1e-4,) * 3
     cols = []
     for i, h in enumerate(steps):
         e = np.zeros(6)
         e[i] = h
-        a, b = (optics(ren.render(T_from_Rt(R_from_r(qq[3:]), qq[:3])), blur).astype(np.float64)
-                for qq in (q + e, q - e))
+        a, b = (ren.render(T_from_Rt(R_from_r(qq[3:]), qq[:3])).astype(np.float64) for qq in (q + e, q - e))
         d = (a - b) / (2 * h)
         cols.append(d)
     out = []
@@ -399,27 +398,18 @@ def rms_norm(e: np.ndarray) -> float:
 def setup(faces: str, D: float, supersample: int, directions: int, blur: float = 0.0,
           motion_scale: float = 1.0, oracle: bool = False, scene: str = "spheres"):
     """(grid, L0, L1, M): the noise-free frame pair of the set-up. ``blur``: std [samples] of a
-    Gaussian optics blur along u and v of every view (0: the renderer's pixel averaging only);
-    ``motion_scale``: multiplies the motion (|t| = 1.5 cm, |ω| = 0.2° at 1); ``oracle``: also
-    return the true disparity (:func:`true_disparity`) as a fifth item; ``scene``: a
-    :func:`polycam.synth.scenes.make_scene` name (``spheres``: the paper's; ``room``: the mock
-    rig's textured room, far wall at D, objects 1–4 m away)."""
+    Gaussian optics point-spread function along u and v of every view, applied before the pixel
+    integration as a lens does (:class:`~polycam.synth.render.LightFieldRenderer`'s ``psf``; 0:
+    the renderer's pixel averaging only); ``motion_scale``: multiplies the motion (|t| = 1.5 cm,
+    |ω| = 0.2° at 1); ``oracle``: also return the true disparity (:func:`true_disparity`) as a
+    fifth item; ``scene``: a :func:`polycam.synth.scenes.make_scene` name (``spheres``: the
+    paper's; ``room``: the mock rig's textured room, far wall at D, objects 1–4 m away)."""
     grid = default_lightfield_grid(faces, directions=directions)
     scene = make_scene(scene, D, seed=0)
-    ren = LightFieldRenderer(scene, grid, supersample)
+    ren = LightFieldRenderer(scene, grid, supersample, psf=blur)
     M = random_motion(np.random.default_rng(8000), 0.015 * motion_scale, math.radians(0.2) * motion_scale)
-    out = grid, optics(ren.render(np.eye(4)), blur), optics(ren.render(M), blur), M
+    out = grid, ren.render(np.eye(4)), ren.render(M), M
     return out + (true_disparity(scene, grid),) if oracle else out
-
-
-def optics(L: np.ndarray, blur: float) -> np.ndarray:
-    """L (F, Ny, Nx, Nv, Nu) blurred along u and v by a Gaussian of std ``blur`` samples (0: as is)."""
-    if blur <= 0:
-        return L
-    from scipy.ndimage import gaussian_filter1d
-
-    return gaussian_filter1d(gaussian_filter1d(L, blur, axis=3, mode="nearest"), blur, axis=4,
-                             mode="nearest").astype(L.dtype)
 
 
 def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOptions,
@@ -661,7 +651,8 @@ def main() -> None:
     ap.add_argument("--raw-bound", action="store_true",
                     help="also the CRB of the raw samples (exact renderer Jacobian, no filters) next to the linear model's")
     ap.add_argument("--blur", type=float, default=0.0,
-                    help="Gaussian optics blur along u, v of every view [samples] (default 0: sharp, aliased)")
+                    help="Gaussian optics point-spread function along u, v of every view [samples], before "
+                         "the pixel integration (default 0: sharp, aliased)")
     ap.add_argument("--motion-scale", type=float, default=1.0, help="multiplies the motion (1: 1.5 cm, 0.2 deg)")
     ap.add_argument("--raw-bound-only", action="store_true", help="only the --raw-bound table")
     ap.add_argument("--probe-sigmas", type=float, nargs="+", default=[4.0, 16.0], help="noise levels of --probe")

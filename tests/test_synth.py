@@ -184,6 +184,62 @@ def test_supersampling_is_a_box_filter_over_the_uv_cell():
     assert np.abs(acc / 4 - L).max() <= RENDER_SUPERSAMPLE_ATOL
 
 
+def _uv_grown(grid: LightFieldGrid, n: int) -> LightFieldGrid:
+    """``grid`` with n more samples of the same step on each side of u and v."""
+    def grow(a: Axis) -> Axis:
+        return Axis(a.min - n * a.step, a.max + n * a.step, a.count + 2 * n)
+    return LightFieldGrid(grid.faces, grid.x, grid.y, grow(grid.u), grow(grid.v))
+
+
+def test_psf_border_samples_see_the_scene_beyond_the_border():
+    """With an optics PSF the samples at the (u, v) border are those of a wider grid:
+    the lens blurs the scene, not the finished image with a padded edge."""
+    sc = spheres_scene(4.0, seed=1)
+    grid = _tiny_grid(("+z",), n_uv=12)
+    L = render_lightfield(sc, grid, supersample=2, psf=0.7)
+    wide = render_lightfield(sc, _uv_grown(grid, 3), supersample=2, psf=0.7)
+    assert np.abs(L - wide[..., 3:-3, 3:-3]).max() <= RENDER_SUPERSAMPLE_ATOL
+    assert np.abs(L - render_lightfield(sc, grid, supersample=2)).max() > 0.01   # it does blur
+
+
+def test_psf_is_a_gaussian_before_the_box_filter():
+    """A sample is the Gaussian-weighted sum of the sub-sample rays around it (dense 1-D
+    kernels here), averaged over its own k x k sub-samples."""
+    sc = spheres_scene(4.0, seed=1)
+    grid = _tiny_grid(("+z",), n_uv=6)
+    k, psf = 2, 0.6
+    L = render_lightfield(sc, grid, supersample=k, psf=psf)
+    pad = math.ceil(4 * psf) + 1
+    n = (grid.u.count + 2 * pad) * k
+    wide = _uv_grown(grid, pad)
+    fine_axis = Axis(wide.u.min + (0.5 / k - 0.5) * grid.u.step, wide.u.max + (0.5 - 0.5 / k) * grid.u.step, n)
+    fine = render_lightfield(sc, LightFieldGrid(grid.faces, grid.x, grid.y, fine_axis, fine_axis), supersample=1)
+    r = int(4 * psf * k + 0.5)                      # scipy's truncation at 4 std
+    g = np.exp(-0.5 * (np.arange(-r, r + 1) / (psf * k)) ** 2)
+    g /= g.sum()
+    G = np.zeros((grid.u.count, n))                 # sample i <- fine j: box of the cell's k, then g
+    for i in range(grid.u.count):
+        for c in range((i + pad) * k, (i + pad + 1) * k):
+            G[i, c - r:c + r + 1] += g / k
+    ref = np.einsum("ia,yxab,jb->yxij", G, fine[0].astype(np.float64), G)
+    assert np.abs(L[0] - ref).max() <= RENDER_SUPERSAMPLE_ATOL
+
+
+def test_psf_before_the_pixels_removes_the_aliasing_a_digital_blur_keeps():
+    """Gaussian ⊗ box converges with the sub-samples; blurring the box-filtered samples keeps
+    the aliased part of texture finer than a sample (spheres at 8 m, 3 deg per sample)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    sc = spheres_scene(8.0, seed=1)
+    grid = _tiny_grid(("+z",), n_uv=24, fov_half=36.0)
+    ref = render_lightfield(sc, grid, supersample=16, psf=0.8)
+    coarse = render_lightfield(sc, grid, supersample=8, psf=0.8)
+    box = render_lightfield(sc, _uv_grown(grid, 4), supersample=8)     # the same rays, box only
+    digital = gaussian_filter1d(gaussian_filter1d(box, 0.8, axis=3), 0.8, axis=4)[..., 4:-4, 4:-4]
+    err_psf, err_digital = (float(np.sqrt(np.mean((a - ref) ** 2))) for a in (coarse, digital))
+    assert err_psf < 0.5 * err_digital                # measured 0.0014 against 0.0043
+
+
 def test_lightfield_face_rays_match_grid():
     grid = _tiny_grid(("+z", "-y"))
     for k in range(2):

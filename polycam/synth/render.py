@@ -3,7 +3,9 @@
 - :func:`render_lightfield` / :class:`LightFieldRenderer`: the two-plane light field
   ``L[face, y, x, v, u]`` of a scene seen from a rig pose. Each sample is the mean
   radiance of ``k x k`` rays spread over its (u, v) cell (a box filter over the
-  direction footprint; the viewpoint (x, y) is exact).
+  direction footprint; the viewpoint (x, y) is exact); optionally after a Gaussian
+  optics point-spread function (``psf``), which acts before the pixel integration as a
+  lens does, so it also removes the aliasing a blur of the finished samples would keep.
 - :class:`CameraArrayRenderer`: per-camera images of a rig through mrcal camera
   models (rays from ``mrcal.unproject`` of ``k x k`` sub-pixel points per pixel,
   averaged: box-filter anti-aliasing). The rays are computed once per camera and
@@ -15,6 +17,8 @@ Frames: rays are built in the rig frame and placed in the scene's world frame by
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -83,35 +87,90 @@ def lightfield_face_rays(grid: LightFieldGrid, k: int, supersample: int = 1) -> 
 
 
 class LightFieldRenderer:
-    """Renders a light-field grid from any rig pose; the per-face rays are cached."""
+    """Renders a light-field grid from any rig pose; the per-face rays are cached.
 
-    def __init__(self, scene: Scene, grid: LightFieldGrid, supersample: int = 1):
+    supersample: k; each sample averages k x k rays over its (u, v) cell (box filter).
+    psf: std [samples] of a Gaussian optics point-spread function along u and v of every
+        view (0: none), applied to the radiance *before* the pixel integration: each sample
+        is the Gaussian ⊗ box of the radiance, computed on the k x k sub-sample rays of the
+        grid extended by ``ceil(4 psf) + 1`` samples beyond its (u, v) border (so the border
+        samples see the scene beyond it, as a lens does), then averaged per cell. Blurring
+        finished samples instead keeps the aliased part of texture finer than a sample,
+        which no warp of the samples reproduces (docs/motion_log.md, Session 26).
+    """
+
+    def __init__(self, scene: Scene, grid: LightFieldGrid, supersample: int = 1, psf: float = 0.0):
         if supersample < 1:
             raise ValueError("supersample must be >= 1")
+        if psf < 0:
+            raise ValueError("psf must be >= 0")
+        if psf > 0 and (grid.u.count < 2 or grid.v.count < 2):
+            raise ValueError("psf needs at least 2 samples along u and v")
         self.scene = scene
         self.grid = grid
         self.supersample = int(supersample)
-        self._rays = [lightfield_face_rays(grid, k, self.supersample) for k in range(len(grid.faces))]
+        self.psf = float(psf)
+        self.pad = math.ceil(4.0 * self.psf) + 1 if self.psf > 0 else 0
+        ray_grid = _padded_subsample_grid(grid, self.supersample, self.pad) if self.psf > 0 else grid
+        k = 1 if self.psf > 0 else self.supersample
+        self._rays = [lightfield_face_rays(ray_grid, i, k) for i in range(len(grid.faces))]
 
     def render(self, T_world_rig: np.ndarray, scene: Scene | None = None) -> np.ndarray:
         """(F, Ny, Nx, Nv, Nu) float32 radiance in [0, 1] at pose ``T_world_rig`` (4, 4)."""
         sc = self.scene if scene is None else scene
         F, Ny, Nx, Nv, Nu = self.grid.shape
         out = np.empty((F, Ny, Nx, Nv, Nu), np.float32)
-        for k, (o, d) in enumerate(self._rays):
-            out[k] = trace_outer(sc, o, d, T_world_rig).radiance.reshape(Ny, Nx, Nv, Nu)
+        for i, (o, d) in enumerate(self._rays):
+            if self.psf == 0:
+                out[i] = trace_outer(sc, o, d, T_world_rig).radiance.reshape(Ny, Nx, Nv, Nu)
+                continue
+            step = max(1, _PSF_CHUNK // d.shape[0])        # viewpoints per call: bounded memory
+            for a in range(0, o.shape[0], step):
+                rad = trace_outer(sc, o[a:a + step], d, T_world_rig).radiance
+                out[i].reshape(Ny * Nx, Nv, Nu)[a:a + step] = self._integrate(rad)
         return out
+
+    def _integrate(self, rad: np.ndarray) -> np.ndarray:
+        """(A, Nv, Nu) samples from (A, nv_f * nu_f) sub-sample radiance of the padded grid:
+        the Gaussian PSF along both fine axes, then the mean over each k x k cell, cropped."""
+        from scipy.ndimage import gaussian_filter1d
+
+        k, p = self.supersample, self.pad
+        Nv, Nu = self.grid.v.count, self.grid.u.count
+        fine = rad.reshape(-1, (Nv + 2 * p) * k, (Nu + 2 * p) * k)
+        fine = gaussian_filter1d(fine, self.psf * k, axis=1, mode="nearest")
+        fine = gaussian_filter1d(fine, self.psf * k, axis=2, mode="nearest")
+        cells = fine.reshape(-1, Nv + 2 * p, k, Nu + 2 * p, k).mean(axis=(2, 4))
+        return cells[:, p:p + Nv, p:p + Nu]
+
+
+_PSF_CHUNK = 1 << 23
+"""Sub-sample rays per :func:`trace_outer` call of a renderer with a PSF (memory bound)."""
+
+
+def _padded_subsample_grid(grid: LightFieldGrid, k: int, pad: int) -> LightFieldGrid:
+    """``grid`` with (u, v) replaced by its k x k sub-sample points (the supersampling's cell
+    offsets) over the cells extended by ``pad`` samples on each side."""
+    def axis(a: Axis) -> Axis:
+        h = a.step
+        lo = a.min - pad * h + ((0.5 / k) - 0.5) * h
+        n = (a.count + 2 * pad) * k
+        return Axis(lo, lo + (n - 1) * h / k, n)
+
+    return LightFieldGrid(grid.faces, grid.x, grid.y, axis(grid.u), axis(grid.v))
 
 
 def render_lightfield(scene: Scene, grid: LightFieldGrid, T_world_rig: np.ndarray | None = None,
-                      supersample: int = 1) -> np.ndarray:
+                      supersample: int = 1, psf: float = 0.0) -> np.ndarray:
     """The light field ``L[face, y, x, v, u]`` (F, Ny, Nx, Nv, Nu) float32 in [0, 1].
 
     T_world_rig: (4, 4) rig pose in the scene (default identity).
     supersample: k; each sample averages k x k rays over its (u, v) cell.
+    psf: std [samples] of a Gaussian optics blur before the pixel integration
+        (:class:`LightFieldRenderer`).
     """
     T = np.eye(4) if T_world_rig is None else T_world_rig
-    return LightFieldRenderer(scene, grid, supersample).render(T)
+    return LightFieldRenderer(scene, grid, supersample, psf).render(T)
 
 
 class CameraArrayRenderer:
