@@ -166,9 +166,11 @@ class MotionOptions:
     accurate with cubic interpolation, and half the warping cost)."""
     uv_taps: int = 6
     """Lagrange interpolation points along u and v in the warp: 2 (linear), 4 (cubic), 6
-    (quintic; measured: rotation error at 8-16 m from ~1% with 4 to ~0.1-0.2%) or 8 (the
-    noise options: on the blurred 8 m sphere scene the noise-free rotation bias 1.78 → 0.39
-    µrad, and ω at 1 grey level 1.64 → 1.35x its bound; 64 taps per sample instead of 36)."""
+    (quintic; measured: rotation error at 8-16 m from ~1% with 4 to ~0.1-0.2%), 8 (the noise
+    options of session 23: on the blurred 8 m sphere scene the noise-free rotation bias 1.78 →
+    0.39 µrad, and ω at 1 grey level 1.64 → 1.35x its bound; 64 taps per sample instead of 36)
+    or 10 (the noise options since session 26: at the paper's full motion, 8 m, the noise-free
+    rotation bias 2.6 → 1.1 µrad and ω at 1 grey level 1.62 → 1.23x; 100 taps, 2–3 % more time)."""
     rcond: float = 1e-7
     """Jacobi-scaled eigenvalue ratio below which a direction is unobservable."""
     min_rays: int = 64
@@ -182,8 +184,8 @@ class MotionOptions:
     def __post_init__(self) -> None:
         if self.robust not in ("tukey", "huber", "none"):
             raise ValueError(f"robust must be tukey, huber or none, got {self.robust!r}")
-        if self.uv_taps not in (2, 4, 6, 8):
-            raise ValueError(f"uv_taps must be 2, 4, 6 or 8, got {self.uv_taps}")
+        if self.uv_taps not in (2, 4, 6, 8, 10):
+            raise ValueError(f"uv_taps must be 2, 4, 6, 8 or 10, got {self.uv_taps}")
         if self.whiten not in ("auto", "on", "off"):
             raise ValueError(f"whiten must be auto, on or off, got {self.whiten!r}")
         if not self.depth_gate >= 0.0:
@@ -202,12 +204,12 @@ class MotionOptions:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
 
 
-NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8.0, uv_taps=8,
+NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8.0, uv_taps=10,
                       depth_pool_views=True)
 """The noise options: the set measured best together on frames with noise of a grey level or more
 (benchmarks/bench_noise.py's ``--high-noise`` table, docs/motion.md, "Noise"). No discontinuity
 weight (computed from noisy frames it discards rays at random), errors-in-variables steps, whitened
-re-solves, the model-validity weight with gain 8, 8-point (u, v) interpolation and ρ̂ pooled over
+re-solves, the model-validity weight with gain 8, 10-point (u, v) interpolation and ρ̂ pooled over
 the views: on blurred frames of the paper's sphere scene at 4–8 m within 1.5x of the Cramér–Rao
 bound from 1 to 32 grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
 time per estimate (mostly the whitened re-solves: 2.15–2.4x on benchmarks/bench_motion.py's one face

@@ -59,7 +59,7 @@ from .lightfield import LightFieldGrid
 
 __all__ = ["warp_lightfield", "warp_lightfield_reference"]
 
-_UV_TAPS_MAX = 8
+_UV_TAPS_MAX = 10
 """Most Lagrange points along u and v (``MotionOptions.uv_taps``): the stencils' length (fewer
 taps are padded with zero weights, which the blends skip)."""
 
@@ -114,7 +114,7 @@ _stack_f64 = _stack_buffer(numba.types.float64)
 @numba.njit(cache=True, inline="always")
 def _lagrange(a, n, w):
     """n-point Lagrange weights for samples at 1 - n/2, ..., n/2 and fraction a ∈ [0, 1]
-    (n = 2: linear, 4: cubic, 6: quintic, 8)."""
+    (n = 2: linear, 4: cubic, 6: quintic, 8, 10)."""
     o = n // 2 - 1
     for q in range(n):
         pq = q - o
@@ -270,10 +270,10 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
 
 @numba.njit(cache=True, inline="always")
 def _lagrange_stencil(fi, n, taps, den, w, idx):
-    """Lagrange weights and clamped indices (``taps`` points, padded to 8 with zero weights)
-    at the fractional sample position fi of an n-sample axis into w (8,), idx (8,);
+    """Lagrange weights and clamped indices (``taps`` points, padded to _UV_TAPS_MAX with zero weights)
+    at the fractional sample position fi of an n-sample axis into w (_UV_TAPS_MAX,), idx (_UV_TAPS_MAX,);
     den[q] = Π_{m≠q} (q − m) for the number of points used (:func:`_lagrange_dens`)."""
-    T = max(1, min(taps, n - n % 2))
+    T = _taps_used(taps, n)
     if n == 1:
         for q in range(_UV_TAPS_MAX):
             w[q] = 1.0 if q == 0 else 0.0
@@ -297,13 +297,20 @@ def _lagrange_stencil(fi, n, taps, den, w, idx):
         idx[q] = idx[0]
 
 
+@numba.njit(cache=True, inline="always")
+def _taps_used(taps, n):
+    """Lagrange points of a ``taps``-point stencil on an n-sample axis (an even number that
+    fits; 1 on a single sample): the stencils' leading entries, the rest are zero."""
+    return max(1, min(taps, n - n % 2))
+
+
 @numba.njit(cache=True)
 def _lagrange_dens(Nv, Nu, taps):
-    """(2, 8): the Lagrange denominators Π_{m≠q} (q − m) of :func:`_lagrange_stencil` for
+    """(2, _UV_TAPS_MAX): the Lagrange denominators Π_{m≠q} (q − m) of :func:`_lagrange_stencil` for
     the v and u axes (Nv, Nu samples; ``taps`` points at most)."""
     dens = np.ones((2, _UV_TAPS_MAX))
     for k, n in enumerate((Nv, Nu)):
-        T = max(1, min(taps, n - n % 2))
+        T = _taps_used(taps, n)
         for q in range(T):
             for m in range(T):
                 if m != q:
@@ -335,8 +342,8 @@ def _moved_uv(us, vs, R, f, jv, ju):
 
 @numba.njit(cache=True)
 def _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu):
-    """The Lagrange stencils of direction row jv (:func:`_uv_stencils`) into wv, wu (Nu, 8)
-    float64 and iv, iu (Nu, 8) int64. Not inlined, and compiled without fast-math flags,
+    """The Lagrange stencils of direction row jv (:func:`_uv_stencils`) into wv, wu (Nu, _UV_TAPS_MAX)
+    float64 and iv, iu (Nu, _UV_TAPS_MAX) int64. Not inlined, and compiled without fast-math flags,
     so the weights are those of :func:`_uv_stencils` to the last bit wherever it is called."""
     for ju in range(us.shape[0]):
         fv, fu, _, _, _ = _moved_uv(us, vs, R, f, jv, ju)
@@ -366,7 +373,7 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
     ``R (u, v, f)`` re-projected on the face's image plane depends on (u, v) only.
 
     Returns per-(v, u) Lagrange weights and clamped indices along v and u
-    (``(Nv, Nu, 8)`` float64 / int64 each; fewer taps are padded with zero weights),
+    (``(Nv, Nu, _UV_TAPS_MAX)`` float64 / int64 each; fewer taps are padded with zero weights),
     ``ok_uv`` (Nv, Nu) bool and the moved direction's slopes d_x / d_z, d_y / d_z (Nv, Nu).
     Without ``weights`` the first four are None (:func:`_warp_rows_kernel` computes each
     row's stencils itself: 0.6 frames less memory at 128 x 128 directions).
@@ -385,25 +392,26 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 
 
 @numba.njit(cache=True, inline="always")
-def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes):
+def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes, tv, tu):
     """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m] (srcT float32, or int16
     in its channels' units: :func:`_warp_into`): one direction row of
-    the (u, v) part of the warp (up to 8 x 8 taps; stencils (Nu, 8) of :func:`_uv_stencil_row`),
+    the (u, v) part of the warp (up to 10 x 10 taps; stencils (Nu, _UV_TAPS_MAX) of :func:`_uv_stencil_row`),
     shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
     and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
     multiple of 16: no scalar remainder). With ``has_lanes`` only the first lanes[u] (Nu,)
-    lanes of direction u are computed (a multiple of 16 too), the others are 0."""
+    lanes of direction u are computed (a multiple of 16 too), the others are 0. tv, tu: the
+    taps in use along v and u (:func:`_taps_used`; the stencils' other entries are zero)."""
     Nu, M = Ur.shape
     for u in range(Nu):
         o = Ur[u]
         o[:] = 0.0
         mu = lanes[u] if has_lanes else M
-        for q in range(_UV_TAPS_MAX):
+        for q in range(tv):
             wq = wv[u, q]
             if wq == 0.0:
                 continue
             row = srcT[iv[u, q]]
-            for r in range(_UV_TAPS_MAX):
+            for r in range(tu):
                 w = np.float32(wq * wu[u, r])
                 if w == 0.0:
                     continue
@@ -657,20 +665,22 @@ def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_
     iv = np.empty((Nu, _UV_TAPS_MAX), np.int64)
     iu = np.empty((Nu, _UV_TAPS_MAX), np.int64)
     lanes = np.full(Nu if has_nd else 1, M, np.int64)     # (one allocation less without)
+    tv = _taps_used(taps, Nv)
+    tu = _taps_used(taps, Nu)
     for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
         _uv_stencil_row(us, vs, R, f, taps, dens, jv, wv, iv, wu, iu)
         if has_nd:
             for u in range(Nu):                  # the stencil's box of taps
                 v0 = v1 = iv[u, 0]
                 u0 = u1 = iu[u, 0]
-                for q in range(1, _UV_TAPS_MAX):
+                for q in range(1, max(tv, tu)):     # (unused entries repeat entry 0)
                     v0 = min(v0, iv[u, q])
                     v1 = max(v1, iv[u, q])
                     u0 = min(u0, iu[u, q])
                     u1 = max(u1, iu[u, q])
                 n_nd = S[v1 + 1, u1 + 1] - S[v0, u1 + 1] - S[v1 + 1, u0] + S[v0, u0]
                 lanes[u] = M if n_nd > 0 else m2
-        _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_nd)
+        _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_nd, tv, tu)
         if edges:
             for k in range(K):
                 for view in range(nxy):
@@ -1151,7 +1161,7 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     ``arrays``: (K, F, Ny, Nx, Nv, Nu) stacked fields (e.g. L and W) sharing the
     warp. Returns ``out`` (same dims, float32) with ``out(ρ) = in(T_ray ρ)`` and
     ``ok`` (F, Ny, Nx, Nv, Nu) bool: the moved ray lies inside the grid. Interpolation
-    is linear in (x, y) and ``uv_taps``-point Lagrange (2, 4, 6 or 8) in (u, v). The
+    is linear in (x, y) and ``uv_taps``-point Lagrange (2, 4, 6, 8 or 10) in (u, v). The
     moved direction, hence the (u, v) stencil, does not depend on the viewpoint, so
     every view image is first resampled in (u, v), then views are blended.
     ``rho`` (F, Nv, Nu): the disparity ρ = f / Z per direction (u per unit of x; NaN:
