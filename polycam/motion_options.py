@@ -210,8 +210,9 @@ NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, mo
 (benchmarks/bench_noise.py's ``--high-noise`` table, docs/motion.md, "Noise"). No discontinuity
 weight (computed from noisy frames it discards rays at random), errors-in-variables steps, whitened
 re-solves, the model-validity weight with gain 8, 10-point (u, v) interpolation and ρ̂ pooled over
-the views: on blurred frames of the paper's sphere scene at 4–8 m within 1.5x of the Cramér–Rao
-bound from 1 to 32 grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
+the views: on the paper's sphere scene through a blurring lens (``bench_noise.py --blur 0.8``), at
+4–12 m and for the paper's full motion at 8 m, within 1.5x of the Cramér–Rao bound from 1 to 32
+grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
 time per estimate (mostly the whitened re-solves: 2.15–2.4x on benchmarks/bench_motion.py's one face
 at 2 grey levels) and about twice the memory: a peak of 10 frames instead of 4.4 (the whitened
 rows alone, 7 float32 per ray of the solved box, are ~4 frames). The defaults
