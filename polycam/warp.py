@@ -183,10 +183,8 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
     hu = (us[Nu - 1] - u0) / (Nu - 1) if Nu > 1 else 1.0
     hv = (vs[Nv - 1] - v0) / (Nv - 1) if Nv > 1 else 1.0
     eps = 1e-6
-    nu_t = min(uv_taps, Nu - Nu % 2) if Nu > 1 else 1
-    nv_t = min(uv_taps, Nv - Nv % 2) if Nv > 1 else 1
-    nu_t = max(nu_t, 1)
-    nv_t = max(nv_t, 1)
+    nu_t = _taps_used(uv_taps, Nu)
+    nv_t = _taps_used(uv_taps, Nv)
     for jy in numba.prange(Ny):
         wu = np.empty(_UV_TAPS_MAX)
         wv = np.empty(_UV_TAPS_MAX)
