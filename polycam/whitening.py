@@ -4,11 +4,13 @@ The derivative prefilters correlate sensor noise across neighbouring samples; wi
 :attr:`~polycam.motion_options.MotionOptions.whiten` the solver (:mod:`polycam.motion`)
 re-solves at the finest level with its rows multiplied by the inverse of that noise
 covariance ⊗ₐ K_a K_aᵀ (one banded Cholesky factor per axis, with a ridge
-``whiten_floor``). This module holds the factors (``_whitening_factor(s)``), the weighted
-rows (``_weighted_rows``, built on the row coefficients of :mod:`polycam.eq5`), the
-banded forward substitution along one axis, the whitened tile sums (same layout as
-:func:`polycam.eq5._accumulate`'s) and the whitened noise gain that scales the expected
-noise energy. Measurements: docs/motion_log.md, "Noise".
+``whiten_floor``). This module holds the factors (``_whitening_factor(s)``), the banded
+forward substitution along one axis (``_forward_lines``), two kernels (the weighted rows, built
+on the row coefficients of :mod:`polycam.eq5` and whitened along u, y and x while one v row of
+every view is in cache; then along v per view, with the whitened tile sums, same layout as
+:func:`polycam.eq5._accumulate`'s) and the whitened noise gain that scales the expected noise
+energy. The passes commute (⊗ₐ C_a⁻¹), so their order is the one that keeps each pass's inner
+loop on contiguous floats. Measurements: docs/motion_log.md, "Noise".
 """
 
 from __future__ import annotations
@@ -43,125 +45,132 @@ def _whitening_factor(taps: tuple, n: int, floor: float = 0.0) -> np.ndarray:
     return np.linalg.cholesky(KK + floor * np.eye(n))
 
 
-_FORWARD_CHUNK = 4096
-"""Columns (of the trailing axis) per parallel task of :func:`_forward_axis`: the leading axis
-alone (1 for the first box axis) would leave one core idle."""
+@numba.njit(cache=True, inline="always")
+def _forward_lines(X, C, bw):
+    """X (n, B) ← C⁻¹ X along axis 0 in place (float64 arithmetic, stored as X's dtype; X's trailing
+    axis contiguous: the inner loop vectorises); C (n, n) lower triangular with bandwidth bw
+    (banded forward substitution; bw < 0: the axis is not whitened)."""
+    if bw < 0:
+        return
+    n, B = X.shape
+    for j in range(n):
+        inv = 1.0 / C[j, j]
+        for k in range(max(0, j - bw), j):
+            c = C[j, k]
+            for b in range(B):
+                X[j, b] -= c * X[k, b]
+        for b in range(B):
+            X[j, b] *= inv
 
 
 @numba.njit(parallel=True, cache=True)
-def _forward_axis(X, C, bw):
-    """X (A, n, B) ← C⁻¹ X along axis 1, in place; C (n, n) lower triangular with bandwidth
-    bw (banded forward substitution). Parallel over A and chunks of B (every element sees
-    the same operations in the same order whatever the split)."""
-    A, n, B = X.shape
-    nb = (B + _FORWARD_CHUNK - 1) // _FORWARD_CHUNK
-    for ab in numba.prange(A * nb):
-        a = ab // nb
-        b0 = (ab - a * nb) * _FORWARD_CHUNK
-        b1 = min(b0 + _FORWARD_CHUNK, B)
-        for j in range(n):
-            inv = 1.0 / C[j, j]
-            for k in range(max(0, j - bw), j):
-                c = C[j, k]
-                for b in range(b0, b1):
-                    X[a, j, b] -= c * X[a, k, b]
-            for b in range(b0, b1):
-                X[a, j, b] *= inv
+def _weighted_rows_uyx(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, vo,
+                       Cy, bwy, Cx, bwx, Cu, bwu, Z, Wr):
+    """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7), whitened
+    along u, y and x (C_u⁻¹, C_y⁻¹, C_x⁻¹: factors ``Cu``, ``Cy``, ``Cx`` of bandwidths ``bwu``,
+    ``bwy``, ``bwx``; < 0: not whitened), and the weights w into Wr (n_y, n_x, n_v, n_u): c the
+    Eq. 5 coefficients (face frame), b = −L_t, w = base weight × the IRLS weight (``kind`` 1
+    Tukey, 2 Huber, 0 none) of the residual at p (face frame) normalised by 1 / inv_sc, as
+    :func:`~polycam.eq5._accumulate_view` weights them. Lx .. Lt (scales ``dsc``), base: view
+    origin ``vo`` (:mod:`polycam.eq5`).
 
-
-def _whiten_rows(Z: np.ndarray, factors: list) -> None:
-    """Z (n_y, n_x, n_v, n_u, K) ← (⊗ₐ C_a)⁻¹ Z along axes 0..3 in place; ``factors``: per axis
-    (C_a, bandwidth) or None (that axis is not filtered: identity)."""
-    sh = Z.shape
-    for ax, fac in enumerate(factors):
-        if fac is None or sh[ax] <= 1:
-            continue
-        C, bw = fac
-        _forward_axis(Z.reshape(int(np.prod(sh[:ax], dtype=np.int64)), sh[ax], -1), C, bw)
-
-
-@numba.njit(parallel=True, cache=True)
-def _weighted_rows(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, vo, Z, Wr):
-    """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7) and
-    the weights w into Wr (n_y, n_x, n_v, n_u): c the Eq. 5 coefficients (face frame), b = −L_t,
-    w = base weight × the IRLS weight (``kind`` 1 Tukey, 2 Huber, 0 none) of the residual at
-    p (face frame) normalised by 1 / inv_sc, as :func:`~polycam.eq5._accumulate_view` weights them.
-    Lx .. Lt (scales ``dsc``), base: view origin ``vo`` (:mod:`polycam.eq5`)."""
+    Parallel over the box's v rows: each task builds its rows of every view in a buffer laid out
+    (n_u, n_y, n_x, 7), where the three passes' inner loops run over contiguous floats, and copies
+    them into Z."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     nv = box[5] - box[4]
     nu = box[7] - box[6]
     inv_f = 1.0 / f
-    for idx in numba.prange(ny * nx):
-        jj = idx // nx
-        ii = idx - jj * nx
-        j = box[0] + jj
-        i = box[2] + ii
-        x = xs[i]
-        y = ys[j]
-        ja = j - vo[0]
-        ia = i - vo[1]
-        sc = dsc[fc, ja, ia]
-        for qv in range(nv):
-            jv = box[4] + qv
-            v = vs[jv]
-            for qu in range(nu):
-                iu = box[6] + qu
-                z = Z[jj, ii, qv, qu]
-                wi = np.float64(base[fc, ja, ia, jv, iu]) * np.float64(_weight_unit(base))
-                g0 = np.float64(np.float32(Lx[fc, ja, ia, jv, iu]) * sc[0])
-                g1 = np.float64(np.float32(Ly[fc, ja, ia, jv, iu]) * sc[1])
-                g2 = np.float64(np.float32(Lu[fc, ja, ia, jv, iu]) * sc[2])
-                g3 = np.float64(np.float32(Lv[fc, ja, ia, jv, iu]) * sc[3])
-                b = -np.float64(np.float32(Lt[fc, ja, ia, jv, iu]) * sc[4])
-                c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, us[iu], v, z_pi, f, inv_f)
-                if kind != 0 and wi > 0.0:
-                    r = g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5] - b
-                    zz = abs(r) * inv_sc
-                    if kind == 1:
-                        wi *= (1.0 - zz * zz) ** 2 if zz < 1.0 else 0.0
-                    else:
-                        wi *= 1.0 if zz <= 1.0 else 1.0 / zz
-                if not wi > 0.0:
-                    wi = 0.0
-                Wr[jj, ii, qv, qu] = wi
-                sw = math.sqrt(wi)
-                z[0] = sw * g0
-                z[1] = sw * g1
-                z[2] = sw * c2
-                z[3] = sw * c3
-                z[4] = sw * c4
-                z[5] = sw * c5
-                z[6] = sw * b
+    for qv in numba.prange(nv):
+        T = np.empty((nu, ny, nx, 7), np.float32)
+        jv = box[4] + qv
+        v = vs[jv]
+        for jj in range(ny):
+            j = box[0] + jj
+            y = ys[j]
+            ja = j - vo[0]
+            for ii in range(nx):
+                i = box[2] + ii
+                x = xs[i]
+                ia = i - vo[1]
+                sc = dsc[fc, ja, ia]
+                for qu in range(nu):
+                    iu = box[6] + qu
+                    wi = np.float64(base[fc, ja, ia, jv, iu]) * np.float64(_weight_unit(base))
+                    g0 = np.float64(np.float32(Lx[fc, ja, ia, jv, iu]) * sc[0])
+                    g1 = np.float64(np.float32(Ly[fc, ja, ia, jv, iu]) * sc[1])
+                    g2 = np.float64(np.float32(Lu[fc, ja, ia, jv, iu]) * sc[2])
+                    g3 = np.float64(np.float32(Lv[fc, ja, ia, jv, iu]) * sc[3])
+                    b = -np.float64(np.float32(Lt[fc, ja, ia, jv, iu]) * sc[4])
+                    c2, c3, c4, c5 = _eq5_coefficients(g0, g1, g2, g3, x, y, us[iu], v, z_pi, f, inv_f)
+                    if kind != 0 and wi > 0.0:
+                        r = g0 * p[0] + g1 * p[1] + c2 * p[2] + c3 * p[3] + c4 * p[4] + c5 * p[5] - b
+                        zz = abs(r) * inv_sc
+                        if kind == 1:
+                            wi *= (1.0 - zz * zz) ** 2 if zz < 1.0 else 0.0
+                        else:
+                            wi *= 1.0 if zz <= 1.0 else 1.0 / zz
+                    if not wi > 0.0:
+                        wi = 0.0
+                    Wr[jj, ii, qv, qu] = wi
+                    sw = math.sqrt(wi)
+                    z = T[qu, jj, ii]
+                    z[0] = sw * g0
+                    z[1] = sw * g1
+                    z[2] = sw * c2
+                    z[3] = sw * c3
+                    z[4] = sw * c4
+                    z[5] = sw * c5
+                    z[6] = sw * b
+        if nu > 1:
+            _forward_lines(T.reshape(nu, ny * nx * 7), Cu, bwu)
+        for qu in range(nu):
+            if ny > 1:
+                _forward_lines(T[qu].reshape(ny, nx * 7), Cy, bwy)
+            if nx > 1:
+                for jj in range(ny):
+                    _forward_lines(T[qu, jj], Cx, bwx)
+        for jj in range(ny):
+            for ii in range(nx):
+                for qu in range(nu):
+                    for m in range(7):
+                        Z[jj, ii, qv, qu, m] = T[qu, jj, ii, m]
 
 
 @numba.njit(parallel=True, cache=True)
-def _whitened_tile_sums(Z, Wr, v0, u0, tile, acc):
-    """acc (n_tv, n_tu, 29) ← per (u, v) tile (of the face's full (v, u) index, tile samples) the
-    sums of the whitened rows Z (n_y, n_x, n_v, n_u, 7) whose box starts at (v0, u0): the 21
-    entries of Σ z_c z_cᵀ, Σ z_c z_b (6), Σ z_b², and Σ w of the weights Wr."""
+def _whiten_v_sums(Z, Wr, Cv, bwv, v0, u0, tile, acc):
+    """Z (n_y, n_x, n_v, n_u, 7) ← C_v⁻¹ Z along axis 2 in place (bandwidth < 0: not whitened), and
+    acc (n_y n_x, n_tv, n_tu, 29) ← per view and (u, v) tile (of the face's full (v, u) index,
+    ``tile`` samples; the box starts at (v0, u0)) the sums of the whitened rows: the 21 entries of
+    Σ z_c z_cᵀ, Σ z_c z_b (6), Σ z_b², and Σ w of the weights Wr. Parallel over the views."""
     ny, nx, nv, nu, _ = Z.shape
-    n_tv = acc.shape[0]
-    for tv in numba.prange(n_tv):
-        acc[tv, :, :] = 0.0
-        lo = max(tv * tile - v0, 0)
-        hi = min((tv + 1) * tile - v0, nv)
-        for jj in range(ny):
-            for ii in range(nx):
-                for qv in range(lo, hi):
-                    for qu in range(nu):
-                        z = Z[jj, ii, qv, qu]
-                        a = acc[tv, (u0 + qu) // tile]
-                        k = 0
-                        for m in range(6):
-                            zm = z[m]
-                            for q in range(m, 6):
-                                a[k] += zm * z[q]
-                                k += 1
-                        for m in range(6):
-                            a[21 + m] += z[m] * z[6]
-                        a[27] += z[6] * z[6]
-                        a[28] += Wr[jj, ii, qv, qu]
+    for q in numba.prange(ny * nx):
+        jj = q // nx
+        ii = q - jj * nx
+        if nv > 1:
+            _forward_lines(Z[jj, ii].reshape(nv, nu * 7), Cv, bwv)
+        A = acc[q]
+        A[:] = 0.0
+        for qv in range(nv):
+            tv = (v0 + qv) // tile
+            for qu in range(nu):
+                z = Z[jj, ii, qv, qu]
+                a = A[tv, (u0 + qu) // tile]
+                k = 0
+                for m in range(6):
+                    zm = np.float64(z[m])
+                    for r in range(m, 6):
+                        a[k] += zm * z[r]
+                        k += 1
+                for m in range(6):
+                    a[21 + m] += np.float64(z[m]) * z[6]
+                a[27] += np.float64(z[6]) * z[6]
+                a[28] += Wr[jj, ii, qv, qu]
+
+
+_NOT_WHITENED = (np.zeros((1, 1)), -1)
+"""(factor, bandwidth) of an axis that is not whitened (the kernels skip a negative bandwidth)."""
 
 
 def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: float = 0.0) -> list:
@@ -200,13 +209,14 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     Z = np.empty(tuple(n) + (7,), np.float32)      # the rows in float32 (half the memory); arithmetic
     Wr = np.empty(tuple(n), np.float32)             # and sums in float64
     xs, ys, us, vs = vals
+    (Cy, by), (Cx, bx), (Cv, bv), (Cu, bu) = (_NOT_WHITENED if fac is None else fac for fac in factors)
+    a = np.empty((n[0] * n[1],) + nt + (_NACC,))
     for k in range(F):
-        _weighted_rows(*der, dsc, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
-                       np.ascontiguousarray(P[k], dtype=np.float64), kind, float(inv_sc), box, vo, Z, Wr)
-        _whiten_rows(Z, factors)
-        a = np.empty(nt + (_NACC,))
-        _whitened_tile_sums(Z, Wr, int(box[4]), int(box[6]), int(tile), a)
-        acc[k, 0] = a.reshape(-1, _NACC)
+        _weighted_rows_uyx(*der, dsc, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
+                           np.ascontiguousarray(P[k], dtype=np.float64), kind, float(inv_sc), box, vo,
+                           Cy, by, Cx, bx, Cu, bu, Z, Wr)
+        _whiten_v_sums(Z, Wr, Cv, bv, int(box[4]), int(box[6]), int(tile), a)
+        acc[k, 0] = a.sum(axis=0).reshape(-1, _NACC)
     return acc
 
 
