@@ -5,12 +5,14 @@ The derivative prefilters correlate sensor noise across neighbouring samples; wi
 re-solves at the finest level with its rows multiplied by the inverse of that noise
 covariance ⊗ₐ K_a K_aᵀ (one banded Cholesky factor per axis, with a ridge
 ``whiten_floor``). This module holds the factors (``_whitening_factor(s)``), the banded
-forward substitution along one axis (``_forward_lines``), two kernels (the weighted rows, built
-on the row coefficients of :mod:`polycam.eq5` and whitened along u, y and x while one v row of
-every view is in cache; then along v per view, with the whitened tile sums, same layout as
+forward substitution along one axis (``_forward_lines``), two kernels that run over a block of
+the box's v rows at a time (the weighted rows, built on the row coefficients of
+:mod:`polycam.eq5` and whitened along u, y and x while one v row of every view is in cache; then
+along v, with the rows before the block carried over, and the whitened tile sums, same layout as
 :func:`polycam.eq5._accumulate`'s) and the whitened noise gain that scales the expected noise
 energy. The passes commute (⊗ₐ C_a⁻¹), so their order is the one that keeps each pass's inner
-loop on contiguous floats. Measurements: docs/motion_log.md, "Noise".
+loop on contiguous floats; the blocks bound the rows held at once (``_V_BLOCK``). Measurements:
+docs/motion_log.md, "Noise", and docs/motion.md, "Speed and memory".
 """
 
 from __future__ import annotations
@@ -64,26 +66,24 @@ def _forward_lines(X, C, bw):
 
 
 @numba.njit(parallel=True, cache=True)
-def _weighted_rows_uyx(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, vo,
-                       Cy, bwy, Cx, bwx, Cu, bwu, Z, Wr):
-    """Rows sqrt(w) (c, b) of face ``fc``'s rays in ``box`` into Z (n_y, n_x, n_v, n_u, 7), whitened
-    along u, y and x (C_u⁻¹, C_y⁻¹, C_x⁻¹: factors ``Cu``, ``Cy``, ``Cx`` of bandwidths ``bwu``,
-    ``bwy``, ``bwx``; < 0: not whitened), and the weights w into Wr (n_y, n_x, n_v, n_u): c the
+def _weighted_rows_block(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, f, p, kind, inv_sc, box, vo,
+                         Cy, bwy, Cx, bwx, Cu, bwu, q0, q1, off, R, Wb):
+    """Rows sqrt(w) (c, b) of face ``fc``'s rays in the box rows q0 <= qv < q1 of ``box`` (box
+    indices along v) into the slabs R[off + qv − q0] (each (n_u, n_y, n_x, 7)), whitened along u,
+    y and x (C_u⁻¹, C_y⁻¹, C_x⁻¹: factors ``Cu``, ``Cy``, ``Cx`` of bandwidths ``bwu``, ``bwy``,
+    ``bwx``; < 0: not whitened), and their weights w into Wb[off + qv − q0] (n_u, n_y, n_x): c the
     Eq. 5 coefficients (face frame), b = −L_t, w = base weight × the IRLS weight (``kind`` 1
     Tukey, 2 Huber, 0 none) of the residual at p (face frame) normalised by 1 / inv_sc, as
     :func:`~polycam.eq5._accumulate_view` weights them. Lx .. Lt (scales ``dsc``), base: view
-    origin ``vo`` (:mod:`polycam.eq5`).
-
-    Parallel over the box's v rows: each task builds its rows of every view in a buffer laid out
-    (n_u, n_y, n_x, 7), where the three passes' inner loops run over contiguous floats, and copies
-    them into Z."""
+    origin ``vo`` (:mod:`polycam.eq5`). Parallel over the rows; in a slab's layout the three
+    passes' inner loops run over contiguous floats."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
-    nv = box[5] - box[4]
     nu = box[7] - box[6]
     inv_f = 1.0 / f
-    for qv in numba.prange(nv):
-        T = np.empty((nu, ny, nx, 7), np.float32)
+    for qv in numba.prange(q0, q1):
+        T = R[off + qv - q0]
+        Wt = Wb[off + qv - q0]
         jv = box[4] + qv
         v = vs[jv]
         for jj in range(ny):
@@ -113,7 +113,7 @@ def _weighted_rows_uyx(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, 
                             wi *= 1.0 if zz <= 1.0 else 1.0 / zz
                     if not wi > 0.0:
                         wi = 0.0
-                    Wr[jj, ii, qv, qu] = wi
+                    Wt[qu, jj, ii] = wi
                     sw = math.sqrt(wi)
                     z = T[qu, jj, ii]
                     z[0] = sw * g0
@@ -131,43 +131,60 @@ def _weighted_rows_uyx(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi, 
             if nx > 1:
                 for jj in range(ny):
                     _forward_lines(T[qu, jj], Cx, bwx)
-        for jj in range(ny):
-            for ii in range(nx):
-                for qu in range(nu):
-                    for m in range(7):
-                        Z[jj, ii, qv, qu, m] = T[qu, jj, ii, m]
 
 
 @numba.njit(parallel=True, cache=True)
-def _whiten_v_sums(Z, Wr, Cv, bwv, v0, u0, tile, acc):
-    """Z (n_y, n_x, n_v, n_u, 7) ← C_v⁻¹ Z along axis 2 in place (bandwidth < 0: not whitened), and
-    acc (n_y n_x, n_tv, n_tu, 29) ← per view and (u, v) tile (of the face's full (v, u) index,
-    ``tile`` samples; the box starts at (v0, u0)) the sums of the whitened rows: the 21 entries of
-    Σ z_c z_cᵀ, Σ z_c z_b (6), Σ z_b², and Σ w of the weights Wr. Parallel over the views."""
-    ny, nx, nv, nu, _ = Z.shape
-    for q in numba.prange(ny * nx):
-        jj = q // nx
-        ii = q - jj * nx
-        if nv > 1:
-            _forward_lines(Z[jj, ii].reshape(nv, nu * 7), Cv, bwv)
-        A = acc[q]
-        A[:] = 0.0
-        for qv in range(nv):
-            tv = (v0 + qv) // tile
-            for qu in range(nu):
-                z = Z[jj, ii, qv, qu]
-                a = A[tv, (u0 + qu) // tile]
-                k = 0
-                for m in range(6):
-                    zm = np.float64(z[m])
-                    for r in range(m, 6):
-                        a[k] += zm * z[r]
-                        k += 1
-                for m in range(6):
-                    a[21 + m] += np.float64(z[m]) * z[6]
-                a[27] += np.float64(z[6]) * z[6]
-                a[28] += Wr[jj, ii, qv, qu]
+def _whiten_v_sums_block(R, Wb, Cv, bwv, q0, q1, off, v0, u0, tile, acc):
+    """The slabs R[off + qv − q0] (n_u, n_y, n_x, 7) of box rows q0 <= qv < q1 ← C_v⁻¹ along v in
+    place (row qv of the factor ``Cv``; the bandwidth ``bwv`` rows before it are the slabs before
+    it in R, already whitened; < 0: not whitened), and their sums added to acc (n_tv, n_tu, 29)
+    per (u, v) tile (of the face's full (v, u) index, ``tile`` samples; the box starts at (v0,
+    u0)): the 21 entries of Σ z_c z_cᵀ, Σ z_c z_b (6), Σ z_b², and Σ w of the weights Wb.
+    Parallel over the tile columns (each task owns its column of acc)."""
+    nu = R.shape[1]
+    m_ray = R.shape[2] * R.shape[3]
+    n_tu = acc.shape[1]
+    for tu in numba.prange(n_tu):
+        lo = max(tu * tile - u0, 0)
+        hi = min((tu + 1) * tile - u0, nu)
+        if lo >= hi:
+            continue
+        for qv in range(q0, q1):
+            s = off + qv - q0
+            X = R[s].reshape(nu, m_ray * 7)
+            if bwv >= 0:
+                inv = 1.0 / Cv[qv, qv]
+                for k in range(max(0, qv - bwv), qv):
+                    c = Cv[qv, k]
+                    Xk = R[s - (qv - k)].reshape(nu, m_ray * 7)
+                    for qu in range(lo, hi):
+                        for e in range(m_ray * 7):
+                            X[qu, e] -= c * Xk[qu, e]
+                for qu in range(lo, hi):
+                    for e in range(m_ray * 7):
+                        X[qu, e] *= inv
+            a = acc[(v0 + qv) // tile, tu]
+            Z = R[s]
+            W = Wb[s]
+            for qu in range(lo, hi):
+                for jj in range(Z.shape[1]):
+                    for ii in range(Z.shape[2]):
+                        z = Z[qu, jj, ii]
+                        k = 0
+                        for m in range(6):
+                            zm = np.float64(z[m])
+                            for r in range(m, 6):
+                                a[k] += zm * z[r]
+                                k += 1
+                        for m in range(6):
+                            a[21 + m] += np.float64(z[m]) * z[6]
+                        a[27] += np.float64(z[6]) * z[6]
+                        a[28] += W[qu, jj, ii]
 
+
+_V_BLOCK = 16
+"""Box rows (along v) whose rows :func:`_whitened_sums` holds at once (plus the v factor's
+bandwidth before them): the rows of a whole face would be ~7 floats per ray."""
 
 _NOT_WHITENED = (np.zeros((1, 1)), -1)
 """(factor, bandwidth) of an axis that is not whitened (the kernels skip a negative bandwidth)."""
@@ -206,17 +223,24 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     acc = np.zeros((F, 1, nt[0] * nt[1], _NACC))
     if min(n) <= 0:
         return acc
-    Z = np.empty(tuple(n) + (7,), np.float32)      # the rows in float32 (half the memory); arithmetic
-    Wr = np.empty(tuple(n), np.float32)             # and sums in float64
-    xs, ys, us, vs = vals
+    ny, nx, nv, nu = n
     (Cy, by), (Cx, bx), (Cv, bv), (Cu, bu) = (_NOT_WHITENED if fac is None else fac for fac in factors)
-    a = np.empty((n[0] * n[1],) + nt + (_NACC,))
+    off = max(bv, 0)                                  # slabs kept from the previous block for the v pass
+    block = max(_V_BLOCK, off)
+    R = np.empty((off + block, nu, ny, nx, 7), np.float32)     # the rows in float32 (half the memory);
+    Wb = np.empty((off + block, nu, ny, nx), np.float32)       # arithmetic and sums in float64
+    xs, ys, us, vs = vals
     for k in range(F):
-        _weighted_rows_uyx(*der, dsc, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]),
-                           np.ascontiguousarray(P[k], dtype=np.float64), kind, float(inv_sc), box, vo,
-                           Cy, by, Cx, bx, Cu, bu, Z, Wr)
-        _whiten_v_sums(Z, Wr, Cv, bv, int(box[4]), int(box[6]), int(tile), a)
-        acc[k, 0] = a.sum(axis=0).reshape(-1, _NACC)
+        a = np.zeros(nt + (_NACC,))
+        p = np.ascontiguousarray(P[k], dtype=np.float64)
+        for q0 in range(0, nv, block):
+            q1 = min(q0 + block, nv)
+            _weighted_rows_block(*der, dsc, base, k, xs, ys, us, vs, float(zs[k]), float(fs[k]), p, kind,
+                                 float(inv_sc), box, vo, Cy, by, Cx, bx, Cu, bu, q0, q1, off, R, Wb)
+            _whiten_v_sums_block(R, Wb, Cv, bv, q0, q1, off, int(box[4]), int(box[6]), int(tile), a)
+            if off and q1 < nv:                        # the last rows whitened: the next block's history
+                R[:off] = R[block:block + off]
+        acc[k, 0] = a.reshape(-1, _NACC)
     return acc
 
 

@@ -1254,9 +1254,12 @@ def test_forward_substitution_matches_a_dense_solve(rng, B, dtype):
     np.testing.assert_allclose(X, ref, rtol=MOTION_WHITEN_GLS_RTOL, atol=MOTION_WHITEN_GLS_RTOL)
 
 
-def test_whitened_sums_match_dense_gls(scene, rng):
+def test_whitened_sums_match_dense_gls(scene, rng, monkeypatch):
     """The GLS path (rows whitened by banded Cholesky factors per axis) gives the normal sums
-    Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box."""
+    Aᵀ W^½ Σ⁻¹ W^½ A, Aᵀ W^½ Σ⁻¹ W^½ b of a dense Σ = ⊗ₐ K_a K_aᵀ over the interior box; the
+    same to the last bit when the box's v rows are whitened in blocks (the v pass carries the
+    rows before each block over)."""
+    from polycam import whitening
     from polycam.derivatives import FILTERS
     from polycam.eq5 import _face_B, _reduce, _view_origin
     from polycam.whitening import _whitened_sums, _whitening_factors
@@ -1282,6 +1285,12 @@ def test_whitened_sums_match_dense_gls(scene, rng):
                            np.ascontiguousarray(w[inner]), vals, zs, fs, np.zeros((F, 6)), 0, 0.0, box,
                            _whitening_factors(filters, r, box), 8, _view_origin(Ny, Nx, box))
     assert np.array_equal(acc_c, acc)
+    assert Nv - 2 * r["v"] <= whitening._V_BLOCK          # one block of 12 rows; then 5 + 5 + 2 and 4 + 4 + 4
+    for block in (5, 2 * r["v"]):                          # (the v factor's bandwidth: the least block)
+        monkeypatch.setattr(whitening, "_V_BLOCK", block)
+        assert np.array_equal(_whitened_sums((der.Lx, der.Ly, der.Lu, der.Lv, der.Lt), w, vals, zs, fs,
+                                             np.zeros((F, 6)), 0, 0.0, box, _whitening_factors(filters, r, box), 8),
+                              acc)
 
     S = np.ones((1, 1))
     for a, n in zip("yxvu", (Ny, Nx, Nv, Nu)):
