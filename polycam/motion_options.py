@@ -213,9 +213,9 @@ re-solves, the model-validity weight with gain 8, 10-point (u, v) interpolation 
 the views: on the paper's sphere scene through a blurring lens (``bench_noise.py --blur 0.8``), at
 4–12 m and for the paper's full motion at 8 m, within 1.5x of the Cramér–Rao bound from 1 to 32
 grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
-time per estimate (mostly the whitened re-solves: 2.15–2.4x on benchmarks/bench_motion.py's one face
-at 2 grey levels) and about twice the memory: a peak of 10 frames instead of 4.4 (the whitened
-rows alone, 7 float32 per ray of the solved box, are ~4 frames). The defaults
+time per estimate (the whitened re-solves, the model weight, the pooling, the longer warp: 1.96–2.13x
+on benchmarks/bench_motion.py's one face at 2 grey levels) and a peak of 6.4 frames of memory
+instead of 4.4 (docs/motion.md, "Speed and memory"). The defaults
 stay tuned for 8-bit cameras in good light (under a grey level of noise), where the model bias
 matters more."""
 
