@@ -1,7 +1,7 @@
 """Plenoptic motion under image noise against the Cramér–Rao bound of the linear model (issue #3, target 2).
 
 Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--sigmas ...] [--before]
-[--variants] [--probe] [--antithetic]``
+[--variants] [--probe] [--antithetic] [--seed N]``
 
 Set-up (paper Sect. 5, as benchmarks/bench_motion.py): unit spheres filling the
 horizon at D = 8 m, f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions per face
@@ -45,7 +45,10 @@ the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
 ``--supersample`` sets the rays the renderer averages per sample (k x k; default
 :data:`SUPERSAMPLE`).
 ``--antithetic`` draws the noise in pairs n, −n (:func:`errors`): the same kind of draws, but the
-draws' mean, the bias under noise, is measured several times more precisely.
+draws' mean, the bias under noise, is measured several times more precisely. The ``90 %``
+columns give each ratio's percentile bootstrap interval over the draws (antithetic pairs
+resampled as units: :func:`ratio_interval`): how far another set of as many draws may put it.
+``--seed`` picks the draw set (default 17, that of the documented tables).
 ``--scene room`` replaces the spheres by the mock rig's textured room (far wall at
 ``--distance``; a diagnostic: at this grid's 64 directions per 90° its near walls put texture
 near the directions' Nyquist limit, docs/motion_log.md, "Noise" → Session 19).
@@ -395,6 +398,26 @@ def rms_norm(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(e * e, axis=-1))))
 
 
+BOOT_RESAMPLES = 2000
+"""Resamples of :func:`ratio_interval`'s bootstrap."""
+
+
+def ratio_interval(e: np.ndarray, bound: float, antithetic: bool, level: float = 0.9,
+                   seed: int = 11) -> tuple[float, float]:
+    """The ``level`` (two-sided) percentile bootstrap interval of rms_norm(e) / bound, e (draws, 3)
+    the errors of one block (t or ω): the spread a ratio from this many draws has from one draw
+    set to the next. The draws are resampled whole, antithetic pairs (n, −n) as one unit (their
+    errors are not independent)."""
+    n = len(e)
+    units = e.reshape(n // 2, 2, -1) if antithetic and n % 2 == 0 else e.reshape(n, 1, -1)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(units), size=(BOOT_RESAMPLES, len(units)))
+    sq = np.sum(units * units, axis=-1).mean(axis=1)          # (units,) mean squared norm per unit
+    r = np.sqrt(sq[idx].mean(axis=1)) / bound
+    lo, hi = np.quantile(r, [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)
+
+
 def setup(faces: str, D: float, supersample: int, directions: int, blur: float = 0.0,
           motion_scale: float = 1.0, oracle: bool = False, scene: str = "spheres"):
     """(grid, L0, L1, M): the noise-free frame pair of the set-up. ``blur``: std [samples] of a
@@ -413,7 +436,7 @@ def setup(faces: str, D: float, supersample: int, directions: int, blur: float =
 
 
 def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOptions,
-                predict: bool, antithetic: bool = False) -> list[dict]:
+                predict: bool, antithetic: bool = False, seed: int = 17) -> list[dict]:
     filters = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
     crb1, ols1 = linear_model_bounds(L0, L1, grid, M, filters)
     sampling = identity_sampling(grid) if predict else None
@@ -421,17 +444,17 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     F, Ny, Nx, Nv, Nu = grid.shape
     print(f"\n## {name}: {grid.shape} rays, |t| = {100 * np.linalg.norm(M[:3, 3]):.1f} cm, "
           f"|w| = {np.degrees(np.linalg.norm(rt_from_T(M)[:3])):.2f} deg, {draws} draws per level"
-          f"{' (antithetic pairs)' if antithetic else ''}\n")
-    print("| σ [grey] | RMS err t [mm] | CRB t [mm] | ratio t | noise-only t | RMS err ω [µrad] | "
-          "CRB ω [µrad] | ratio ω | noise-only ω | mean / CRB t, ω | 6-D | OLS/CRB t, ω | "
+          f"{' (antithetic pairs)' if antithetic else ''}, draw set {seed}\n")
+    print("| σ [grey] | RMS err t [mm] | CRB t [mm] | ratio t | 90 % t | noise-only t | RMS err ω [µrad] | "
+          "CRB ω [µrad] | ratio ω | 90 % ω | noise-only ω | mean / CRB t, ω | 6-D | OLS/CRB t, ω | "
           "solver σ t, ω (design) / CRB | GLS | time/est [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for s in sigmas:
         sig = s / 255.0
         t0 = time.perf_counter()
         counter = _WhitenCount()
-        e = errors(L0, L1, grid, M, sig, draws, opts, seed=17, counter=counter, antithetic=antithetic)
+        e = errors(L0, L1, grid, M, sig, draws, opts, seed=seed, counter=counter, antithetic=antithetic)
         dt = (time.perf_counter() - t0) / len(e)
         gls = f"{counter.on}/{len(e)}"
         crb = crb1 * sig * sig
@@ -452,23 +475,28 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
             pr = predict_pair(sampling, src0, src1, M, np.full(n_src, sig), options=opts,
                               rng=np.random.default_rng(5))
             pred = f"{pr.std_t / b_t:.2f}, {pr.std_w / b_w:.2f}"
+        ci_t, ci_w = ((ratio_interval(e[:, sl], b, antithetic) if s > 0 and len(e) > 1 else (math.nan, math.nan))
+                      for sl, b in ((slice(0, 3), b_t), (slice(3, 6), b_w)))
         row = dict(sigma=s, err_t=m_t, err_w=m_w, crb_t=b_t, crb_w=b_w, noise_t=n_t, noise_w=n_w, mean_t=a_t, mean_w=a_w,
-                   six=six,
+                   six=six, ci_t=ci_t, ci_w=ci_w,
                    ols_t=math.sqrt(np.trace(ols[:3, :3])), ols_w=math.sqrt(np.trace(ols[3:, 3:])))
         rows.append(row)
         if s == 0:
-            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | – | {gls} | "
+            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | – | – | {gls} | "
                   f"{dt:.1f} |", flush=True)
             continue
-        print(f"| {s:g} | {1e3 * m_t:.4f} | {1e3 * b_t:.4f} | {m_t / b_t:.2f} | {n_t / b_t:.2f} | "
-              f"{1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {n_w / b_w:.2f} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | {six:.2f} | "
+        print(f"| {s:g} | {1e3 * m_t:.4f} | {1e3 * b_t:.4f} | {m_t / b_t:.2f} | {ci_t[0]:.2f}–{ci_t[1]:.2f} | "
+              f"{n_t / b_t:.2f} | {1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {ci_w[0]:.2f}–{ci_w[1]:.2f} | "
+              f"{n_w / b_w:.2f} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | {six:.2f} | "
               f"{row['ols_t'] / b_t:.2f}, {row['ols_w'] / b_w:.2f} | {pred or '–'} | {gls} | {dt:.1f} |", flush=True)
     snr = regressor_snr(L0, L1, grid, filters)
     print("\nregressor signal / noise RMS at σ = 1 grey level (divide by σ for other levels): "
           + ", ".join(f"{k} {v:.0f}" for k, v in snr.items()))
     worst = max((max(r["err_t"] / r["crb_t"], r["err_w"] / r["crb_w"]) for r in rows if r["sigma"] > 0),
                 default=math.nan)
+    upper = max((max(r["ci_t"][1], r["ci_w"][1]) for r in rows if r["sigma"] > 0), default=math.nan)
     print(f"\nworst measured / CRB ratio over σ > 0: {worst:.2f} (goal ≤ 1.5: {'met' if worst <= 1.5 else 'NOT met'}); "
+          f"the largest upper end of the ratios' 90 % intervals (another draw set's spread): {upper:.2f}; "
           f"|t| = {1e3 * np.linalg.norm(M[:3, 3]):.1f} mm, |ω| = {1e6 * np.linalg.norm(rt_from_T(M)[:3]):.0f} µrad")
     return rows
 
@@ -668,6 +696,8 @@ def main() -> None:
                     help=f"k x k rays averaged per sample by the renderer (default {SUPERSAMPLE}; --quick 2)")
     ap.add_argument("--antithetic", action="store_true",
                     help="draws in pairs n, -n (errors()): the draws' mean (bias) far more precise")
+    ap.add_argument("--seed", type=int, default=17,
+                    help="the draw set of the main and the --high-noise table (default 17: the documented tables)")
     ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
                     help="the main table with MotionOptions(depth_regressors=True / False) (else the defaults)")
     ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -709,10 +739,10 @@ def main() -> None:
         if not (args.variants_only or args.probe_only):
             with OracleDepth(rho[0]) if rho else contextlib.nullcontext():
                 noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
-                            main_opts, not args.no_predict, args.antithetic)
+                            main_opts, not args.no_predict, args.antithetic, args.seed)
             if args.high_noise:
                 noise_table(f"{label}, D = {args.distance:g} m, {high_name}", grid, L0, L1, M,
-                            sigmas, draws, high_opts, not args.no_predict, args.antithetic)
+                            sigmas, draws, high_opts, not args.no_predict, args.antithetic, args.seed)
         if args.probe or args.probe_only:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.probe_sigmas), draws)
         if args.variants or args.variants_only:
