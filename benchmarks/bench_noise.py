@@ -32,7 +32,8 @@ per-block ratios), and the
 σ predicted for the solver's own weighted estimator by :func:`polycam.design.predict_pair`
 (which knows the discontinuity and Tukey weights but not the errors-in-variables step,
 the noise-aware weight or the whitening); ``GLS`` counts the estimates in which
-``whiten="auto"`` took the whitened (generalised least squares) re-solves.
+``whiten="auto"`` took the whitened (generalised least squares) re-solves (``on`` / ``off``: the
+option forces them in every estimate / in none).
 ``--variants`` repeats the measurement for several :class:`MotionOptions` (since session 4
 the defaults include ``depth_regressors=True``; the variants other than the explicit
 ``depth_regressors=False`` row do too); ``--probe`` (``--probe-only``) decomposes the
@@ -456,7 +457,7 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
         counter = _WhitenCount()
         e = errors(L0, L1, grid, M, sig, draws, opts, seed=seed, counter=counter, antithetic=antithetic)
         dt = (time.perf_counter() - t0) / len(e)
-        gls = f"{counter.on}/{len(e)}"
+        gls = f"{counter.on}/{len(e)}" if opts.whiten == "auto" else opts.whiten     # "on": every estimate
         crb = crb1 * sig * sig
         ols = ols1 * sig * sig
         b_t = math.sqrt(np.trace(crb[:3, :3]))
