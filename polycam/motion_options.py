@@ -212,7 +212,8 @@ weight (computed from noisy frames it discards rays at random), errors-in-variab
 re-solves, the model-validity weight with gain 8, 10-point (u, v) interpolation and ρ̂ pooled over
 the views: on the paper's sphere scene through a blurring lens (``bench_noise.py --blur 0.8``), at
 4–12 m and for the paper's full motion at 8 m, within 1.5x of the Cramér–Rao bound from 1 to 32
-grey levels, where the defaults are 1.3–2.3x. They cost about 2x the defaults'
+grey levels, where the defaults are 1.3–2.3x (a sharper lens, PSF 0.5: up to 1.50x; 0.3: 1.63x; no
+blur: 1.65–1.99x). They cost about 2x the defaults'
 time per estimate (the whitened re-solves, the model weight, the pooling, the longer warp: 1.96–2.13x
 on benchmarks/bench_motion.py's one face at 2 grey levels) and a peak of 6.4 frames of memory
 instead of 4.4 (docs/motion.md, "Speed and memory"). The defaults
