@@ -438,7 +438,8 @@ def _window_sums(src, h, dst):
 @numba.njit(parallel=True, cache=True)
 def _box_sum_axis(a, h):
     """In place: a (pre, n, post) float32 ← its sums over ±h along the middle axis (clipped
-    at the ends); a task per block of ≤ 512 columns of a pre line."""
+    at the ends); a task per block of ≤ 512 columns of a pre line, whose running sums (float64,
+    each column's in :func:`_window_sums`'s order) advance a row at a time over contiguous columns."""
     pre, n, post = a.shape
     cb = 512
     nb = (post + cb - 1) // cb
@@ -446,12 +447,20 @@ def _box_sum_axis(a, h):
         p = k // nb
         c0 = (k % nb) * cb
         w = min(post, c0 + cb) - c0
-        buf = np.empty((w, n))                  # transposed: each column a contiguous line
-        for j in range(n):
+        buf = a[p, :, c0:c0 + w].copy()        # the source rows (n, w): a is overwritten row by row
+        s = np.zeros(w)
+        for j in range(min(h, n)):
             for c in range(w):
-                buf[c, j] = a[p, j, c0 + c]
-        for c in range(w):
-            _window_sums(buf[c], h, a[p, :, c0 + c])
+                s[c] += buf[j, c]
+        for j in range(n):
+            if j + h < n:
+                for c in range(w):
+                    s[c] += buf[j + h, c]
+            if j - h - 1 >= 0:
+                for c in range(w):
+                    s[c] -= buf[j - h - 1, c]
+            for c in range(w):
+                a[p, j, c0 + c] = s[c]
 
 
 @numba.njit(parallel=True, cache=True)
