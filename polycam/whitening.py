@@ -123,14 +123,11 @@ def _weighted_rows_block(Lx, Ly, Lu, Lv, Lt, dsc, base, fc, xs, ys, us, vs, z_pi
                     z[4] = sw * c4
                     z[5] = sw * c5
                     z[6] = sw * b
-        if nu > 1:
-            _forward_lines(T.reshape(nu, ny * nx * 7), Cu, bwu)
+        _forward_lines(T.reshape(nu, ny * nx * 7), Cu, bwu)
         for qu in range(nu):
-            if ny > 1:
-                _forward_lines(T[qu].reshape(ny, nx * 7), Cy, bwy)
-            if nx > 1:
-                for jj in range(ny):
-                    _forward_lines(T[qu, jj], Cx, bwx)
+            _forward_lines(T[qu].reshape(ny, nx * 7), Cy, bwy)
+            for jj in range(ny):
+                _forward_lines(T[qu, jj], Cx, bwx)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -192,12 +189,12 @@ _NOT_WHITENED = (np.zeros((1, 1)), -1)
 
 def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: float = 0.0) -> list:
     """Per box axis (y, x, v, u): (C_a, bandwidth) of the axis' prefilter on the box's length,
-    or None where the axis is not filtered (radius 0)."""
+    or :data:`_NOT_WHITENED` where the axis is not filtered (radius 0) or has one sample."""
     out = []
     for ax, name in enumerate(("y", "x", "v", "u")):
         n = int(box[2 * ax + 1] - box[2 * ax])
-        if radius[name] == 0 or n <= 0:
-            out.append(None)
+        if radius[name] == 0 or n <= 1:
+            out.append(_NOT_WHITENED)
             continue
         taps = tuple(float(t) for t in filters[name].prefilter)
         out.append((_whitening_factor(taps, n, floor), 2 * radius[name]))
@@ -212,7 +209,7 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     covariance of the prefiltered temporal difference up to 2σ²), so that Σ z_c z_cᵀ =
     Aᵀ W^½ Σ⁻¹ W^½ A: generalised least squares. der: (Lx, Ly, Lu, Lv, Lt) (F, Ny, Nx, Nv, Nu);
     base: base weights of the same dims (float32, or int16 units: :mod:`polycam.eq5`); P (F, 6): p
-    in each face's frame (IRLS residuals);
+    in each face's frame (IRLS residuals); ``factors``: per box axis, :func:`_whitening_factors`;
     ``vo``: the arrays' view origin (:mod:`polycam.eq5`; None: they hold every view); ``dsc``:
     the derivatives' scales when they are int16 scaled views (:mod:`polycam.eq5`; None: float32)."""
     F, Nv, Nu = base.shape[0], base.shape[3], base.shape[4]
@@ -224,7 +221,7 @@ def _whitened_sums(der: tuple, base: np.ndarray, vals: list, zs: np.ndarray, fs:
     if min(n) <= 0:
         return acc
     ny, nx, nv, nu = n
-    (Cy, by), (Cx, bx), (Cv, bv), (Cu, bu) = (_NOT_WHITENED if fac is None else fac for fac in factors)
+    (Cy, by), (Cx, bx), (Cv, bv), (Cu, bu) = factors
     off = max(bv, 0)                                  # slabs kept from the previous block for the v pass
     block = max(_V_BLOCK, off)
     R = np.empty((off + block, nu, ny, nx, 7), np.float32)     # the rows in float32 (half the memory);
