@@ -189,11 +189,13 @@ _NOT_WHITENED = (np.zeros((1, 1)), -1)
 
 def _whitening_factors(filters: dict, radius: dict, box: np.ndarray, floor: float = 0.0) -> list:
     """Per box axis (y, x, v, u): (C_a, bandwidth) of the axis' prefilter on the box's length,
-    or :data:`_NOT_WHITENED` where the axis is not filtered (radius 0) or has one sample."""
+    or :data:`_NOT_WHITENED` where the axis is not filtered (radius 0) or the box is empty. An
+    axis with one sample in the box is whitened by the scalar factor sqrt(Σ taps²), as
+    :func:`_whitened_noise_gain` assumes (the solver's expected noise energy)."""
     out = []
     for ax, name in enumerate(("y", "x", "v", "u")):
         n = int(box[2 * ax + 1] - box[2 * ax])
-        if radius[name] == 0 or n <= 1:
+        if radius[name] == 0 or n <= 0:
             out.append(_NOT_WHITENED)
             continue
         taps = tuple(float(t) for t in filters[name].prefilter)
