@@ -137,12 +137,21 @@ def _camera_stride(L: np.ndarray, ax: int) -> tuple[int, int]:
     return (h, int(live[0]) % h) if h > 1 else (1, 0)
 
 
-def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
+def _noise_variance(lev: _Level) -> float:
+    """Sensor-noise variance per sample of the level's frames (:func:`_second_difference_variance`),
+    estimated once per level (``lev.noise_var``)."""
+    if lev.noise_var is None:
+        lev.noise_var = _second_difference_variance(lev)
+    return lev.noise_var
+
+
+def _second_difference_variance(lev: _Level, samples: int = 25_000) -> float:
     """Sensor-noise variance per sample, from the robust spread of second differences
     across viewpoints (the light field is smooth along x and y; the finest available
     axis is used) on regularly spaced rows, about ``samples`` per frame:
-    σ² = (1.4826 · median |Δ²L|)² / 6. On a grid with viewpoints interpolated between the
-    cameras, over the cameras' views only (:func:`_camera_stride`)."""
+    σ² = (1.4826 · median |Δ²L|)² / 6 (:func:`_robust_variance`; on 8-bit frames the grouped
+    median). On a grid with viewpoints interpolated between the cameras, over the cameras'
+    views only (:func:`_camera_stride`)."""
     for ax in (2, 1, 4, 3):                             # x, y, then u, v
         if lev.L0.shape[ax] >= 3:
             break
@@ -168,7 +177,47 @@ def _noise_variance(lev: _Level, samples: int = 25_000) -> float:
     v = np.concatenate(vals)
     if v.size == 0:
         return 0.0
-    return float((1.4826 * _median(v)) ** 2 / 6.0)
+    q = 0.0 if lev.W0 is not None or lev.W1 is not None else min(_lattice_step(lev.L0), _lattice_step(lev.L1))
+    return _robust_variance(v, q) / 6.0
+
+
+def _lattice_step(L: np.ndarray, samples: int = 4096) -> float:
+    """The step q of the lattice k·q (k integer) that the frame values L lie on, in L's units:
+    1/255 for 8-bit frames scaled to [0, 1] (1 for frames in grey levels, values up to 255), or
+    1/(255 m²) for their m x m block means (m = 2, 3, 4: :func:`polycam.hci.load_hci_lightfield`'s
+    ``downsample``); 0 when a spread of ``samples`` values is not within 1e-3 steps of one (float
+    frames, resampled ones). Their second differences are multiples of q too."""
+    flat = L.reshape(-1)
+    x = np.asarray(flat[::max(1, flat.size // samples)], np.float64)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return 0.0
+    unit = 1.0 if float(np.max(np.abs(x))) > 1.0 + 1e-6 else 1.0 / 255.0
+    for m in (1, 2, 3, 4):
+        q = unit / (m * m)
+        k = x / q
+        if np.all(np.abs(k - np.rint(k)) <= 1e-3):
+            return q
+    return 0.0
+
+
+def _robust_variance(a: np.ndarray, q: float = 0.0) -> float:
+    """Variance of zero-mean Gaussian values from their absolute values a (n,) ≥ 0:
+    (1.4826 · median a)². Values on a lattice of step q > 0 (integer frames, e.g. 8-bit:
+    :func:`_lattice_step`) have a median that jumps from step to step (σ estimates of 0, 0.61,
+    1.21 ... grey levels from second differences); there the median is that of the values spread
+    uniformly over their rounding cells ([0, q/2) for 0, [k − ½, k + ½) q else: the grouped
+    median), less the spread's own variance q²/12 (Sheppard's correction)."""
+    if q == 0.0:
+        return float((1.4826 * _median(a)) ** 2)
+    counts = np.bincount(np.rint(a / q).astype(np.int64))
+    cum = np.cumsum(counts)
+    half = 0.5 * cum[-1]
+    k = int(np.searchsorted(cum, half))                  # first cell with cum ≥ half
+    below = float(cum[k - 1]) if k > 0 else 0.0
+    lo, width = (0.0, 0.5) if k == 0 else (k - 0.5, 1.0)
+    m = (lo + (half - below) / float(counts[k]) * width) * q
+    return max(float((1.4826 * m) ** 2) - q * q / 12.0, 0.0)
 
 
 def frame_noise_variance(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, W0: np.ndarray | None = None,

@@ -85,6 +85,9 @@ class _Level:
     views: dict = field(default_factory=dict)
     """Facts about the viewpoints (e.g. the cameras' stride), shared by the levels that keep
     the finest level's (x, y) sampling."""
+    noise_var: float | None = None
+    """The frames' sensor-noise variance per sample once estimated
+    (:func:`polycam.motion_weights._noise_variance`; the frames of a level do not change)."""
 
 
 def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict,

@@ -8,6 +8,8 @@ unit spheres in front of it. Sample (x, y, u, v) averages 2 x 2 rays over its (u
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -1636,6 +1638,30 @@ def test_noise_variance_on_the_cameras_views(rng, n_cams, oversample):
         frames.append(((1 - wx) * rows[:, lo] + wx * rows[:, lo + 1])[None].astype(np.float32))
     var = _noise_variance(_Level(grid, frames[0], frames[1], None, None))
     assert np.sqrt(var) == pytest.approx(sigma, rel=MOTION_NOISE_SIGMA_REL)
+
+
+@pytest.mark.parametrize("sigma_grey", [0.4, 0.7, 1.3, 2.2])
+@pytest.mark.parametrize("block", [1, 2], ids=["8-bit", "8-bit-2x2-means"])
+def test_noise_variance_of_8bit_frames(rng, sigma_grey, block):
+    """On 8-bit frames (multiples of 1/255, or their 2 x 2 block means) the second differences'
+    median moves in whole steps; the estimate takes the grouped median and is the noise with
+    the rounding's (σ² + 1/12 grey levels², per full-resolution pixel) instead of 0.61 / 1.21
+    grey levels."""
+    from polycam.motion_weights import _noise_variance
+    from polycam.pyramid import _Level
+
+    n = 32 * block
+    grid = make_grid(views=9, directions=32)
+    texture = 100.0 + 60.0 * rng.random((1, 1, 1, n, n))      # the same at every view: no parallax
+    frames = []
+    for _ in range(2):
+        grey = np.clip(np.rint(texture + sigma_grey * rng.standard_normal((1, 9, 9, n, n))), 0, 255) / 255.0
+        if block > 1:
+            grey = grey.reshape(1, 9, 9, 32, block, 32, block).mean(axis=(4, 6))
+        frames.append(grey.astype(np.float32))
+    var = _noise_variance(_Level(grid, frames[0], frames[1], None, None))
+    expected = math.sqrt(sigma_grey ** 2 + 1.0 / 12.0) / block / 255.0
+    assert math.sqrt(var) == pytest.approx(expected, rel=MOTION_NOISE_SIGMA_REL)
 
 
 _CACHE_RUN = '''
