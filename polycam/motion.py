@@ -224,6 +224,10 @@ class PairResult:
     """(k, 6) unit vectors (scaled parameter space) spanning the unobservable subspace."""
     reason: str = ""
     """Why the estimate failed; empty when it succeeded."""
+    noise_sigma: float = math.nan
+    """Sensor noise σ per sample [intensity] of the pair's frames as given, estimated from their
+    second differences across the cameras' views (:func:`polycam.motion_weights.frame_noise_variance`;
+    8-bit rounding included). ``MotionOptions`` presets: docs/motion.md, "Noise"."""
 
     @property
     def ok(self) -> bool:
@@ -1059,7 +1063,7 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     continue                      # converged: now the whitened (GLS) re-solves
                 if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
-    return _result(index, M, diag, opts, n_solves)
+    return replace(_result(index, M, diag, opts, n_solves), noise_sigma=math.sqrt(_noise_variance(levels[0])))
 
 
 _COARSE_SETTLED = 0.5

@@ -3,11 +3,12 @@
 One row per frame pair ``(i, i+1)``::
 
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
-    sigma,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
+    sigma,noise_sigma,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
-the square roots of the covariance diagonal; ``timestamp_ns`` is frame i+1's (empty
-when not given); ``unobservable`` lists direction names separated by ``;``.
+the square roots of the covariance diagonal; ``sigma`` the robust residual scale and
+``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
+:class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not given); ``unobservable`` lists direction names separated by ``;``.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ __all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report", "write_motion_report"]
 PAIR_REPORT_COLUMNS = (
     "pair", "timestamp_ns", "t_x", "t_y", "t_z", "r_x", "r_y", "r_z",
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
-    "sigma", "condition", "inlier_fraction", "num_rays", "iterations", "ok", "unobservable", "reason",
+    "sigma", "noise_sigma", "condition", "inlier_fraction", "num_rays", "iterations", "ok", "unobservable", "reason",
 )
 
 
@@ -45,7 +46,7 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
         w.writerow([r.index, ts, *(f"{v:.9g}" for v in r.t), *(f"{v:.9g}" for v in r.r),
-                    *(f"{v:.6g}" for v in std), f"{r.sigma:.6g}", f"{r.condition:.6g}",
+                    *(f"{v:.6g}" for v in std), f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason])
     atomic_write_text(path_csv, buf.getvalue())

@@ -171,7 +171,24 @@ def test_motion_on_a_lightfield_with_report(tmp_path, selection):
     for name in ("pairs.csv", "trajectory.png", "errors.png"):
         assert (tmp_path / "rep" / name).stat().st_size > 0
     header = (tmp_path / "rep" / "pairs.csv").read_text().splitlines()[0]
-    assert header.startswith("pair,timestamp_ns,t_x")
+    assert header.startswith("pair,timestamp_ns,t_x") and ",sigma,noise_sigma," in header
+    assert "sensor noise" in res.stdout and "--preset noisy" not in res.stdout     # noise-free float frames
+
+
+def test_motion_points_to_the_noise_options_on_noisy_frames():
+    """After a run with the default preset on frames with a grey level of noise or more, the
+    command says so and names --preset noisy; not below, not with that preset, not without
+    estimates."""
+    from types import SimpleNamespace
+
+    from polycam.cli import _noise_line
+
+    pairs = [SimpleNamespace(noise_sigma=s / 255.0) for s in (1.4, 1.1, float("nan"), 0.9)]
+    line = _noise_line(pairs, "default")
+    assert "1.10 grey levels" in line and "--preset noisy" in line
+    assert "--preset noisy" not in _noise_line(pairs, "noisy")
+    assert "--preset noisy" not in _noise_line([SimpleNamespace(noise_sigma=0.5 / 255.0)], "default")
+    assert _noise_line([SimpleNamespace(noise_sigma=float("nan"))], "default") == ""
 
 
 @pytest.fixture(scope="module")

@@ -1640,6 +1640,18 @@ def test_noise_variance_on_the_cameras_views(rng, n_cams, oversample):
     assert np.sqrt(var) == pytest.approx(sigma, rel=MOTION_NOISE_SIGMA_REL)
 
 
+@pytest.mark.parametrize("quantise", [False, True], ids=["float", "8-bit"])
+def test_pair_result_reports_the_frames_noise(scene, quantise):
+    """PairResult.noise_sigma is the frames' sensor noise (here 2 grey levels, with the 8-bit
+    rounding's 1/12 grey levels² when the frames are rounded)."""
+    grid, L0, L1 = noisy_face_pair(scene, [0.001, 0.0, 0.0, 0.004, 0.0, 0.0], 2.0 / 255.0, seed=4)
+    if quantise:
+        L0, L1 = (np.rint(np.clip(a, 0, 1) * 255.0).astype(np.float32) / np.float32(255.0) for a in (L0, L1))
+    res = estimate_motion(L0, L1, grid)
+    expected = math.sqrt(4.0 + (1.0 / 12.0 if quantise else 0.0)) / 255.0
+    assert res.noise_sigma == pytest.approx(expected, rel=MOTION_NOISE_SIGMA_REL)
+
+
 @pytest.mark.parametrize("sigma_grey", [0.4, 0.7, 1.3, 2.2])
 @pytest.mark.parametrize("block", [1, 2], ids=["8-bit", "8-bit-2x2-means"])
 def test_noise_variance_of_8bit_frames(rng, sigma_grey, block):
