@@ -23,7 +23,8 @@ __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
 NOISY_HINT_GREY = 1.0
 """Sensor noise [grey levels of 255] from which ``polycam motion`` with the default preset points to
-``--preset noisy`` (docs/motion.md, "Noise": the defaults are 1.5–2x the bound there)."""
+``--preset noisy`` on frames without confidences (docs/motion.md, "Noise": the defaults are 1.5–2x
+the bound there)."""
 
 STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli", "polycam.depth_cli")
 """Modules whose ``add_parsers(subparsers)`` add the pipeline stages' verbs."""
@@ -144,7 +145,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if hasattr(store, "seconds_frames"):
         print(f"  resampled {store.frames_resampled} frames in {store.seconds_frames:.1f} s; "
               f"mean confidence W {store.mean_W:.2f}")
-    noise = _noise_line(results, args.preset)
+    confidences = hasattr(store, "resampler") or bool(getattr(store, "has_weights", False))
+    noise = _noise_line(results, args.preset, confidences)
     if noise:
         print(noise)
     truth = store.groundtruth()
@@ -166,9 +168,12 @@ def cmd_motion(args: argparse.Namespace) -> int:
     return 0
 
 
-def _noise_line(results, preset: str) -> str:
+def _noise_line(results, preset: str, confidences: bool = False) -> str:
     """The frames' sensor noise in grey levels of 255 (median over the pairs), with a hint to the
-    noise options when the defaults ran on frames with a grey level or more ('' without estimates)."""
+    noise options when the defaults ran on frames with a grey level or more and without
+    confidences W ('' without estimates). The noise options assume noise independent from
+    sample to sample; on resampled frames (W; viewpoints interpolated between the cameras) they
+    measured no better or worse (docs/motion.md, "Which preset"), so there is no hint."""
     import math
 
     vals = sorted(255.0 * r.noise_sigma for r in results if math.isfinite(r.noise_sigma))
@@ -176,7 +181,7 @@ def _noise_line(results, preset: str) -> str:
         return ""
     med = vals[len(vals) // 2] if len(vals) % 2 else 0.5 * (vals[len(vals) // 2 - 1] + vals[len(vals) // 2])
     line = f"  sensor noise {med:.2f} grey levels (of 255, median over the pairs)"
-    if preset == "default" and med >= NOISY_HINT_GREY:
+    if preset == "default" and med >= NOISY_HINT_GREY and not confidences:
         line += ("; with a grey level or more, --preset noisy comes closer to the noise bound "
                  "at about twice the time (docs/motion.md, \"Noise\")")
     return line

@@ -36,7 +36,8 @@ def add_solver_options(p: argparse.ArgumentParser) -> None:
     shared by the verbs that estimate motion. :func:`solver_options` reads them."""
     p.add_argument("--preset", choices=sorted(PRESETS), default="default",
                    help="a named set of solver options: default (tuned for 8-bit cameras in good light) or "
-                        "noisy (frames with a grey level of noise or more; docs/motion.md, \"Noise\")")
+                        "noisy (light fields with a grey level of noise or more, independent per sample; not resampled "
+                        "sessions; docs/motion.md, \"Noise\")")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="a motion solver setting (a MotionOptions field; repeatable), on top of --preset, "
                         "e.g. --option levels=2")

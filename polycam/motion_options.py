@@ -219,8 +219,11 @@ on benchmarks/bench_motion.py's one face at 2 grey levels) and a peak of 6.4 fra
 instead of 4.4 (docs/motion.md, "Speed and memory"). The defaults
 stay tuned for 8-bit cameras in good light (under a grey level of noise), where the model bias
 matters more: on the noise-free Fig. 5c frames their errors are 0.44 / 0.29 % (t / ω) at 12 m
-against these options' 1.15 / 0.66 %. ``polycam motion`` prints the frames' noise
-(:attr:`polycam.motion.PairResult.noise_sigma`) and points to this preset from a grey level on."""
+against these options' 1.15 / 0.66 %. They model noise independent from sample to sample: on
+resampled camera-array sessions (viewpoints interpolated between the cameras, push-pull) they
+measured no better than the defaults, on the 3 x 3 webcam rig worse (docs/motion.md, "Which
+preset"). ``polycam motion`` prints the frames' noise (:attr:`polycam.motion.PairResult.noise_sigma`)
+and points to this preset from a grey level on, for frames without confidences."""
 
 PRESETS: dict[str, MotionOptions] = {"default": MotionOptions(), "noisy": NOISY}
 """The named option sets (the CLI's ``--preset``); ``--option`` items apply on top."""
