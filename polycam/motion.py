@@ -1063,7 +1063,21 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     continue                      # converged: now the whitened (GLS) re-solves
                 if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
-    return replace(_result(index, M, diag, opts, n_solves), noise_sigma=math.sqrt(_noise_variance(levels[0])))
+    return replace(_result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters)),
+                   noise_sigma=math.sqrt(_noise_variance(levels[0])))
+
+
+def _few_views(grid: LightFieldGrid, filters: dict) -> str:
+    """Why a grid may leave no usable rays: the view axes whose every viewpoint lies inside one
+    ray's filter support (3 views under fs3), where any motion moves part of the support out of
+    the grid ('' when there are none)."""
+    tight = [(k, n) for k, n in (("x", grid.x.count), ("y", grid.y.count))
+             if 0 < filters[k].radius and n == 2 * filters[k].radius + 1]
+    if not tight:
+        return ""
+    return (" and ".join(f"{n} viewpoints along {k}" for k, n in tight) + " are all inside one ray's filter "
+            "support, so a moved frame leaves no usable ray: resample onto more viewpoints (e.g. views "
+            "between the cameras)")
 
 
 _COARSE_SETTLED = 0.5
@@ -1125,7 +1139,7 @@ def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
     return ((vec * inv) @ vec.T) * s[:, None] * s[None, :]
 
 
-def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
+def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str = "") -> PairResult:
     sol, (C_sand, C_iid, sigma2), H = diag
     num = sol["num"]
     base_n = sol["base_n"]
@@ -1151,7 +1165,8 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int) -> PairResult:
     names = tuple(_name_direction(v) for v in unobs_vecs)
     reason = ""
     if num < opts.min_rays:
-        reason = f"only {num} usable rays (need {opts.min_rays}): too little texture or valid data"
+        reason = (f"only {num} usable rays (need {opts.min_rays}): "
+                  + (few_views if few_views else "too little texture or valid data"))
     elif texture < _TEXTURE_FLOOR:
         reason = (f"unobservable: no texture (RMS gradient {texture:.2g} per sample); "
                   "all of " + ", ".join(names))

@@ -235,6 +235,18 @@ def test_one_viewpoint_translation_is_unobservable(scene):
     assert np.all(np.isinf(res.std[:3])) and np.all(np.isfinite(res.std[3:]))
 
 
+def test_three_viewpoints_fail_with_the_reason(scene):
+    """Three viewpoints along an axis under fs3 lie inside one ray's filter support: a moved
+    frame leaves no usable ray, and the failure says so (not "too little texture"); four work."""
+    T = T_from_rt(np.array([0.0, 0.0, 0.0, 0.001, 0.0, 0.0]))
+    grid = make_grid(("+z",), views=3, directions=32)
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
+    assert not res and res.num_rays == 0
+    assert "3 viewpoints along x and 3 viewpoints along y" in res.reason and "texture" not in res.reason
+    grid = make_grid(("+z",), views=4, directions=32)
+    assert estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
+
+
 def test_input_errors(scene):
     grid = make_grid(("+z",))
     L = scene.render(grid, np.eye(4))
