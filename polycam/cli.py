@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
+import statistics
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -174,12 +176,10 @@ def _noise_line(results, preset: str, confidences: bool = False) -> str:
     confidences W ('' without estimates). The noise options assume noise independent from
     sample to sample; on resampled frames (W; viewpoints interpolated between the cameras) they
     measured no better or worse (docs/motion.md, "Which preset"), so there is no hint."""
-    import math
-
-    vals = sorted(255.0 * r.noise_sigma for r in results if math.isfinite(r.noise_sigma))
+    vals = [255.0 * r.noise_sigma for r in results if math.isfinite(r.noise_sigma)]
     if not vals:
         return ""
-    med = vals[len(vals) // 2] if len(vals) % 2 else 0.5 * (vals[len(vals) // 2 - 1] + vals[len(vals) // 2])
+    med = statistics.median(vals)
     line = f"  sensor noise {med:.2f} grey levels (of 255, median over the pairs)"
     if preset == "default" and med >= NOISY_HINT_GREY and not confidences:
         line += ("; with a grey level or more, --preset noisy comes closer to the noise bound "

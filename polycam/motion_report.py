@@ -8,7 +8,8 @@ One row per frame pair ``(i, i+1)``::
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
 the square roots of the covariance diagonal; ``sigma`` the robust residual scale and
 ``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
-:class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not given); ``unobservable`` lists direction names separated by ``;``.
+:class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not
+given); ``unobservable`` lists direction names separated by ``;``.
 """
 
 from __future__ import annotations
