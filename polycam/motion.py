@@ -1063,8 +1063,8 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     continue                      # converged: now the whitened (GLS) re-solves
                 if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
-    return replace(_result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters)),
-                   noise_sigma=math.sqrt(_noise_variance(levels[0])))
+    return _result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters),
+                   math.sqrt(_noise_variance(levels[0])))
 
 
 def _few_views(grid: LightFieldGrid, filters: dict) -> str:
@@ -1139,7 +1139,8 @@ def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
     return ((vec * inv) @ vec.T) * s[:, None] * s[None, :]
 
 
-def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str = "") -> PairResult:
+def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str = "",
+            noise_sigma: float = math.nan) -> PairResult:
     sol, (C_sand, C_iid, sigma2), H = diag
     num = sol["num"]
     base_n = sol["base_n"]
@@ -1179,7 +1180,7 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
     return PairResult(index=index, T_prev_next=M, covariance=cov, covariance_iid=cov_iid,
                       sigma=math.sqrt(sigma2), condition=sol["cond"], inlier_fraction=inl,
                       num_rays=num, iterations=n_solves, unobservable=names,
-                      unobservable_directions=unobs_vecs, reason=reason)
+                      unobservable_directions=unobs_vecs, reason=reason, noise_sigma=noise_sigma)
 
 
 def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = None,
