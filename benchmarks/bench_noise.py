@@ -1,7 +1,7 @@
 """Plenoptic motion under image noise against the Cramér–Rao bound of the linear model (issue #3, target 2).
 
 Run: ``.venv/bin/python benchmarks/bench_noise.py [--quick] [--draws N] [--sigmas ...] [--before]
-[--variants] [--probe] [--antithetic] [--seed N]``
+[--variants] [--probe] [--antithetic] [--seed N ...]``
 
 Set-up (paper Sect. 5, as benchmarks/bench_motion.py): unit spheres filling the
 horizon at D = 8 m, f = 60, 9 x 9 viewpoints 1 cm apart, 64 x 64 directions per face
@@ -49,7 +49,10 @@ the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
 draws' mean, the bias under noise, is measured several times more precisely. The ``90 %``
 columns give each ratio's percentile bootstrap interval over the draws (antithetic pairs
 resampled as units: :func:`ratio_interval`): how far another set of as many draws may put it.
-``--seed`` picks the draw set (default 17, that of the documented tables).
+``--seed`` picks the draw set (default 17, that of the documented tables); several seeds pool their
+draws (``--draws`` each) and the ``per set`` column gives the smallest and largest ratio of the sets
+alone (:func:`set_ratios`): the bootstrap interval of one set knows only the tails that set drew, and
+understates the spread between sets (docs/motion.md, "How sure the ratios are").
 ``--scene room`` replaces the spheres by the mock rig's textured room (far wall at
 ``--distance``; a diagnostic: at this grid's 64 directions per 90° its near walls put texture
 near the directions' Nyquist limit, docs/motion_log.md, "Noise" → Session 19).
@@ -436,8 +439,23 @@ def setup(faces: str, D: float, supersample: int, directions: int, blur: float =
     return out + (true_disparity(scene, grid),) if oracle else out
 
 
+def set_ratios(e: np.ndarray, b_t: float, b_w: float, n_sets: int) -> str:
+    """'lo–hi, lo–hi': the smallest and largest ratio t, ω over the ``n_sets`` equal draw sets
+    that the (draws, 6) errors ``e`` concatenate ('–' for one set): how far one set's ratio
+    strays from the pooled one."""
+    if n_sets < 2:
+        return "–"
+    sets = e.reshape(n_sets, -1, 6)
+    t = [rms_norm(x[:, :3]) / b_t for x in sets]
+    w = [rms_norm(x[:, 3:]) / b_w for x in sets]
+    return f"{min(t):.2f}–{max(t):.2f}, {min(w):.2f}–{max(w):.2f}"
+
+
 def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOptions,
-                predict: bool, antithetic: bool = False, seed: int = 17) -> list[dict]:
+                predict: bool, antithetic: bool = False, seed: int | tuple[int, ...] = 17) -> list[dict]:
+    """Print and return the table of measured errors against the bound, one row per noise level
+    in ``sigmas``; ``seed`` one draw set or several, whose draws are pooled (``draws`` each)."""
+    seeds = (seed,) if isinstance(seed, int) else tuple(seed)
     filters = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
     crb1, ols1 = linear_model_bounds(L0, L1, grid, M, filters)
     sampling = identity_sampling(grid) if predict else None
@@ -445,17 +463,19 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     F, Ny, Nx, Nv, Nu = grid.shape
     print(f"\n## {name}: {grid.shape} rays, |t| = {100 * np.linalg.norm(M[:3, 3]):.1f} cm, "
           f"|w| = {np.degrees(np.linalg.norm(rt_from_T(M)[:3])):.2f} deg, {draws} draws per level"
-          f"{' (antithetic pairs)' if antithetic else ''}, draw set {seed}\n")
+          f"{' (antithetic pairs)' if antithetic else ''}, draw set{'s' if len(seeds) > 1 else ''} "
+          f"{', '.join(map(str, seeds))}{' (pooled)' if len(seeds) > 1 else ''}\n")
     print("| σ [grey] | RMS err t [mm] | CRB t [mm] | ratio t | 90 % t | noise-only t | RMS err ω [µrad] | "
-          "CRB ω [µrad] | ratio ω | 90 % ω | noise-only ω | mean / CRB t, ω | 6-D | OLS/CRB t, ω | "
+          "CRB ω [µrad] | ratio ω | 90 % ω | noise-only ω | per set t, ω | mean / CRB t, ω | 6-D | OLS/CRB t, ω | "
           "solver σ t, ω (design) / CRB | GLS | time/est [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for s in sigmas:
         sig = s / 255.0
         t0 = time.perf_counter()
         counter = _WhitenCount()
-        e = errors(L0, L1, grid, M, sig, draws, opts, seed=seed, counter=counter, antithetic=antithetic)
+        e = np.concatenate([errors(L0, L1, grid, M, sig, draws, opts, seed=sd, counter=counter, antithetic=antithetic)
+                            for sd in (seeds if s > 0 else seeds[:1])])
         dt = (time.perf_counter() - t0) / len(e)
         gls = f"{counter.on}/{len(e)}" if opts.whiten == "auto" else opts.whiten     # "on": every estimate
         crb = crb1 * sig * sig
@@ -483,12 +503,12 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
                    ols_t=math.sqrt(np.trace(ols[:3, :3])), ols_w=math.sqrt(np.trace(ols[3:, 3:])))
         rows.append(row)
         if s == 0:
-            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | – | – | {gls} | "
+            print(f"| 0 (bias) | {1e3 * m_t:.4f} | 0 | – | – | – | {1e6 * m_w:.3f} | 0 | – | – | – | – | – | – | – | – | {gls} | "
                   f"{dt:.1f} |", flush=True)
             continue
         print(f"| {s:g} | {1e3 * m_t:.4f} | {1e3 * b_t:.4f} | {m_t / b_t:.2f} | {ci_t[0]:.2f}–{ci_t[1]:.2f} | "
               f"{n_t / b_t:.2f} | {1e6 * m_w:.3f} | {1e6 * b_w:.3f} | {m_w / b_w:.2f} | {ci_w[0]:.2f}–{ci_w[1]:.2f} | "
-              f"{n_w / b_w:.2f} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | {six:.2f} | "
+              f"{n_w / b_w:.2f} | {set_ratios(e, b_t, b_w, len(seeds))} | {a_t / b_t:.2f}, {a_w / b_w:.2f} | {six:.2f} | "
               f"{row['ols_t'] / b_t:.2f}, {row['ols_w'] / b_w:.2f} | {pred or '–'} | {gls} | {dt:.1f} |", flush=True)
     snr = regressor_snr(L0, L1, grid, filters)
     print("\nregressor signal / noise RMS at σ = 1 grey level (divide by σ for other levels): "
@@ -697,8 +717,9 @@ def main() -> None:
                     help=f"k x k rays averaged per sample by the renderer (default {SUPERSAMPLE}; --quick 2)")
     ap.add_argument("--antithetic", action="store_true",
                     help="draws in pairs n, -n (errors()): the draws' mean (bias) far more precise")
-    ap.add_argument("--seed", type=int, default=17,
-                    help="the draw set of the main and the --high-noise table (default 17: the documented tables)")
+    ap.add_argument("--seed", type=int, nargs="+", default=[17],
+                    help="the draw set of the main and the --high-noise table (default 17: the documented tables); "
+                         "several: their draws pooled (--draws each), with each set's ratio beside")
     ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
                     help="the main table with MotionOptions(depth_regressors=True / False) (else the defaults)")
     ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -740,10 +761,10 @@ def main() -> None:
         if not (args.variants_only or args.probe_only):
             with OracleDepth(rho[0]) if rho else contextlib.nullcontext():
                 noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
-                            main_opts, not args.no_predict, args.antithetic, args.seed)
+                            main_opts, not args.no_predict, args.antithetic, tuple(args.seed))
             if args.high_noise:
                 noise_table(f"{label}, D = {args.distance:g} m, {high_name}", grid, L0, L1, M,
-                            sigmas, draws, high_opts, not args.no_predict, args.antithetic, args.seed)
+                            sigmas, draws, high_opts, not args.no_predict, args.antithetic, tuple(args.seed))
         if args.probe or args.probe_only:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.probe_sigmas), draws)
         if args.variants or args.variants_only:
