@@ -147,8 +147,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if hasattr(store, "seconds_frames"):
         print(f"  resampled {store.frames_resampled} frames in {store.seconds_frames:.1f} s; "
               f"mean confidence W {store.mean_W:.2f}")
-    confidences = hasattr(store, "resampler") or bool(getattr(store, "has_weights", False))
-    noise = _noise_line(results, args.preset, confidences)
+    noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)))
     if noise:
         print(noise)
     truth = store.groundtruth()

@@ -83,6 +83,11 @@ class SessionLightField:
     def __len__(self) -> int:
         return len(self.session)
 
+    @property
+    def has_weights(self) -> bool:
+        """Always: resampled frames come with their confidence W (as a store's ``has_weights``)."""
+        return True
+
     def _resample(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         if self._cached is not None and self._cached[0] == t:
             return self._cached[1], self._cached[2]
