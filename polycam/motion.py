@@ -46,6 +46,10 @@ finest level, once ρ̂ below exists, those up to ``extrapolate_views`` steps ou
 extrapolated by Eq. 6 from the edge views instead (``L(x_e + d, u) = L(x_e, u + ρ d)``,
 ρ averaged over the views per direction; ρ̂ itself is then taken from the rays whose
 filter support holds captured samples only; docs/motion_log.md, "Paper Fig. 5c").
+Where the views are too far apart for the scene (disparity per view step above
+``max_view_disparity`` samples: camera arrays), the light field is aliased across the views
+at the fine (u, v) scales, and the finest level used is the first coarse enough
+(:func:`_aliasing_start`; docs/motion.md, "Camera arrays").
 
 Robust weighting
 ----------------
@@ -147,7 +151,7 @@ from .motion_options import MotionOptions
 from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
                              min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
                              solver_filter_pairs)
-from .pyramid import _Level, _pyramid
+from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _face_abs_max,
                    _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
@@ -228,6 +232,13 @@ class PairResult:
     """Sensor noise σ per sample [intensity] of the pair's frames as given, estimated from their
     second differences across the cameras' views (:func:`polycam.motion_weights.frame_noise_variance`;
     8-bit rounding included). ``MotionOptions`` presets: docs/motion.md, "Noise"."""
+    uv_level: int = 0
+    """(u, v) pyramid level the estimate comes from: 0 the frames' own sampling, k the k-th
+    halving (``MotionOptions.max_view_disparity``: the views are too far apart for finer scales)."""
+    view_disparity: float = math.nan
+    """Disparity per view step [(u, v) samples of the frames] that chose ``uv_level`` (the
+    largest over the faces; NaN when not measured: ``max_view_disparity`` inf, fewer than 3
+    views along x or y, no texture)."""
 
     @property
     def ok(self) -> bool:
@@ -1019,15 +1030,73 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     # (kept from the previous estimate; a session's peak memory is then one estimate's)
     _return_tails()
     try:
-        levels = _pyramid(L0, L1, W0, W1, grid, opts, {k: fp.radius for k, fp in filters.items()},
-                          alloc=_tail_array)
-        return _estimate_levels(levels, M, opts, filters, index)
+        radius = {k: fp.radius for k, fp in filters.items()}
+        levels = _pyramid(L0, L1, W0, W1, grid, opts, radius, alloc=_tail_array)
+        start, disparity = _aliasing_start(levels, opts, radius)
+        if start == 0:
+            return replace(_estimate_levels(levels, M, opts, filters, index), view_disparity=disparity)
+        work = levels[start:]
+        del levels[1:]                            # the finer levels' frames are not needed
+        res = _estimate_levels(work, M, opts, filters, index, own_finest=False)
+        return replace(res, uv_level=start, view_disparity=disparity,
+                       noise_sigma=math.sqrt(_noise_variance(levels[0])))
     finally:
         _return_tails()
 
 
-def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: dict, index: int) -> PairResult:
-    """:func:`estimate_motion` on the pyramid ``levels`` (finest first) from ``M``."""
+def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[int, float]:
+    """(k, d): the finest pyramid level k whose disparity per view step is at most
+    ``opts.max_view_disparity`` of its (u, v) samples, and that disparity d measured in the
+    finest level's samples (NaN: not measured, k = 0). Extends ``levels`` (finest first) so
+    that ``opts.levels`` levels remain from k where the (u, v) sampling allows.
+
+    d is :func:`polycam.scales.view_disparity` (the median over the rays of the differential-
+    stereo depth, the largest over the faces) on the central 3 x 3 views of the coarsest level
+    up to the third (cheap: ~1 ms on 9 x 9 x 32 x 32, and coarse levels alias least), scaled by
+    that level's (u, v) step over the (x, y) step relative to the finest's. Needs 3 views along
+    x and y."""
+    thr = opts.max_view_disparity
+    g0 = levels[0].grid
+    if not math.isfinite(thr) or g0.x.count < 3 or g0.y.count < 3:
+        return 0, math.nan
+    from .scales import view_disparity
+
+    def per_view(g: LightFieldGrid) -> float:
+        """Samples of level grid g per sample of the finest, per view step of g per the finest's."""
+        return (g.x.step / g0.x.step) / (g.u.step / g0.u.step)
+
+    m = min(2, len(levels) - 1)
+    lev = levels[m]
+    g = lev.grid
+    cy, cx = g.y.count // 2, g.x.count // 2
+    sub = replace(g, y=replace(g.y, min=g.y.min + (cy - 1) * g.y.step, max=g.y.min + (cy + 1) * g.y.step, count=3),
+                  x=replace(g.x, min=g.x.min + (cx - 1) * g.x.step, max=g.x.min + (cx + 1) * g.x.step, count=3))
+    views = (slice(None), slice(cy - 1, cy + 2), slice(cx - 1, cx + 2))
+    L = lev.L0[views]
+    W = None if lev.W0 is None else lev.W0[views]
+    d_faces = view_disparity(L, L, sub, W0=W)
+    if not np.any(np.isfinite(d_faces)):
+        return 0, math.nan
+    d = float(np.nanmax(d_faces)) / per_view(g)          # finest level's samples per its view step
+    k = 0
+    while True:
+        if d * per_view(levels[k].grid) <= thr:
+            break
+        if k + 1 >= len(levels) and not _add_level(levels, opts, radius, _tail_array):
+            break
+        k += 1
+    while len(levels) < k + opts.levels and _add_level(levels, opts, radius, _tail_array):
+        pass
+    if k:
+        log.debug("disparity %.2f samples per view step: the solve stops at (u, v) level %d", d, k)
+    return k, d
+
+
+def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: dict, index: int,
+                     own_finest: bool = True) -> PairResult:
+    """:func:`estimate_motion` on the pyramid ``levels`` (finest first) from ``M``.
+    ``own_finest``: ``levels[0]``'s frames are not borrowed work memory (:func:`_tail_array`),
+    so the loans end once it is reached."""
     n_solves = 0
     sol = None
     solver = None
@@ -1035,7 +1104,7 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     for li in range(len(levels) - 1, -1, -1):
         solver = None                             # free the previous level's buffers first
         levels[li + 1:] = [None] * (len(levels) - li - 1)      # and its frames
-        if li == 0:
+        if li == 0 and own_finest:
             _return_tails()                       # the coarse frames are dead now
         solver = _Solver(levels[li], opts, filters, li)
         finest = li == 0

@@ -30,6 +30,19 @@ class MotionOptions:
     """Derivative filter pair name for all axes, or axis name (x y u v) → name (see FILTERS)."""
     levels: int = 3
     """Pyramid levels (1 = single scale)."""
+    max_view_disparity: float = 0.75
+    """Plenoptic sampling: the finest (u, v) level the solver goes down to is the first whose
+    disparity per view step is at most this many of its (u, v) samples (``inf``: always the
+    frames' own sampling). Where the views are farther apart than that for the scene (camera
+    arrays: a 3 x 3 webcam rig at 4 cm sees the room at ~2.5 pixels per 2 cm view step), the
+    light field is aliased across the views at the fine (u, v) scales: the interpolation across
+    the views and the derivatives along x, y fail there and bias the estimate (20 % translation
+    error on the rendered light field of that rig at its own sampling, 2–6 % two levels up;
+    docs/motion.md, "Camera arrays"). The disparity is measured per pair
+    (:func:`polycam.scales.view_disparity`, on the central 3 x 3 views of the coarsest level up
+    to the third) and the pyramid is extended so that ``levels`` levels remain from there. On
+    the paper's set-up (0.15 samples per view step) and HCI *antinous* (0.3–0.6) it changes
+    nothing. ``PairResult.uv_level`` says which level the estimate comes from."""
     pyramid_xy: bool = False
     """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
     iterations: int = 4
@@ -200,6 +213,8 @@ class MotionOptions:
             raise ValueError(f"model_weight_gain must be > 0 and finite, got {self.model_weight_gain}")
         if not 0.0 <= self.extrapolate_views < math.inf:
             raise ValueError(f"extrapolate_views must be >= 0 and finite, got {self.extrapolate_views}")
+        if not self.max_view_disparity > 0.0:
+            raise ValueError(f"max_view_disparity must be > 0 (inf: no limit), got {self.max_view_disparity}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
 

@@ -92,32 +92,41 @@ class _Level:
 
 def _pyramid(L0, L1, W0, W1, grid: LightFieldGrid, opts: MotionOptions, pairs_radius: dict,
              alloc=None) -> list[_Level]:
-    """Levels finest first. (u, v) are halved while ≥ 32 samples remain; (x, y) only with
-    ``pyramid_xy`` and while the halved axis still leaves valid derivative samples.
+    """Levels finest first: ``opts.levels`` of them at most (:func:`_add_level`).
     ``alloc``: as :func:`_downsample`'s (the motion solver lends idle work memory)."""
     levels = [_Level(grid, L0, L1, W0, W1)]
     for _ in range(opts.levels - 1):
-        g = levels[-1].grid
-        axes, kw = [], {}
-        for name, ax_idx in (("v", 3), ("u", 4)):
+        if not _add_level(levels, opts, pairs_radius, alloc):
+            break
+    return levels
+
+
+def _add_level(levels: list[_Level], opts: MotionOptions, pairs_radius: dict, alloc=None) -> bool:
+    """Append the next coarser level to ``levels`` (finest first); False when no axis can be
+    halved. (u, v) are halved while ≥ 32 samples remain; (x, y) only with ``pyramid_xy`` and
+    while the halved axis still leaves valid derivative samples."""
+    g = levels[-1].grid
+    axes, kw = [], {}
+    for name, ax_idx in (("v", 3), ("u", 4)):
+        a = getattr(g, name)
+        if a.count >= 32:
+            axes.append(ax_idx)
+            kw[name] = _half_axis(a)
+    if opts.pyramid_xy:
+        for name, ax_idx in (("y", 1), ("x", 2)):
             a = getattr(g, name)
-            if a.count >= 32:
+            if (a.count - 1) // 2 + 1 >= 2 * pairs_radius[name] + 3:
                 axes.append(ax_idx)
                 kw[name] = _half_axis(a)
-        if opts.pyramid_xy:
-            for name, ax_idx in (("y", 1), ("x", 2)):
-                a = getattr(g, name)
-                if (a.count - 1) // 2 + 1 >= 2 * pairs_radius[name] + 3:
-                    axes.append(ax_idx)
-                    kw[name] = _half_axis(a)
-        if not axes:
-            break
-        ng = replace(g, **kw)
-        prev = levels[-1]
-        def ds(a, axes=tuple(sorted(axes))):
-            return None if a is None else _downsample(a, axes, alloc)
+    if not axes:
+        return False
+    ng = replace(g, **kw)
+    prev = levels[-1]
 
-        same_views = 1 not in axes and 2 not in axes
-        levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1),
-                             prev.views if same_views else {}))
-    return levels
+    def ds(a, axes=tuple(sorted(axes))):
+        return None if a is None else _downsample(a, axes, alloc)
+
+    same_views = 1 not in axes and 2 not in axes
+    levels.append(_Level(ng, ds(prev.L0), ds(prev.L1), ds(prev.W0), ds(prev.W1),
+                         prev.views if same_views else {}))
+    return True

@@ -30,7 +30,8 @@ from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION
                         MOTION_DEPTH_REGRESSOR_GAIN, MOTION_DEPTH_RHO_DENOISED, MOTION_DEPTH_RHO_FLIPS,
                         MOTION_DEPTH_POOL_GAIN, MOTION_DEPTH_RHO_POOLED_RTOL, MOTION_DEPTH_RHO_RTOL, MOTION_WARP_TAPS_GAIN,
                         MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
-                        MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL)
+                        MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL,
+                        MOTION_VIEW_DISPARITY_RTOL)
 
 ROOM_RADIUS = 6.0
 
@@ -802,6 +803,51 @@ def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
         assert len(changes) >= min(2, opts.iterations), changes
         assert all(c >= pm._COARSE_SETTLED for c in changes[1:-1]), changes
     assert any(lev == 0 for lev, _ in seen)
+
+
+def _centre_view_disparity(grid: LightFieldGrid) -> float:
+    """Median over the centre view's rays of ``f Δx / (Z Δu)``: the disparity per view step in
+    (u, v) samples of the room sphere (no unit spheres), Z the depth along the face's z."""
+    face = grid.faces[0]
+    v, u = np.meshgrid(grid.v.values, grid.u.values, indexing="ij")
+    d = np.stack([u, v, np.full_like(u, face.f)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    o = np.array([0.0, 0.0, face.z_pi])
+    b = d @ o
+    s = -b + np.sqrt(b * b - (o @ o - ROOM_RADIUS**2))
+    Z = s * d[..., 2] + face.z_pi
+    return float(np.median(face.f * grid.x.step / (Z * grid.u.step)))
+
+
+def test_views_far_apart_stop_at_a_coarser_level(scene):
+    # 20 cm between views for a room 6 m away: ~2 samples per view step at the frames' own
+    # (u, v) sampling, 1 at the first halving, 0.5 at the second (max_view_disparity 0.75)
+    grid = make_grid(("+z",), views=5, directions=96, spacing=0.2)
+    room = Scene(seed=3)
+    rt = np.array([0.002, -0.003, 0.001, 0.03, -0.02, 0.01])
+    L0, L1 = room.render(grid, np.eye(4)), room.render(grid, T_from_rt(rt))
+    expected = _centre_view_disparity(grid)
+    assert 1.5 < expected < 3.0                  # the set-up is what the test means
+    res = estimate_motion(L0, L1, grid)
+    assert res
+    assert res.view_disparity == pytest.approx(expected, rel=MOTION_VIEW_DISPARITY_RTOL)
+    assert res.uv_level == 2
+    off = estimate_motion(L0, L1, grid, options=MotionOptions(max_view_disparity=math.inf))
+    assert off.uv_level == 0 and math.isnan(off.view_disparity)
+    # the noise estimate is still the frames' own (not the coarse level's)
+    assert res.noise_sigma == off.noise_sigma
+    # views close together: the frames' own sampling, the same estimate as without the rule
+    near = make_grid(("+z",), views=5, directions=96, spacing=0.015)
+    N0, N1 = room.render(near, np.eye(4)), room.render(near, T_from_rt(rt))
+    a = estimate_motion(N0, N1, near)
+    b = estimate_motion(N0, N1, near, options=MotionOptions(max_view_disparity=math.inf))
+    assert a.uv_level == 0 and a.view_disparity < 0.75
+    np.testing.assert_array_equal(a.T_prev_next, b.T_prev_next)
+
+
+def test_max_view_disparity_must_be_positive():
+    with pytest.raises(ValueError, match="max_view_disparity"):
+        MotionOptions(max_view_disparity=0.0)
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 50_000, 50_001])

@@ -109,3 +109,6 @@ RHO_POOL_GAIN_MAX = 0.1        # median share g of a ray's own ρ̂ kept where 4
 RHO_POOL_VAR_REL = 0.25        # |mean reported var(ρ̃) / mean squared error − 1| (measured 0.18: τ²'s own noise is not counted)
 RHO_POOL_KEEP_REL = 0.5        # RMS change of ρ̂ where the views see different depths, in units of its noise
 RHO_POOL_VAR_CORRELATED_REL = 0.5  # the same with noise shared by 3 x 3 neighbouring views (measured 0.32: q underestimates)
+
+# plenoptic sampling: the finest level the motion solver uses (tests/test_motion.py)
+MOTION_VIEW_DISPARITY_RTOL = 0.25  # measured disparity per view step against f Δx / (Z Δu) over the centre view (measured +10 %)
