@@ -3,13 +3,17 @@
 One row per frame pair ``(i, i+1)``::
 
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
-    sigma,noise_sigma,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
+    sigma,noise_sigma,uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,
+    unobservable,reason
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
 the square roots of the covariance diagonal; ``sigma`` the robust residual scale and
 ``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
 :class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not
-given); ``unobservable`` lists direction names separated by ``;``.
+given); ``uv_level`` the (u, v) pyramid level the estimate comes from and ``view_disparity``
+the disparity per view step [samples] that chose it (empty when not measured;
+:class:`~polycam.motion_options.MotionOptions` ``max_view_disparity``); ``unobservable`` lists
+direction names separated by ``;``.
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ __all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report", "write_motion_report"]
 PAIR_REPORT_COLUMNS = (
     "pair", "timestamp_ns", "t_x", "t_y", "t_z", "r_x", "r_y", "r_z",
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
-    "sigma", "noise_sigma", "condition", "inlier_fraction", "num_rays", "iterations", "ok", "unobservable", "reason",
+    "sigma", "noise_sigma", "uv_level", "view_disparity", "condition", "inlier_fraction", "num_rays", "iterations",
+    "ok", "unobservable", "reason",
 )
 
 
@@ -47,7 +52,8 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
         w.writerow([r.index, ts, *(f"{v:.9g}" for v in r.t), *(f"{v:.9g}" for v in r.r),
-                    *(f"{v:.6g}" for v in std), f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", f"{r.condition:.6g}",
+                    *(f"{v:.6g}" for v in std), f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
+                    f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason])
     atomic_write_text(path_csv, buf.getvalue())

@@ -1161,6 +1161,9 @@ def test_pair_report_csv(scene, tmp_path):
     assert rows[0]["pair"] == "0" and rows[0]["timestamp_ns"] == "10" and rows[0]["ok"] == "1"
     assert abs(float(rows[0]["t_x"]) - good.t[0]) < 1e-9
     assert rows[1]["ok"] == "0" and rows[1]["reason"] == bad.reason and rows[1]["timestamp_ns"] == "20"
+    # 5 views 1.5 cm apart see the room at ~0.03 samples per view step: the frames' own level
+    assert rows[0]["uv_level"] == "0" and 0.0 < float(rows[0]["view_disparity"]) < 0.75
+    assert rows[1]["view_disparity"] == ""                       # no texture: not measured
 
 
 def test_trajectory_from_zarr_store_matches_groundtruth(scene, tmp_path):
