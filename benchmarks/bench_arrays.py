@@ -1,0 +1,108 @@
+"""Benchmark: the motion solver on camera-array sessions with and without the plenoptic
+sampling rule (``MotionOptions.max_view_disparity``, docs/motion.md "Camera arrays").
+
+Data: ``polycam synth session`` of each rig (its ``[mock]`` table: the textured room, smooth
+motion of 5 mm and 0.2 deg per frame, its noise), one session per seed, with the true
+camera models. Each session is resampled on the fly (``resample.stream.SessionLightField``,
+the automatic grid with ``--uv-step``, as ``polycam motion SESSION`` does) and solved with the
+default :class:`~polycam.motion_options.MotionOptions` once per threshold (``inf``: always the
+frames' own (u, v) sampling, the solver before session 30).
+
+Prints per session and threshold: the disparity per view step the solver measured (median over
+the pairs), the (u, v) level it stopped at, the median per-pair translation and rotation errors
+relative to the true motion, the ATE and the solve time per pair; then per rig the medians over
+the seeds and the ratio of each threshold's ATE to the last threshold's (measured in the same
+run). Usage::
+
+    .venv/bin/python benchmarks/bench_arrays.py [--rigs webcam3x3 mock5x5] [--seeds 3 11 12 13]
+        [--frames 9] [--thresholds 0.75 inf] [--uv-step 1] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from polycam.evaluate import ate_rmse, pair_errors  # noqa: E402
+from polycam.motion import estimate_trajectory  # noqa: E402
+from polycam.motion_options import MotionOptions  # noqa: E402
+from polycam.rig import load_rig  # noqa: E402
+from polycam.synth import synth_session  # noqa: E402
+from resample.stream import SessionLightField  # noqa: E402
+
+
+def solve(session: Path, threshold: float, uv_step: float) -> dict:
+    """Errors, chosen level and time of the default solver with ``max_view_disparity=threshold``."""
+    lf = SessionLightField(session, uv_step_px=uv_step)
+    t0 = time.perf_counter()
+    traj, results = estimate_trajectory(lf, options=MotionOptions(max_view_disparity=threshold))
+    seconds = time.perf_counter() - t0 - lf.seconds_frames
+    truth = lf.groundtruth()
+    err = pair_errors(traj, truth)
+    disp = [r.view_disparity for r in results if math.isfinite(r.view_disparity)]
+    return {"t": float(np.median(err.t_rel)), "w": float(np.median(err.w_rel)), "ate": ate_rmse(traj, truth),
+            "level": int(np.median([r.uv_level for r in results])),
+            "disparity": float(np.median(disp)) if disp else math.nan,
+            "failed": sum(1 for r in results if not r), "seconds": seconds / max(1, len(results))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rigs", nargs="+", default=["webcam3x3", "mock5x5"], help="rig names under rigs/")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[3, 11, 12, 13])
+    ap.add_argument("--frames", type=int, default=9)
+    ap.add_argument("--thresholds", nargs="+", type=float, default=[0.75, math.inf],
+                    help="max_view_disparity values to compare (the last one is the ratios' baseline)")
+    ap.add_argument("--uv-step", type=float, default=1.0, help="direction spacing of the grid in camera pixels")
+    ap.add_argument("--keep", type=Path, help="render the sessions into this folder and keep them (reused "
+                                               "when already there)")
+    args = ap.parse_args()
+
+    tmp = None
+    root = args.keep
+    if root is None:
+        tmp = tempfile.TemporaryDirectory(prefix="bench_arrays_")
+        root = Path(tmp.name)
+    rows = []
+    print("| rig | seed | max_view_disparity | disparity [samples / view step] | level | translation | rotation "
+          "| ATE [mm] | solve s / pair | failed |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.rigs:
+        rig = load_rig(REPO / "rigs" / f"{name}.toml")
+        for seed in args.seeds:
+            session = root / f"{name}_seed{seed}_f{args.frames}"
+            if not (session / "groundtruth.tum").exists():
+                synth_session(rig, session, frames=args.frames, seed=seed, scene="room", overwrite=True)
+            for thr in args.thresholds:
+                r = solve(session, thr, args.uv_step)
+                rows.append((name, seed, thr, r))
+                print(f"| {name} | {seed} | {thr:g} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
+                      f"| {100 * r['w']:.2f} % | {1e3 * r['ate']:.3f} | {r['seconds']:.2f} | {r['failed']} |",
+                      flush=True)
+    print("\nmedian over the seeds; ATE ratio against max_view_disparity = "
+          f"{args.thresholds[-1]:g} (the same sessions, this run):\n")
+    print("| rig | max_view_disparity | translation | rotation | ATE [mm] | ATE ratio (per seed) |")
+    print("|---|---|---|---|---|---|")
+    for name in args.rigs:
+        base = {s: r["ate"] for n, s, t, r in rows if n == name and t == args.thresholds[-1]}
+        for thr in args.thresholds:
+            sel = [(s, r) for n, s, t, r in rows if n == name and t == thr]
+            ratios = [r["ate"] / base[s] for s, r in sel if base.get(s)]
+            print(f"| {name} | {thr:g} | {100 * np.median([r['t'] for _, r in sel]):.2f} % "
+                  f"| {100 * np.median([r['w'] for _, r in sel]):.2f} % | {1e3 * np.median([r['ate'] for _, r in sel]):.3f} "
+                  f"| {np.median(ratios):.2f} ({', '.join(f'{q:.2f}' for q in ratios)}) |")
+    if tmp is not None:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()
