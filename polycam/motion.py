@@ -1054,7 +1054,8 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     stereo depth, the largest over the faces) on the central 3 x 3 views of the coarsest level
     up to the third (cheap: ~1 ms on 9 x 9 x 32 x 32, and coarse levels alias least), scaled by
     that level's (u, v) step over the (x, y) step relative to the finest's. Needs 3 views along
-    x and y."""
+    x and y. A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
+    view step: the search stops before it."""
     thr = opts.max_view_disparity
     g0 = levels[0].grid
     if not math.isfinite(thr) or g0.x.count < 3 or g0.y.count < 3:
@@ -1079,11 +1080,11 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
         return 0, math.nan
     d = float(np.nanmax(d_faces)) / per_view(g)          # finest level's samples per its view step
     k = 0
-    while True:
-        if d * per_view(levels[k].grid) <= thr:
-            break
+    while d * per_view(levels[k].grid) > thr:
         if k + 1 >= len(levels) and not _add_level(levels, opts, radius, _tail_array):
             break
+        if per_view(levels[k + 1].grid) >= per_view(levels[k].grid):
+            break                 # (x, y) halved with (u, v) (pyramid_xy): no nearer the threshold
         k += 1
     while len(levels) < k + opts.levels and _add_level(levels, opts, radius, _tail_array):
         pass

@@ -843,6 +843,13 @@ def test_views_far_apart_stop_at_a_coarser_level(scene):
     b = estimate_motion(N0, N1, near, options=MotionOptions(max_view_disparity=math.inf))
     assert a.uv_level == 0 and a.view_disparity < 0.75
     np.testing.assert_array_equal(a.T_prev_next, b.T_prev_next)
+    # with pyramid_xy a coarser level halves the views too: no nearer the threshold, so none is
+    # skipped (9 views: (x, y) can be halved)
+    wide = make_grid(("+z",), views=9, directions=96, spacing=0.1)
+    X0, X1 = room.render(wide, np.eye(4)), room.render(wide, T_from_rt(rt))
+    xy = estimate_motion(X0, X1, wide, options=MotionOptions(pyramid_xy=True))
+    assert xy.uv_level == 0 and xy.view_disparity > 0.75
+    assert estimate_motion(X0, X1, wide).uv_level == 1
 
 
 def test_max_view_disparity_must_be_positive():
