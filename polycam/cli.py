@@ -150,6 +150,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
     noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)))
     if noise:
         print(noise)
+    levels = _level_line(results)
+    if levels:
+        print(levels)
     truth = store.groundtruth()
     if truth is not None:
         import numpy as np
@@ -184,6 +187,20 @@ def _noise_line(results, preset: str, confidences: bool = False) -> str:
         line += ("; with a grey level or more, --preset noisy comes closer to the noise bound "
                  "at about twice the time (docs/motion.md, \"Noise\")")
     return line
+
+
+def _level_line(results) -> str:
+    """When the views were too far apart for the scene in some pairs (``PairResult.uv_level`` >
+    0, ``MotionOptions.max_view_disparity``): the median disparity per view step and the (u, v)
+    levels used; '' otherwise."""
+    coarse = [r for r in results if r.uv_level > 0]
+    if not coarse:
+        return ""
+    disp = statistics.median(r.view_disparity for r in coarse)
+    levels = sorted({r.uv_level for r in coarse})
+    return (f"  views far apart for the scene ({disp:.2f} samples per view step, median): "
+            f"{len(coarse)} of {len(results)} pairs solved at (u, v) level {'/'.join(map(str, levels))} "
+            "(--option max_view_disparity=inf forces the finest; docs/motion.md, \"Camera arrays\")")
 
 
 def cmd_info(args: argparse.Namespace) -> int:

@@ -193,6 +193,19 @@ def test_motion_points_to_the_noise_options_on_noisy_frames():
     assert _noise_line([SimpleNamespace(noise_sigma=float("nan"))], "default") == ""
 
 
+def test_level_line_names_the_coarse_levels():
+    from types import SimpleNamespace
+
+    from polycam.cli import _level_line
+
+    fine = SimpleNamespace(uv_level=0, view_disparity=0.4)
+    assert _level_line([fine, fine]) == ""
+    line = _level_line([fine, SimpleNamespace(uv_level=2, view_disparity=2.5),
+                        SimpleNamespace(uv_level=3, view_disparity=3.5)])
+    assert "3.00 samples per view step" in line and "2 of 3 pairs" in line and "level 2/3" in line
+    assert "max_view_disparity=inf" in line
+
+
 @pytest.fixture(scope="module")
 def two_frame_lightfield(tmp_path_factory) -> Path:
     return _small_lightfield(tmp_path_factory.mktemp("lf2"), 2)
