@@ -125,7 +125,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
 
     opts = solver_options(args)                       # before anything is read or written
     src = Path(args.source)
-    store = open_source(src, calib=args.calib, uv_step=args.uv_step)  # validates before the solver import
+    store = open_source(src, calib=args.calib, uv_step=args.uv_step,   # validates before the solver import
+                        xy_oversample=args.xy_oversample)
     truth_name = src / "groundtruth.tum"
     if hasattr(store, "resampler"):
         F, Ny, Nx, Nv, Nu = store.grid.shape

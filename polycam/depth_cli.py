@@ -12,6 +12,7 @@ from pathlib import Path
 
 from .cliargs import nonneg_int as _nonneg_int
 from .cliargs import positive_float as _positive_float
+from .cliargs import positive_int as _positive_int
 from .motion_options import PRESETS, options_from_strings
 
 __all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
@@ -22,12 +23,16 @@ TIMESTAMP_TOLERANCE_NS = 1_000_000
 
 
 def add_source_options(p: argparse.ArgumentParser) -> None:
-    """``--calib`` and ``--uv-step``: how a SESSION source is resampled on the fly (see
-    :func:`open_source`); shared by the verbs that read a store or a session."""
+    """``--calib``, ``--uv-step`` and ``--xy-oversample``: how a SESSION source is resampled on
+    the fly (see :func:`open_source`); shared by the verbs that read a store or a session."""
     p.add_argument("--calib", metavar="CALIB_DIR",
                    help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
     p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
                    help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
+    p.add_argument("--xy-oversample", type=_positive_int, default=2, metavar="N",
+                   help="sessions: viewpoints of the automatic grid per camera spacing (default 2: one "
+                        "between neighbouring cameras; more for arrays whose cameras are far apart for "
+                        "the scene, docs/motion.md \"Camera arrays\")")
 
 
 def add_solver_options(p: argparse.ArgumentParser) -> None:
@@ -77,9 +82,11 @@ def add_parsers(sub) -> None:
     p.set_defaults(func=cmd_depth)
 
 
-def open_source(source: str | Path, *, calib: str | None = None, uv_step: float = 1.0):
-    """A light-field store, or a session resampled on the fly (resample.stream.SessionLightField):
-    anything with ``grid``, ``timestamps_ns``, ``frame(i)``, ``weights(i)``, ``groundtruth()``."""
+def open_source(source: str | Path, *, calib: str | None = None, uv_step: float = 1.0, xy_oversample: int = 2):
+    """A light-field store, or a session resampled on the fly (resample.stream.SessionLightField,
+    on the automatic grid of ``uv_step`` camera pixels and ``xy_oversample`` viewpoints per camera
+    spacing): anything with ``grid``, ``timestamps_ns``, ``frame(i)``, ``weights(i)``,
+    ``groundtruth()``."""
     from .errors import InputError
 
     src = Path(source)
@@ -88,7 +95,7 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
             raise InputError(f"{calib}: no such calibration folder")
         from resample.stream import SessionLightField   # the CLI layer may import stages
 
-        return SessionLightField(src, calib_dir=calib, uv_step_px=uv_step)
+        return SessionLightField(src, calib_dir=calib, uv_step_px=uv_step, xy_oversample=xy_oversample)
     if calib is not None:
         raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
     if not src.exists():
@@ -129,7 +136,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
 
     opts = solver_options(args)                       # before anything is read or written
     src = Path(args.source)
-    store = open_source(src, calib=args.calib, uv_step=args.uv_step)
+    store = open_source(src, calib=args.calib, uv_step=args.uv_step, xy_oversample=args.xy_oversample)
     n = len(store.timestamps_ns)
     if n < 2:
         raise InputError(f"{src}: has {n} frame(s); depth needs a frame pair (at least 2)")

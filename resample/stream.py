@@ -34,14 +34,14 @@ class SessionLightField:
     (default ``SESSION/calib``), frame by frame.
 
     grid: the two-plane grid (default :func:`resample.grid.auto_grid` of the models
-        with ``uv_step_px``); options: :class:`resample.resampler.ResampleOptions`;
+        with ``uv_step_px`` and ``xy_oversample``); options: :class:`resample.resampler.ResampleOptions`;
         models: camera id → mrcal cameramodel, overriding ``calib_dir``.
     Raises InputError for a session without frames or without a calibration.
     """
 
     def __init__(self, session_path: str | os.PathLike, *, calib_dir: str | os.PathLike | None = None,
-                 grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, options=None,
-                 models: dict | None = None):
+                 grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, xy_oversample: int = 2,
+                 options=None, models: dict | None = None):
         from polycam.session import open_session
 
         from .grid import auto_grid
@@ -56,7 +56,8 @@ class SessionLightField:
         if missing:
             log.warning("%s: no calibration for camera(s) %s; their images are ignored",
                         self.session.path, ", ".join(missing))
-        self.grid = grid if grid is not None else auto_grid(self.models, uv_step_px=uv_step_px)
+        self.grid = grid if grid is not None else auto_grid(self.models, uv_step_px=uv_step_px,
+                                                            xy_oversample=xy_oversample)
         self.channels = _channels_of(self.session)
         t0 = time.perf_counter()
         self.resampler = Resampler(self.models, self.grid, channels=self.channels, options=options)

@@ -64,6 +64,18 @@ def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys
     assert np.median(err.w_rel) < E2E_SMALL_RIG_MOTION_REL
 
 
+def test_motion_from_session_with_more_viewpoints(session, tmp_path, capsys):
+    # --xy-oversample 3: two views between neighbouring cameras, 7 x 7 for the 3 x 3 rig
+    assert main(["motion", str(session), "--out", str(tmp_path / "dense.tum"), "--xy-oversample", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "7x7 views" in out and "against" in out
+    assert len(read_tum(tmp_path / "dense.tum")) == 3
+    with pytest.raises(SystemExit) as e:                       # bad usage: argparse, exit 2
+        main(["motion", str(session), "--out", str(tmp_path / "t.tum"), "--xy-oversample", "0"])
+    assert e.value.code == 2
+    assert not (tmp_path / "t.tum").exists()
+
+
 def test_motion_on_a_session_without_calibration_names_it(session, tmp_path, capsys):
     bare = tmp_path / "bare"
     shutil.copytree(session, bare)
