@@ -146,7 +146,7 @@ from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _
                   _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
-from .lightfield import LightFieldGrid
+from .lightfield import Axis, LightFieldGrid
 from .motion_options import MotionOptions
 from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
                              min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
@@ -1070,8 +1070,7 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     lev = levels[m]
     g = lev.grid
     cy, cx = g.y.count // 2, g.x.count // 2
-    sub = replace(g, y=replace(g.y, min=g.y.min + (cy - 1) * g.y.step, max=g.y.min + (cy + 1) * g.y.step, count=3),
-                  x=replace(g.x, min=g.x.min + (cx - 1) * g.x.step, max=g.x.min + (cx + 1) * g.x.step, count=3))
+    sub = replace(g, y=Axis.from_values(g.y.values[cy - 1:cy + 2]), x=Axis.from_values(g.x.values[cx - 1:cx + 2]))
     views = (slice(None), slice(cy - 1, cy + 2), slice(cx - 1, cx + 2))
     L = lev.L0[views]
     W = None if lev.W0 is None else lev.W0[views]
