@@ -44,7 +44,11 @@ keeps, with plain or whitened least squares, against the measured and the Eq. 6 
 estimate ρ̂ (:class:`OracleDepth`): the same rays get Eq. 6 regressors, ``ρ L_u, ρ L_v`` with
 the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
 ``--supersample`` sets the rays the renderer averages per sample (k x k; default
-:data:`SUPERSAMPLE`).
+:data:`SUPERSAMPLE`); ``--quadrature`` adds the noise-free error with and without the robust and
+model-validity weights on the frames of k x k and 2k x 2k rays (:func:`quadrature_table`): model
+error of the frames themselves, which the weights remove without noise but let in under it, shows
+as an unweighted error that falls with the rays per sample (sharper lenses need more rays:
+docs/motion.md, "Noise against the Cramér–Rao bound").
 ``--antithetic`` draws the noise in pairs n, −n (:func:`errors`): the same kind of draws, but the
 draws' mean, the bias under noise, is measured several times more precisely. The ``90 %``
 columns give each ratio's percentile bootstrap interval over the draws (antithetic pairs
@@ -580,6 +584,25 @@ def variant_table(name: str, grid, L0, L1, M, sigmas, draws: int) -> None:
 # ---------------------------------------------------------------------------- linear probe
 
 
+def quadrature_table(name: str, frames: list, opts: MotionOptions) -> None:
+    """The frames' own model error against the renderer's quadrature: the noise-free error of the
+    solver with ``opts`` and with the same options but no robust or model-validity weights, on the
+    frame pairs ``frames`` ((rays per sample k, grid, L0, L1, M) each). Under noise the weights no
+    longer single out model error smaller than the noise (docs/motion_log.md, Session 22), so the
+    unweighted row is the bias that noise lets in; where it falls as k grows, it is the
+    renderer's (k x k rays approximate the pixel's integral), not the solver's, and a camera,
+    which integrates exactly, does not have it."""
+    bare = dataclasses.replace(opts, robust="none", model_weight=False)
+    print(f"\n## {name}: noise-free error against the rays per sample\n")
+    print("| rays per sample | options | t [mm] | error t (x, y, z) [mm] | ω [µrad] |")
+    print("|---|---|---|---|---|")
+    for k, grid, L0, L1, M in frames:
+        for label, o in (("as given", opts), ("no robust or model weights", bare)):
+            e = errors(L0, L1, grid, M, 0.0, 1, o, 0)[0]
+            print(f"| {k} x {k} | {label} | {1e3 * np.linalg.norm(e[:3]):.4f} | "
+                  f"{', '.join(f'{1e3 * q:+.4f}' for q in e[:3])} | {1e6 * np.linalg.norm(e[3:]):.2f} |", flush=True)
+
+
 def _true_motion_mask(grid, ok: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) float64 0/1: rays whose derivative filters see only samples that the
     warp by the true motion kept inside the grid (``ok``, eroded by the filter radii: 1 in x, y,
@@ -722,6 +745,10 @@ def main() -> None:
                          "several: their draws pooled (--draws each), with each set's ratio beside")
     ap.add_argument("--depth-regressors", choices=("on", "off"), default=None,
                     help="the main table with MotionOptions(depth_regressors=True / False) (else the defaults)")
+    ap.add_argument("--quadrature", action="store_true",
+                    help="also the noise-free error with and without the robust and model weights on frames "
+                         "rendered with k x k and 2k x 2k rays per sample (the frames' own model error; the "
+                         "--high-noise options if given, else the main table's)")
     ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                     help="a MotionOptions field for the main and the --high-noise table, on top of their own "
                          "options (as polycam motion --option; repeatable)")
@@ -765,6 +792,10 @@ def main() -> None:
             if args.high_noise:
                 noise_table(f"{label}, D = {args.distance:g} m, {high_name}", grid, L0, L1, M,
                             sigmas, draws, high_opts, not args.no_predict, args.antithetic, tuple(args.seed))
+        if args.quadrature:
+            fine = setup(faces, args.distance, 2 * ss, 64, args.blur, args.motion_scale, False, args.scene)[:4]
+            quadrature_table(f"{label}, D = {args.distance:g} m, {high_name if args.high_noise else main_name}",
+                             [(ss, grid, L0, L1, M), (2 * ss, *fine)], high_opts if args.high_noise else main_opts)
         if args.probe or args.probe_only:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.probe_sigmas), draws)
         if args.variants or args.variants_only:
