@@ -581,9 +581,6 @@ def variant_table(name: str, grid, L0, L1, M, sigmas, draws: int) -> None:
         print(f"| {vname} | " + " | ".join(cells) + " |", flush=True)
 
 
-# ---------------------------------------------------------------------------- linear probe
-
-
 def quadrature_table(name: str, frames: list, opts: MotionOptions) -> None:
     """The frames' own model error against the renderer's quadrature: the noise-free error of the
     solver with ``opts`` and with the same options but no robust or model-validity weights, on the
@@ -601,6 +598,9 @@ def quadrature_table(name: str, frames: list, opts: MotionOptions) -> None:
             e = errors(L0, L1, grid, M, 0.0, 1, o, 0)[0]
             print(f"| {k} x {k} | {label} | {1e3 * np.linalg.norm(e[:3]):.4f} | "
                   f"{', '.join(f'{1e3 * q:+.4f}' for q in e[:3])} | {1e6 * np.linalg.norm(e[3:]):.2f} |", flush=True)
+
+
+# ---------------------------------------------------------------------------- linear probe
 
 
 def _true_motion_mask(grid, ok: np.ndarray, valid: np.ndarray) -> np.ndarray:
