@@ -59,7 +59,7 @@ from .lightfield import LightFieldGrid
 
 __all__ = ["warp_lightfield", "warp_lightfield_reference"]
 
-_UV_TAPS_MAX = 10
+_UV_TAPS_MAX = 16
 """Most Lagrange points along u and v (``MotionOptions.uv_taps``): the stencils' length (fewer
 taps are padded with zero weights, which the blends skip)."""
 
@@ -393,7 +393,7 @@ def _uv_stencils(grid: LightFieldGrid, face, R: np.ndarray, taps: int, weights: 
 def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes, tv, tu):
     """Ur[u, m] = Σ_q Σ_r wv[u, q] wu[u, r] srcT[iv[u, q], iu[u, r], m] (srcT float32, or int16
     in its channels' units: :func:`_warp_into`): one direction row of
-    the (u, v) part of the warp (up to 10 x 10 taps; stencils (Nu, _UV_TAPS_MAX) of :func:`_uv_stencil_row`),
+    the (u, v) part of the warp (up to 16 x 16 taps; stencils (Nu, _UV_TAPS_MAX) of :func:`_uv_stencil_row`),
     shared by all views. Views (and channels) are the innermost axis m of srcT (Nv, Nu, M)
     and Ur (Nu, M), so each tap is one vectorised multiply-add over all view images (M a
     multiple of 16: no scalar remainder). With ``has_lanes`` only the first lanes[u] (Nu,)
@@ -1159,7 +1159,7 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     ``arrays``: (K, F, Ny, Nx, Nv, Nu) stacked fields (e.g. L and W) sharing the
     warp. Returns ``out`` (same dims, float32) with ``out(ρ) = in(T_ray ρ)`` and
     ``ok`` (F, Ny, Nx, Nv, Nu) bool: the moved ray lies inside the grid. Interpolation
-    is linear in (x, y) and ``uv_taps``-point Lagrange (2, 4, 6, 8 or 10) in (u, v). The
+    is linear in (x, y) and ``uv_taps``-point Lagrange (an even number, 2 to 16) in (u, v). The
     moved direction, hence the (u, v) stencil, does not depend on the viewpoint, so
     every view image is first resampled in (u, v), then views are blended.
     ``rho`` (F, Nv, Nu): the disparity ρ = f / Z per direction (u per unit of x; NaN:

@@ -92,7 +92,7 @@ MOTION_WHITEN_GLS_RTOL = 1e-6   # whitened (banded Cholesky per axis) normal sum
 MOTION_NOISE_WEIGHT_KEEP = 0.97  # share of pure-noise rays the noise-aware discontinuity weight keeps above 0.5 (99% quantile subtracted)
 MOTION_WHITEN_VS_PLAIN = 2.0    # |error| of the whitened (GLS) estimate / the plain one, 7x7-view six-face test under noise (one draw)
 MOTION_DEPTH_REGRESSOR_GAIN = 0.6  # RMS error of the Eq. 6 regressor ρ̂ L_u / that of the measured L_x vs the noise-free L_x (σ = 0.02, one face; measured 0.44)
-MOTION_WARP_TAPS_GAIN = 0.5     # max warp error of a band-limited pattern with uv_taps n + 2 / with n (measured 0.38 for 4 → 6, 0.40 for 6 → 8, 0.41 for 8 → 10)
+MOTION_WARP_TAPS_GAIN = 0.5     # max warp error of a band-limited pattern with uv_taps n + 2 / with n (measured 0.37 for 4 → 6 rising to 0.43 for 14 → 16)
 MOTION_DEPTH_RHO_DENOISED = 0.03  # |mean ρ̂ / ρ − 1| with L_u noise of a quarter of its signal energy, ρ̂ denominator less the noise (measured +0.006; uncorrected −0.21)
 MOTION_DEPTH_RHO_RTOL = 1e-5     # ρ̂ L_u of the Eq. 6 kernel (depth_rho) vs the numpy depth_regularise, relative to max |L_x| (float32 sums; measured 3e-7)
 MOTION_DEPTH_POOL_GAIN = 0.9     # RMS error of the Eq. 6 regressors with ρ̂ pooled over the views / without (9 x 9 views, noise 0.05; measured 0.81)
