@@ -1053,7 +1053,9 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     d is :func:`polycam.scales.view_disparity` (the median over the rays of the differential-
     stereo depth, the largest over the faces) on the central 3 x 3 views of the coarsest level
     up to the third (cheap: ~1 ms on 9 x 9 x 32 x 32, and coarse levels alias least), scaled by
-    that level's (u, v) step over the (x, y) step relative to the finest's. Needs 3 views along
+    that level's (u, v) step over the (x, y) step relative to the finest's, its rays gated
+    against that level's sensor noise (``noise_var``: rays without texture left out, rays whose
+    views differ by no more than the noise counted as disparity 0). Needs 3 views along
     x and y. A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
     view step: the search stops before it."""
     thr = opts.max_view_disparity
@@ -1074,7 +1076,8 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     views = (slice(None), slice(cy - 1, cy + 2), slice(cx - 1, cx + 2))
     L = lev.L0[views]
     W = None if lev.W0 is None else lev.W0[views]
-    d_faces = view_disparity(L, L, sub, W0=W)
+    # (one frame as both: their mean carries its whole noise, twice that of two frames' mean)
+    d_faces = view_disparity(L, L, sub, W0=W, noise_var=2.0 * _noise_variance(lev))
     if not np.any(np.isfinite(d_faces)):
         return 0, math.nan
     d = float(np.nanmax(d_faces)) / per_view(g)          # finest level's samples per its view step

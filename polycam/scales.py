@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .depth import (DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, grey_frame,
-                    window_sum)
+from .depth import (DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, equation_noise,
+                    grey_frame, window_sum)
 from .derivatives import correlate_axis, derivative_noise, plenoptic_derivatives
 from .lightfield import LightFieldGrid
 from .motion_weights import frame_noise_variance
@@ -60,6 +60,8 @@ __all__ = [
     "ScaleSelectedMotion",
     "estimate_motion_scale_selected",
     "view_disparity",
+    "VIEW_DISPARITY_TEXTURE_GATE",
+    "VIEW_DISPARITY_STILL_GATE",
     "ScaleTracker",
     "depth_scale_selected",
 ]
@@ -452,32 +454,76 @@ def estimate_motion_scale_selected(L0: np.ndarray, L1: np.ndarray, grid: LightFi
     return ScaleSelectedMotion(result=res, selection=sel, history=history)
 
 
+VIEW_DISPARITY_TEXTURE_GATE: float = 16.0
+""":func:`view_disparity` with a noise variance: a ray's windowed energy of L_u (L_v) must exceed
+this many times the energy its noise alone would give (an amplitude 4x the noise's), or the ray
+has too little texture to measure and is left out. Without the gates, on frames with 16-32 grey
+levels of noise, the noise's own L_x / L_u ratios made the paper's 8 m sphere scene (0.05
+samples per view step) measure 1.3-1.9 (session 32)."""
+
+VIEW_DISPARITY_STILL_GATE: float = 4.0
+""":func:`view_disparity` with a noise variance: a textured ray (:data:`VIEW_DISPARITY_TEXTURE_GATE`)
+whose windowed energy of L_x (L_y) is at most this many times its noise's, i.e. whose views differ
+by no more than the noise, counts as disparity 0 (its λ as infinite)."""
+
+
 def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: np.ndarray | None = None,
-                   window: int = 4) -> np.ndarray:
+                   window: int = 4, noise_var: float = 0.0) -> np.ndarray:
     """(F,) median disparity per view step of each face, in (u, v) samples.
 
     From the differential-stereo depth estimates of Eq. 6 at the finest scale (no motion
     needed): λ = Z / f per ray (windowed least squares of ``L_u = λ L_x``, ``L_v = λ L_y``);
     a point moves by ``Δx / λ`` in u from one viewpoint to the next. The median runs over
     the rays with a positive λ (and W0 > 0.5 when given); NaN for a face without any.
+    ``noise_var``: the sensor-noise variance per sample of each frame (independent in L0 and
+    L1; :func:`~polycam.motion_weights.frame_noise_variance`); when positive, the rays are
+    gated against the noise's energies (:data:`VIEW_DISPARITY_TEXTURE_GATE`,
+    :data:`VIEW_DISPARITY_STILL_GATE`).
     """
     L0 = grey_frame(L0)
     L1 = grey_frame(L1)
     der, ok = scale_derivatives(L0, L1, grid, Scale())
     if W0 is not None:
         ok = ok & (np.asarray(W0) > 0.5)
-    est = depth_estimates(der, grid, None, ok=ok, window=window)
     out = np.full(grid.shape[0], np.nan)
     steps = {"stereo_x": grid.x.step / grid.u.step, "stereo_y": grid.y.step / grid.v.step}
+    if noise_var > 0.0:
+        lams = _gated_stereo_lambda(der, grid, ok, window, noise_var)
+    else:
+        est = depth_estimates(der, grid, None, ok=ok, window=window)
+        lams = {name: np.where(np.isfinite(est.lam[name]), est.lam[name], np.nan) for name in steps}
     for k in range(grid.shape[0]):
         d = []
         for name, ratio in steps.items():
-            lam = est.lam[name][k]
-            lam = lam[np.isfinite(lam) & (lam > 0)]
+            lam = lams[name][k]
+            lam = lam[~np.isnan(lam) & (lam > 0)]
             if lam.size:
                 d.append(ratio / float(np.median(lam)))
         if d:
             out[k] = max(d)
+    return out
+
+
+def _gated_stereo_lambda(der, grid: LightFieldGrid, ok: np.ndarray, window: int, noise_var: float) -> dict:
+    """Name → λ (F, Ny, Nx, Nv, Nu) float32 of the two stereo equations (:func:`depth_estimates`)
+    gated against the noise: NaN where the window's energy of b (L_u, L_v) is within
+    :data:`VIEW_DISPARITY_TEXTURE_GATE` of the noise's, else inf where that of a (L_x, L_y) is
+    within :data:`VIEW_DISPARITY_STILL_GATE`."""
+    noise = equation_noise(grid, derivative_noise(noise_var, grid, DEPTH_FILTERS, smoothing_taps(Scale(), grid)),
+                           equations=("stereo_x", "stereo_y"))
+    valid = ok.astype(np.float32)
+    n = window_sum(valid, window)
+    out = {}
+    for name, (a, b) in depth_equations(der, grid, None).items():
+        va, _, vb = noise[name]
+        Saa = window_sum(a * a * valid, window)
+        Sab = window_sum(a * b * valid, window)
+        Sbb = window_sum(b * b * valid, window)
+        textured = ok & (Sbb > VIEW_DISPARITY_TEXTURE_GATE * vb * n)
+        still = Saa <= VIEW_DISPARITY_STILL_GATE * va * n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.where(still, np.inf, Sab / Saa)
+        out[name] = np.where(textured, lam, np.nan).astype(np.float32)
     return out
 
 

@@ -27,7 +27,7 @@ from polycam.scales import (MOTION_UV_SCALES, Scale, ScaleTracker, depth_estimat
                             estimate_motion_scale_selected, scale_derivatives, select_scales, view_disparity)
 
 from tolerances import (DEPTH_NEAR_SELECTED_REL, DEPTH_PLANE_MEDIAN_REL, DEPTH_PNG_ATOL_M, DEPTH_PLY_ATOL,
-                        DEPTH_SPHERES_MEDIAN_REL, VIEW_DISPARITY_REL)
+                        DEPTH_SPHERES_MEDIAN_REL, VIEW_DISPARITY_NOISY_REL, VIEW_DISPARITY_REL)
 
 MOTION = T_from_rt(np.array([0.0017, 0.0012, 0.0012, 0.002, -0.0015, 0.001]))   # T_rig0_rig1 from rt = (r [rad], t [m])
 
@@ -201,6 +201,28 @@ def test_view_disparity_of_a_plane(rng, Z):
     expected = g.x.step * g.faces[0].f / (Z * g.u.step)
     assert d.shape == (1,)
     assert abs(d[0] / expected - 1) < VIEW_DISPARITY_REL
+
+
+@pytest.mark.parametrize("Z,freqs,expect", [(0.6, [100.0, 150.0], "measured"), (6.0, [3.0, 5.0], "still"),
+                                             (0.3, [3.0, 5.0], "textureless")])
+def test_view_disparity_on_noisy_frames(rng, Z, freqs, expect):
+    """With the noise variance, the rays are gated against the noise: 32 grey levels leave a
+    textured plane's disparity measured, a far plane's at 0 (its views differ by less than the
+    noise; without the gate the noise's own L_x / L_u ratios measure ~16x the truth), and a plane
+    whose texture is below the noise (its (u, v) gradients a tenth of the noise's) unmeasured (NaN)."""
+    g = plane_grid()
+    W = waves(rng, freqs, amp=0.01 if expect == "textureless" else 0.1)
+    sigma = 32.0 / 255.0 if expect != "textureless" else 4.0 / 255.0
+    L0, L1 = (render_plane(g, Z, W, T) + rng.normal(0.0, sigma, (1,) + g.shape[1:]) for T in (np.eye(4), MOTION))
+    expected = g.x.step * g.faces[0].f / (Z * g.u.step)
+    d = view_disparity(L0, L1, g, noise_var=sigma**2)
+    if expect == "measured":
+        assert abs(d[0] / expected - 1) < VIEW_DISPARITY_NOISY_REL
+    elif expect == "still":
+        assert d[0] < 0.5 * expected
+        assert view_disparity(L0, L1, g)[0] > 4 * expected          # the ungated estimate
+    else:
+        assert np.isnan(d[0])
 
 
 def test_scale_selection_cap_leaves_only_the_allowed_candidates(rng):
