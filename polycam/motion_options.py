@@ -40,10 +40,11 @@ class MotionOptions:
     error on the rendered light field of that rig at its own sampling, 2–6 % two levels up;
     docs/motion.md, "Camera arrays"). The disparity is measured per pair
     (:func:`polycam.scales.view_disparity`, on the central 3 x 3 views of the coarsest level up
-    to the third, its rays gated against that level's sensor noise) and the pyramid is extended so that ``levels`` levels remain from there. On
-    the paper's set-up (0.15 samples per view step) and HCI *antinous* (0.3–0.6) it changes
-    nothing. Levels that halve (x, y) too (``pyramid_xy``) do not lower the disparity per view
-    step, so the search stops before them. ``PairResult.uv_level`` says which level the
+    to the third, its rays gated against that level's sensor noise) and the pyramid is
+    extended so that ``levels`` levels remain from there. On the paper's set-up (0.15 samples
+    per view step) and HCI *antinous* (0.3–0.6) it changes nothing. Levels that halve (x, y)
+    too (``pyramid_xy``) do not lower the disparity per view step, so the search stops before
+    them. ``PairResult.uv_level`` says which level the
     estimate comes from."""
     pyramid_xy: bool = False
     """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
