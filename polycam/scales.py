@@ -487,10 +487,10 @@ def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: 
         ok = ok & (np.asarray(W0) > 0.5)
     out = np.full(grid.shape[0], np.nan)
     steps = {"stereo_x": grid.x.step / grid.u.step, "stereo_y": grid.y.step / grid.v.step}
+    est = depth_estimates(der, grid, None, ok=ok, window=window)
     if noise_var > 0.0:
-        lams = _gated_stereo_lambda(der, grid, ok, window, noise_var)
+        lams = _gated_stereo_lambda(est, der, grid, window, noise_var)
     else:
-        est = depth_estimates(der, grid, None, ok=ok, window=window)
         lams = {name: np.where(np.isfinite(est.lam[name]), est.lam[name], np.nan) for name in steps}
     for k in range(grid.shape[0]):
         d = []
@@ -504,26 +504,21 @@ def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: 
     return out
 
 
-def _gated_stereo_lambda(der, grid: LightFieldGrid, ok: np.ndarray, window: int, noise_var: float) -> dict:
-    """Name → λ (F, Ny, Nx, Nv, Nu) float32 of the two stereo equations (:func:`depth_estimates`)
+def _gated_stereo_lambda(est: DepthEstimates, der, grid: LightFieldGrid, window: int, noise_var: float) -> dict:
+    """Name → the two stereo equations' λ of ``est`` (:func:`depth_estimates` of ``der``)
     gated against the noise: NaN where the window's energy of b (L_u, L_v) is within
-    :data:`VIEW_DISPARITY_TEXTURE_GATE` of the noise's, else inf where that of a (L_x, L_y) is
-    within :data:`VIEW_DISPARITY_STILL_GATE`."""
+    :data:`VIEW_DISPARITY_TEXTURE_GATE` of the noise's, else inf where that of a (L_x, L_y;
+    ``est.info``) is within :data:`VIEW_DISPARITY_STILL_GATE`."""
     noise = equation_noise(grid, derivative_noise(noise_var, grid, DEPTH_FILTERS, smoothing_taps(Scale(), grid)),
                            equations=("stereo_x", "stereo_y"))
-    valid = ok.astype(np.float32)
+    valid = est.ok.astype(np.float32)
     n = window_sum(valid, window)
     out = {}
-    for name, (a, b) in depth_equations(der, grid, None).items():
+    for name, (_, b) in depth_equations(der, grid, None).items():
         va, _, vb = noise[name]
-        Saa = window_sum(a * a * valid, window)
-        Sab = window_sum(a * b * valid, window)
-        Sbb = window_sum(b * b * valid, window)
-        textured = ok & (Sbb > VIEW_DISPARITY_TEXTURE_GATE * vb * n)
-        still = Saa <= VIEW_DISPARITY_STILL_GATE * va * n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.where(still, np.inf, Sab / Saa)
-        out[name] = np.where(textured, lam, np.nan).astype(np.float32)
+        textured = est.ok & (window_sum(b * b * valid, window) > VIEW_DISPARITY_TEXTURE_GATE * vb * n)
+        still = est.info[name] <= VIEW_DISPARITY_STILL_GATE * va * n
+        out[name] = np.where(textured, np.where(still, np.float32(np.inf), est.lam[name]), np.float32(np.nan))
     return out
 
 
