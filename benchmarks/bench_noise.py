@@ -12,9 +12,9 @@ sample (float, not quantised); several seeded draws per level, always the same m
 The high levels are where the noise-free error (model bias, the σ = 0 row) is small
 next to the bound; ``--high-noise`` adds the same table for the noise options measured
 best together (``smooth_c=0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8,
-uv_taps=10, depth_pool_views=True``: no discontinuity weight, errors-in-variables steps,
+uv_taps=14, depth_pool_views=True``: no discontinuity weight, errors-in-variables steps,
 whitened re-solves, the model-validity weight with the model error weighed 8x its energy,
-10-point Lagrange in the warp's (u, v), the Eq. 6 regressors' ρ̂ pooled over the views),
+14-point Lagrange in the warp's (u, v), the Eq. 6 regressors' ρ̂ pooled over the views),
 measured in the same run; ``--option KEY=VALUE`` changes a solver option in both tables.
 
 Table per level: RMS over the draws of the vector error |t̂ − t| and |ω̂ − ω| (nothing
@@ -538,7 +538,9 @@ levels 1.98 / 1.83 against 2.53 / 2.19; ``uv_taps=8`` since session 23: at 8 m t
 rotation bias 1.78 → 0.39 µrad, ω at 1 grey level 1.64 → 1.35x its bound; ``depth_pool_views`` since
 session 24: ρ̂ pooled over the views, at 32 grey levels the translation 1.74 → 1.36x at 8 m, 1.67 →
 1.32x at 6 m; ``uv_taps=10`` since session 26: at the paper's full motion (8 m) the noise-free
-rotation bias 2.6 → 1.1 µrad, ω at 1 grey level 1.62 → 1.23x)."""
+rotation bias 2.6 → 1.1 µrad, ω at 1 grey level 1.62 → 1.23x; ``uv_taps=14`` since session 33: through
+sharper lenses on 16 x 16-ray frames at 8 m and 1 grey level, ω 1.45 → 1.29x (PSF 0.5) and 1.79 → 1.42x
+(PSF 0.3), PSF 0.8 unchanged)."""
 
 VARIANTS = {
     "default": MotionOptions(),
@@ -731,8 +733,7 @@ def main() -> None:
     ap.add_argument("--probe-sigmas", type=float, nargs="+", default=[4.0, 16.0], help="noise levels of --probe")
     ap.add_argument("--sigmas", type=float, nargs="+", default=None, help="noise levels [grey levels]")
     ap.add_argument("--high-noise", action="store_true",
-                    help="also the table for the noise options smooth_c=0, eiv=True, whiten=on, model_weight=True, "
-                         "model_weight_gain=8, uv_taps=10, depth_pool_views=True (HIGH_NOISE)")
+                    help=f"also the table for the noise options {describe_options(HIGH_NOISE)} (HIGH_NOISE)")
     ap.add_argument("--oracle-depth", action="store_true",
                     help="diagnostic: the main table with the true disparity in the Eq. 6 regressors instead of "
                          "the solver's estimate")

@@ -34,7 +34,7 @@ def test_presets_and_options_on_top_of_them():
     """``--preset noisy`` is the noise options of docs/motion.md; ``--option`` items override it."""
     assert PRESETS == {"default": MotionOptions(), "noisy": NOISY}
     assert changed_options(NOISY) == {"smooth_c": 0.0, "eiv": True, "model_weight": True, "model_weight_gain": 8.0,
-                                      "depth_pool_views": True, "whiten": "on", "uv_taps": 10}
+                                      "depth_pool_views": True, "whiten": "on", "uv_taps": 14}
     assert options_from_strings(["uv_taps=6", "levels=2"], NOISY) == replace(NOISY, uv_taps=6, levels=2)
 
 
