@@ -111,10 +111,11 @@ class MotionOptions:
     whose edge dominates its window): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
     levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+15 ms wall per
-    estimate on 1.33 M rays (docs/motion_log.md). On by default since session 5 (at least as
-    accurate as the measured regressors in every benchmark and test, 4x less translation
-    error on the paper's Fig. 5c scene at 8-16 m); ``False``: Eq. 5 with the measured
-    L_x, L_y everywhere."""
+    estimate on 1.33 M rays (docs/motion_log.md), +30–36 ms with the ``extrapolate_views``
+    it enables (session 33: ρ̂ ~12, the extrapolation ~11, the regressors ~6 ms). On by
+    default since session 5 (at least as accurate as the measured regressors in every
+    benchmark and test, 4x less translation error on the paper's Fig. 5c scene at 8-16 m);
+    ``False``: Eq. 5 with the measured L_x, L_y everywhere."""
     depth_pool_views: bool = False
     """``depth_regressors``: pool each ray's ρ̂ with the other views' at its direction (they see
     nearly the same scene point): shrink it towards their mean by as much as its own noise
