@@ -229,23 +229,24 @@ NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, mo
                       depth_pool_views=True)
 """The noise options: the set measured best together on frames with noise of a grey level or more
 (benchmarks/bench_noise.py's ``--high-noise`` table, docs/motion.md, "Noise"). No discontinuity weight
-(computed from noisy frames it discards rays at random), errors-in-variables steps, whitened re-solves,
-the model-validity weight with gain 8, 14-point (u, v) interpolation and ρ̂ pooled over the views: on
-the paper's sphere scene through a blurring lens (``bench_noise.py --blur 0.8``), at 4–12 m and for the
-paper's full motion at 8 m, within 1.5x of the Cramér–Rao bound from 1 to 32 grey levels, where the
-defaults are 1.3–2.3x; through sharper lenses (PSF 0.5 and 0.3 samples, 8 m, frames integrated over 16
-x 16 rays per sample, 1 and 4 grey levels) 1.23–1.42x, where 10 points left the rotation at up to 1.79x
-(14 since session 33; 8 from session 23, 10 from session 26); on unblurred, aliased frames 1.5–2.0x.
-They cost about 2.2x the defaults' time per estimate (the whitened re-solves, the model weight, the
-pooling, the longer warp: 307 against 137 ms on benchmarks/bench_motion.py's one face at 2 grey levels;
-with 10 points 271 ms) and a peak of 6.4 frames of memory instead of 4.4 (docs/motion.md, "Speed and
-memory"). The defaults stay tuned for 8-bit cameras in good light (under a grey level of noise), where
-the model bias matters more: on the noise-free Fig. 5c frames their errors are 0.44 / 0.29 % (t / ω) at
-12 m against these options' 1.15 / 0.66 % (with 10 points). They model noise independent from sample to
-sample: on resampled camera-array sessions (viewpoints interpolated between the cameras, push-pull)
-they measured no better than the defaults, on the 3 x 3 webcam rig worse (docs/motion.md, "Which
-preset"). ``polycam motion`` prints the frames' noise (:attr:`polycam.motion.PairResult.noise_sigma`)
-and points to this preset from a grey level on, for frames without confidences."""
+(computed from noisy frames it discards rays at random), errors-in-variables steps, whitened
+re-solves, the model-validity weight with gain 8, 14-point (u, v) interpolation and ρ̂ pooled over the
+views: on the paper's sphere scene through a blurring lens (``bench_noise.py --blur 0.8``), at 4–12 m
+and for the paper's full motion at 8 m, within 1.5x of the Cramér–Rao bound from 1 to 32 grey levels,
+where the defaults are 1.3–2.3x; through sharper lenses (PSF 0.5 and 0.3 samples, 8 m, frames
+integrated over 16 x 16 rays per sample, 1 and 4 grey levels) 1.23–1.42x, where 10 points left the
+rotation at up to 1.79x (14 since session 33; 8 from session 23, 10 from session 26); on unblurred,
+aliased frames 1.5–2.0x. They cost about 2.2x the defaults' time per estimate (the whitened re-solves,
+the model weight, the pooling, the longer warp: 307 against 137 ms on benchmarks/bench_motion.py's one
+face at 2 grey levels; with 10 points 271 ms) and a peak of 6.4 frames of memory instead of 4.4
+(docs/motion.md, "Speed and memory"). The defaults stay tuned for 8-bit cameras in good light (under a
+grey level of noise), where the model bias matters more: on the noise-free Fig. 5c frames their errors
+are 0.44 / 0.29 % (t / ω) at 12 m against these options' 1.15 / 0.66 % (with 10 points). They model
+noise independent from sample to sample: on resampled camera-array sessions (viewpoints interpolated
+between the cameras, push-pull) they measured no better than the defaults, on the 3 x 3 webcam rig
+worse (docs/motion.md, "Which preset"). ``polycam motion`` prints the frames' noise
+(:attr:`polycam.motion.PairResult.noise_sigma`) and points to this preset from a grey level on, for
+frames without confidences."""
 
 PRESETS: dict[str, MotionOptions] = {"default": MotionOptions(), "noisy": NOISY}
 """The named option sets (the CLI's ``--preset``); ``--option`` items apply on top."""
