@@ -41,11 +41,13 @@ are enough viewpoints; :mod:`polycam.pyramid`); a coarse level takes two steps, 
 stops once its increment moves no ray by half a sample (``_COARSE_SETTLED``), since the
 next level takes up that much in one linearisation. A motion of a view step or more takes
 many rays out of the viewpoints' range (1.5 steps on 9 x 9 views: 31% of the samples;
-the solver then loses 36% of its rays, whose filter supports need them); at the
-finest level, once ρ̂ below exists, those up to ``extrapolate_views`` steps out are
+the solver then loses 36% of its rays, whose filter supports need them); at the two
+finest levels, once ρ̂ below exists, those up to ``extrapolate_views`` steps out are
 extrapolated by Eq. 6 from the edge views instead (``L(x_e + d, u) = L(x_e, u + ρ d)``,
 ρ averaged over the views per direction; ρ̂ itself is then taken from the rays whose
-filter support holds captured samples only; docs/motion_log.md, "Paper Fig. 5c").
+filter support holds captured samples only; docs/motion_log.md, "Paper Fig. 5c"). The
+level above the finest hands its ρ̄ down (:func:`_finer_rho_bar`), so the finest level
+extrapolates from its first warp on and mostly converges in two solves.
 Where the views are too far apart for the scene (disparity per view step above
 ``max_view_disparity`` samples: camera arrays), the light field is aliased across the views
 at the fine (u, v) scales, and the finest level used is the first coarse enough
@@ -74,7 +76,7 @@ beyond what the noise explains, is the window's model error ê², and a ray weig
 Positional regressors (paper Eq. 6)
 -----------------------------------
 For a Lambertian scene ``L_x = ρ L_u`` and ``L_y = ρ L_v``, ρ (u per unit x) fixed by the
-depth of the scene point the ray sees: at the finest level the measured ``L_x, L_y`` (differences
+depth of the scene point the ray sees: at the two finest levels the measured ``L_x, L_y`` (differences
 across a few views: noisy, and aliased where the views are nearly parallel) are replaced
 by ``ρ̂ L_u, ρ̂ L_v`` with ρ̂ pooled over a window, where one depth explains the window and
 that is less noisy, or where the views are nearly parallel (the disparity gate: the
@@ -105,7 +107,7 @@ least squares. With 8-bit frames at 12 m: 0.03% / 0.2% (t / ω) quantised only, 
 levels of noise.
 Speed (bench_motion.py, one face of 9 x 9 views x 128 x 128 directions = 1.33 M rays;
 figures in docs/motion.md, their history in docs/motion_log.md): the full default
-estimate (7 solves over 3 levels) takes ~110–120 ms wall on 2 threads (~20 ms more with
+estimate (6 solves over 3 levels) takes ~110–115 ms wall on 2 threads (~20 ms more with
 confidences W).
 Per iteration: one warp (views-innermost, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, then a branch-free blend across views),
@@ -358,10 +360,14 @@ Between solves the warp typically moves rays by 0.2-1 samples, so ρ̂ is mostly
 Session 7, with the extrapolation: 0.15 (ρ̂ reused at the finest level's last warp, which
 moved 0.1 samples; ~11 ms faster) doubled the six-face noise-free bias of t."""
 
-_DR_LEVELS = 1
-"""depth_regressors applies at this many of the finest pyramid levels: at the coarse levels
-it changes nothing measurable (bench_noise.py as above, ρ̂ at the first two preparations: t
-0.443 / 0.598 mm at all levels, 0.447 / 0.605 at the finest only) and would cost ~8 ms per estimate."""
+_DR_LEVELS = 2
+"""depth_regressors applies at this many of the finest pyramid levels. The coarsest levels
+need none (bench_noise.py as above, ρ̂ at the first two preparations: t 0.443 / 0.598 mm at
+all levels, 0.447 / 0.605 at the finest only). At the level above the finest they hand the
+finest its extrapolation's ρ̄ (:func:`_finer_rho_bar`): its first solve then already
+extrapolates the rays moved beyond the viewpoints, and the finest level mostly converges
+in two solves instead of three (session 34: bench_motion's speed pair 131–139 -> 111–113 ms,
+with W 156–164 -> 133–135 ms; the accuracy benchmarks as before: docs/motion_log.md)."""
 
 _NO_RHO = np.zeros((1,) * 5, np.int16)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
@@ -529,7 +535,8 @@ class _Solver:
         self.rho_gain = 1.0                    # whitened / plain energy of the signal L_u (whitened re-solves)
         self.N_plain: np.ndarray | None = None  # the last solve's normal matrix before whitening
         self.M_rho: np.ndarray | None = None   # the estimate at which rho was computed
-        self.rho_extrapolated = False          # rho was computed from a warp with the extrapolation
+        self.rho_extrapolated = False          # rho was computed from a warp extrapolated with this level's rho_bar
+        self.rho_bar_handed = False            # rho_bar is the coarser level's (_finer_rho_bar) until the first rho
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
         self.n_base = 0
@@ -581,14 +588,16 @@ class _Solver:
         extrapolate = rho_bar is not None
         # a fresh ρ̂ also when the extrapolation starts: ρ̂ of a warp without it has none for
         # the rays whose support then holds extrapolated samples, which would keep their
-        # measured L_x, L_y (the copies' noise) instead of the view mean
+        # measured L_x, L_y (the copies' noise) instead of the view mean. Likewise when it starts
+        # with the level's own ρ̄: ρ̂ of a warp extrapolated with the coarser level's, reused at
+        # the next warp, biased the translation under noise (full motion, σ = 4: 1.07 bounds)
         first_dr = dr and (moved > _RHO_SETTLED or (extrapolate and not self.rho_extrapolated))
         if dr:
             log.debug("depth regressors: warp moved %.3g samples since rho: %s", moved,
                       "fresh" if first_dr else "reused")
         if first_dr:
             self.M_rho = np.array(M, float)
-            self.rho_extrapolated = extrapolate
+            self.rho_extrapolated = extrapolate and not self.rho_bar_handed
         marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
         L0 = self._warp(H, H1, rho_bar, marks)
         # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an
@@ -694,6 +703,7 @@ class _Solver:
                                      return_mix=True, pool_views=self.opts.depth_pool_views)   # out1: read by now
         if near is not None:
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
+            self.rho_bar_handed = False
             _fill_rho(self.rho, self.rho_sc, near, self.base, self.rho_bar, self.box, self.vo)
         return var_dr
 
@@ -1105,11 +1115,16 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     solver = None
     diag = None
     for li in range(len(levels) - 1, -1, -1):
+        # the coarser level's extrapolation disparity ρ̄, handed down (None: it had none)
+        coarse_rho = None if solver is None or solver.rho_bar is None else (solver.rho_bar, solver.lev.grid)
         solver = None                             # free the previous level's buffers first
         levels[li + 1:] = [None] * (len(levels) - li - 1)      # and its frames
         if li == 0 and own_finest:
             _return_tails()                       # the coarse frames are dead now
         solver = _Solver(levels[li], opts, filters, li)
+        if coarse_rho is not None and opts.depth_regressors and li < _DR_LEVELS:
+            solver.rho_bar = _finer_rho_bar(*coarse_rho, levels[li].grid)
+            solver.rho_bar_handed = True
         finest = li == 0
         whiten = finest and opts.whiten != "off"
         for it in range(opts.iterations + (_WHITEN_ITERATIONS if whiten else 0)):
@@ -1137,6 +1152,18 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     break
     return _result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters),
                    math.sqrt(_noise_variance(levels[0])))
+
+
+def _finer_rho_bar(rho_bar: np.ndarray, coarse: LightFieldGrid, fine: LightFieldGrid) -> np.ndarray:
+    """A coarser pyramid level's extrapolation disparity ρ̄ (F, Nv_c, Nu_c) on its grid
+    ``coarse``, resampled onto the (u, v) samples of the finer level's grid ``fine``: (F, Nv,
+    Nu) float64, each direction taking the nearest coarse direction's value (NaN stays NaN).
+    ρ = f / Z is in u per unit x (:func:`polycam.warp.warp_lightfield`), the same physical
+    quantity at every level, so only the sampling changes. The finer level's first preparation extrapolates
+    with it and then replaces it by its own (:meth:`_Solver.prepare`)."""
+    iu = np.abs(fine.u.values[:, None] - coarse.u.values[None, :]).argmin(axis=1)
+    iv = np.abs(fine.v.values[:, None] - coarse.v.values[None, :]).argmin(axis=1)
+    return np.ascontiguousarray(rho_bar[:, iv][:, :, iu])
 
 
 def _few_views(grid: LightFieldGrid, filters: dict) -> str:

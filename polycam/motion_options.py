@@ -110,9 +110,11 @@ class MotionOptions:
     would be noisier than the measured pair (ρ̂² var_u + L_u² var(ρ̂) above var_x, e.g. a ray
     whose edge dominates its window): less noise in the regressors of the
     translation (benchmarks/bench_noise.py: translation error / CRB 18.7 → 6.6 at 8 grey
-    levels, 29.5 → 4.6 at 16). At the finest pyramid level only; costs ~+15 ms wall per
-    estimate on 1.33 M rays (docs/motion_log.md), +30–36 ms with the ``extrapolate_views``
-    it enables (session 33: ρ̂ ~12, the extrapolation ~11, the regressors ~6 ms). On by
+    levels, 29.5 → 4.6 at 16). At the two finest pyramid levels (the one above the finest
+    hands its ρ̄ down, so that the finest extrapolates from its first warp: one solve less
+    there, session 34); costs +30–36 ms wall per estimate on 1.33 M rays with the
+    ``extrapolate_views`` it enables at the finest level alone (session 33: ρ̂ ~12, the
+    extrapolation ~11, the regressors ~6 ms), less with the solve it saves. On by
     default since session 5 (at least as accurate as the measured regressors in every
     benchmark and test, 4x less translation error on the paper's Fig. 5c scene at 8-16 m);
     ``False``: Eq. 5 with the measured L_x, L_y everywhere."""
@@ -160,8 +162,9 @@ class MotionOptions:
     """Rays whose warped position leaves the viewpoints by at most this many view steps are
     filled from the nearest edge viewpoint(s) by Eq. 6 (the direction shifted by the
     disparity: ``L(x_e + d, u) = L(x_e, u + ρ d)``, ρ averaged over the views per direction
-    from the ``depth_regressors`` estimate; finest level, from its second warp on; not with
-    ``symmetric``) instead of being dropped; ρ̂ is then computed from the rays whose filter
+    from the ``depth_regressors`` estimate; the two finest levels, from the first warp with a
+    ρ̂ (the finest: its first, with the ρ̄ of the level above); not with ``symmetric``) instead
+    of being dropped; ρ̂ is then computed from the rays whose filter
     support holds no extrapolated sample, and the others get the view average. 0: dropped
     (also without ``depth_regressors``)."""
     whiten: str = "off"

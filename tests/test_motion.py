@@ -805,6 +805,61 @@ def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
     assert any(lev == 0 for lev, _ in seen)
 
 
+def test_finest_level_extrapolates_from_its_first_warp(scene, monkeypatch):
+    """The level above the finest computes ρ̂ too and hands its view-mean ρ̄ down, so the
+    finest level's first warp already extrapolates the rays moved beyond the viewpoints
+    (one solve less there); without ``depth_regressors`` no level has a ρ̄."""
+    seen = []
+    prepare = pm._Solver.prepare
+
+    def spy(self, M, final):
+        seen.append((self.level, None if self.rho_bar is None else self.rho_bar.shape, self.shape))
+        return prepare(self, M, final)
+
+    monkeypatch.setattr(pm._Solver, "prepare", spy)
+    grid = make_grid(ALL, views=9, directions=32, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])      # 1.6 views
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    res = estimate_motion(L0, L1, grid)
+    assert res and np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL)
+    first = {}
+    for level, rho_shape, shape in seen:
+        first.setdefault(level, (rho_shape, shape))
+    assert set(first) == {0, 1}, seen                             # (u, v) 32 -> 16
+    assert first[1][0] is None                                   # nothing to hand down yet
+    rho_shape, shape = first[0]
+    assert rho_shape == (shape[0], shape[3], shape[4])           # the finest's own (u, v) sampling
+    seen.clear()
+    assert estimate_motion(L0, L1, grid, options=MotionOptions(depth_regressors=False))
+    assert all(rho_shape is None for _, rho_shape, _ in seen)
+
+
+def test_finer_rho_bar_takes_the_nearest_coarse_direction():
+    """ρ̄ (u per unit x) is the same physical quantity at every level: the finer level's
+    directions take the value of the nearest coarse direction, NaN (unknown) included."""
+    from polycam.derivatives import FILTERS
+    from polycam.pyramid import _pyramid
+
+    grid = make_grid(("+z", "-x"), views=9, directions=32, spacing=0.01)
+    opts = MotionOptions()
+    filters = {k: FILTERS[opts.filters[k]] for k in "xyuv"}
+    L = np.zeros(grid.shape, np.float32)
+    fine, coarse = _pyramid(L, L, None, None, grid, opts, {k: fp.radius for k, fp in filters.items()})[:2]
+    F, Nv_c, Nu_c = len(grid.faces), coarse.grid.v.count, coarse.grid.u.count
+    assert (Nv_c, Nu_c) == (16, 16)
+    rho_c = np.arange(F * Nv_c * Nu_c, dtype=float).reshape(F, Nv_c, Nu_c)
+    rho_c[1, 2, 3] = np.nan
+    rho_f = pm._finer_rho_bar(rho_c, coarse.grid, fine.grid)
+    assert rho_f.shape == (F, 32, 32) and rho_f.flags.c_contiguous
+    for v in range(32):
+        for u in range(32):
+            jv = np.abs(coarse.grid.v.values - fine.grid.v.values[v]).argmin()
+            ju = np.abs(coarse.grid.u.values - fine.grid.u.values[u]).argmin()
+            assert jv == v // 2 and ju == u // 2                # each coarse direction covers two
+            np.testing.assert_array_equal(rho_f[:, v, u], rho_c[:, jv, ju])
+    assert np.isnan(rho_f[1, 4:6, 6:8]).all() and np.isfinite(rho_f).sum() == rho_f.size - 4
+
+
 def _centre_view_disparity(grid: LightFieldGrid) -> float:
     """Median over the centre view's rays of ``f Δx / (Z Δu)``: the disparity per view step in
     (u, v) samples of the room sphere (no unit spheres), Z the depth along the face's z."""
