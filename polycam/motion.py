@@ -364,7 +364,7 @@ _DR_LEVELS = 2
 """depth_regressors applies at this many of the finest pyramid levels. The coarsest levels
 need none (bench_noise.py as above, ρ̂ at the first two preparations: t 0.443 / 0.598 mm at
 all levels, 0.447 / 0.605 at the finest only). At the level above the finest they hand the
-finest its extrapolation's ρ̄ (:func:`_finer_rho_bar`): its first solve then already
+finest its extrapolation's ρ̄ (:func:`_finer_rho_bar`) and their disparity-gate decision: its first solve then already
 extrapolates the rays moved beyond the viewpoints, and the finest level mostly converges
 in two solves instead of three (session 34: bench_motion's speed pair 131–139 -> 111–113 ms,
 with W 156–164 -> 133–135 ms; the accuracy benchmarks as before: docs/motion_log.md)."""
@@ -1115,16 +1115,23 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     solver = None
     diag = None
     for li in range(len(levels) - 1, -1, -1):
-        # the coarser level's extrapolation disparity ρ̄, handed down (None: it had none)
-        coarse_rho = None if solver is None or solver.rho_bar is None else (solver.rho_bar, solver.lev.grid)
+        # the coarser level's extrapolation disparity ρ̄ and disparity-gate decision, handed down
+        # (None: it had none)
+        coarse_rho = None if solver is None or solver.rho_bar is None else (solver.rho_bar, solver.lev.grid,
+                                                                            solver.gate_misfit)
         solver = None                             # free the previous level's buffers first
         levels[li + 1:] = [None] * (len(levels) - li - 1)      # and its frames
         if li == 0 and own_finest:
             _return_tails()                       # the coarse frames are dead now
         solver = _Solver(levels[li], opts, filters, li)
         if coarse_rho is not None and opts.depth_regressors and li < _DR_LEVELS:
-            solver.rho_bar = _finer_rho_bar(*coarse_rho, levels[li].grid)
+            solver.rho_bar = _finer_rho_bar(*coarse_rho[:2], levels[li].grid)
             solver.rho_bar_handed = True
+            # the gate's floor too (decided where that level's ρ̂ began, :meth:`_Solver.prepare`):
+            # decided again at a start already near the answer, the measured and gated estimates
+            # differ less and the z test flipped to the measured regressors on sharp noisy frames
+            # (1.5 view steps, 2 grey levels: t 4.6 mm off instead of 0.8; docs/motion_log.md)
+            solver.gate_misfit = coarse_rho[2]
         finest = li == 0
         whiten = finest and opts.whiten != "off"
         for it in range(opts.iterations + (_WHITEN_ITERATIONS if whiten else 0)):

@@ -808,12 +808,15 @@ def test_coarse_levels_stop_within_the_next_levels_reach(scene, monkeypatch):
 def test_finest_level_extrapolates_from_its_first_warp(scene, monkeypatch):
     """The level above the finest computes ρ̂ too and hands its view-mean ρ̄ down, so the
     finest level's first warp already extrapolates the rays moved beyond the viewpoints
-    (one solve less there); without ``depth_regressors`` no level has a ρ̄."""
+    (one solve less there), and with it its disparity-gate decision; without
+    ``depth_regressors`` no level has a ρ̄."""
     seen = []
+    gates = []
     prepare = pm._Solver.prepare
 
     def spy(self, M, final):
         seen.append((self.level, None if self.rho_bar is None else self.rho_bar.shape, self.shape))
+        gates.append((self.level, self.gate_misfit))
         return prepare(self, M, final)
 
     monkeypatch.setattr(pm._Solver, "prepare", spy)
@@ -829,6 +832,10 @@ def test_finest_level_extrapolates_from_its_first_warp(scene, monkeypatch):
     assert first[1][0] is None                                   # nothing to hand down yet
     rho_shape, shape = first[0]
     assert rho_shape == (shape[0], shape[3], shape[4])           # the finest's own (u, v) sampling
+    level1 = [g for lev, g in gates if lev == 1]
+    finest = [g for lev, g in gates if lev == 0]
+    assert level1[0] is None and level1[-1] is not None          # decided at level 1's first ρ̂
+    assert finest[0] == level1[-1]                               # and handed down with ρ̄
     seen.clear()
     assert estimate_motion(L0, L1, grid, options=MotionOptions(depth_regressors=False))
     assert all(rho_shape is None for _, rho_shape, _ in seen)
