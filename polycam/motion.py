@@ -364,10 +364,11 @@ _DR_LEVELS = 2
 """depth_regressors applies at this many of the finest pyramid levels. The coarsest levels
 need none (bench_noise.py as above, ρ̂ at the first two preparations: t 0.443 / 0.598 mm at
 all levels, 0.447 / 0.605 at the finest only). At the level above the finest they hand the
-finest its extrapolation's ρ̄ (:func:`_finer_rho_bar`) and their disparity-gate decision: its first solve then already
-extrapolates the rays moved beyond the viewpoints, and the finest level mostly converges
-in two solves instead of three (session 34: bench_motion's speed pair 131–139 -> 111–113 ms,
-with W 156–164 -> 133–135 ms; the accuracy benchmarks as before: docs/motion_log.md)."""
+finest its extrapolation's ρ̄ (:func:`_finer_rho_bar`) and their disparity-gate decision:
+its first solve then already extrapolates the rays moved beyond the viewpoints, and the
+finest level mostly converges in two solves instead of three (session 34: bench_motion's
+speed pair 131–139 -> 111–113 ms, with W 156–164 -> 133–135 ms; the accuracy benchmarks as
+before: docs/motion_log.md)."""
 
 _NO_RHO = np.zeros((1,) * 5, np.int16)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
@@ -1166,8 +1167,8 @@ def _finer_rho_bar(rho_bar: np.ndarray, coarse: LightFieldGrid, fine: LightField
     ``coarse``, resampled onto the (u, v) samples of the finer level's grid ``fine``: (F, Nv,
     Nu) float64, each direction taking the nearest coarse direction's value (NaN stays NaN).
     ρ = f / Z is in u per unit x (:func:`polycam.warp.warp_lightfield`), the same physical
-    quantity at every level, so only the sampling changes. The finer level's first preparation extrapolates
-    with it and then replaces it by its own (:meth:`_Solver.prepare`)."""
+    quantity at every level, so only the sampling changes. The finer level's first
+    preparation extrapolates with it and then replaces it by its own (:meth:`_Solver.prepare`)."""
     iu = np.abs(fine.u.values[:, None] - coarse.u.values[None, :]).argmin(axis=1)
     iv = np.abs(fine.v.values[:, None] - coarse.v.values[None, :]).argmin(axis=1)
     return np.ascontiguousarray(rho_bar[:, iv][:, :, iu])
