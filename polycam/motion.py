@@ -1116,8 +1116,8 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     solver = None
     diag = None
     for li in range(len(levels) - 1, -1, -1):
-        # the coarser level's extrapolation disparity ρ̄ and disparity-gate decision, handed down
-        # (None: it had none)
+        # the coarser level's extrapolation disparity ρ̄ (it has one only with depth_regressors at
+        # a level < _DR_LEVELS), its grid and disparity-gate decision, handed down (None: no ρ̄)
         coarse_rho = None if solver is None or solver.rho_bar is None else (solver.rho_bar, solver.lev.grid,
                                                                             solver.gate_misfit)
         solver = None                             # free the previous level's buffers first
@@ -1125,14 +1125,15 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
         if li == 0 and own_finest:
             _return_tails()                       # the coarse frames are dead now
         solver = _Solver(levels[li], opts, filters, li)
-        if coarse_rho is not None and opts.depth_regressors and li < _DR_LEVELS:
-            solver.rho_bar = _finer_rho_bar(*coarse_rho[:2], levels[li].grid)
+        if coarse_rho is not None:
+            rho_bar, coarse_grid, gate_misfit = coarse_rho
+            solver.rho_bar = _finer_rho_bar(rho_bar, coarse_grid, levels[li].grid)
             solver.rho_bar_handed = True
             # the gate's floor too (decided where that level's ρ̂ began, :meth:`_Solver.prepare`):
             # decided again at a start already near the answer, the measured and gated estimates
             # differ less and the z test flipped to the measured regressors on sharp noisy frames
             # (1.5 view steps, 2 grey levels: t 4.6 mm off instead of 0.8; docs/motion_log.md)
-            solver.gate_misfit = coarse_rho[2]
+            solver.gate_misfit = gate_misfit
         finest = li == 0
         whiten = finest and opts.whiten != "off"
         for it in range(opts.iterations + (_WHITEN_ITERATIONS if whiten else 0)):
