@@ -155,7 +155,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              solver_filter_pairs)
 from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _any_at_most_zero, _apply_warped_confidence, _face_abs_max,
+from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min,
                    _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
                    warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
@@ -331,14 +331,18 @@ def _warp_source(L: np.ndarray, W: np.ndarray | None, name: str | None = None, L
     flat = (F, Ny * Nx, Nv, Nu)
     L = np.ascontiguousarray(L, dtype=np.float32).reshape(flat)
     W = L if W is None else np.ascontiguousarray(W, dtype=np.float32).reshape(flat)
-    channels = 1 if W is L else (3 if _any_at_most_zero(W.reshape(-1)) else 2)
+    if W is L:
+        channels = 1
+    else:
+        w_max, w_min = _face_abs_max_min(W)              # one pass over W
+        channels = 3 if w_min.min() <= 0.0 else 2
     units = np.full((F, 3), 1.0 / _QMAX)
     units[:, 0] = _face_abs_max(L, None if W is L else W) / _QMAX
     if L_other is not None:
         w = None if W_other is None else np.ascontiguousarray(W_other, dtype=np.float32)
         units[:, 0] = np.maximum(units[:, 0], _face_abs_max(np.ascontiguousarray(L_other, dtype=np.float32), w) / _QMAX)
     if channels > 1:
-        units[:, 1] = _face_abs_max(W) / _QMAX
+        units[:, 1] = w_max / _QMAX
     units[units <= 0] = 1.0
     units = units.astype(np.float32).astype(np.float64)     # float32 values: the same in every kernel
     shape = (F, Nv, Nu, _padded(channels * Ny * Nx))
@@ -369,6 +373,13 @@ its first solve then already extrapolates the rays moved beyond the viewpoints, 
 finest level mostly converges in two solves instead of three (session 34: bench_motion's
 speed pair 131–139 -> 111–113 ms, with W 156–164 -> 133–135 ms; the accuracy benchmarks as
 before: docs/motion_log.md)."""
+
+_W_SETTLED = 0.25
+"""With confidences W, a re-warp keeps the warped W of each ray inside from an earlier warp
+while the warp has moved no ray by more than this many samples (of any axis) since
+(:meth:`_Solver.warp_change`; :func:`~polycam.warp._warp_into`'s ``lag_confidence``): W is a
+weight, and blending it again costs ~4 ms of the finest level's warp. Measured: docs/motion_log.md
+Session 35."""
 
 _NO_RHO = np.zeros((1,) * 5, np.int16)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
@@ -540,6 +551,7 @@ class _Solver:
         self.rho_bar_handed = False            # rho_bar is the coarser level's (_finer_rho_bar) until the first rho
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
+        self.M_conf: np.ndarray | None = None  # the estimate whose warp made conf's warped W (fold)
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
         self.p_w: np.ndarray | None = None   # the residuals' p of the last solve's IRLS weights
@@ -600,7 +612,7 @@ class _Solver:
             self.M_rho = np.array(M, float)
             self.rho_extrapolated = extrapolate and not self.rho_bar_handed
         marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
-        L0 = self._warp(H, H1, rho_bar, marks)
+        L0 = self._warp(M, H, H1, rho_bar, marks)
         # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an
         # earlier ρ̂) would pull the new ρ̂ back towards it. Taken now: the marks lie in the
         # derivatives' memory, which the fused kernel rewrites
@@ -639,7 +651,7 @@ class _Solver:
             self.rho_sc = _work_array("rho_sc", self.cshape[:3])
             for n, floor in enumerate(floors):
                 if n:                                     # back to the measured regressors
-                    self._warp(H, H1, rho_bar, None)      # ρ̂'s windows used the warped frame's memory
+                    self._warp(M, H, H1, rho_bar, None)   # ρ̂'s windows used the warped frame's memory
                     _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                                     _NO_RHO, _NO_RHO_SC, False, False)
                 self.var_dr = self._depth_rho(var, rho_max, floor, near)
@@ -666,20 +678,26 @@ class _Solver:
         self.n_base = int(sums[1][..., 1].sum())
         return sums
 
-    def _warp(self, H: np.ndarray, H1: np.ndarray, rho_bar: np.ndarray | None, marks: np.ndarray | None) -> np.ndarray:
+    def _warp(self, M: np.ndarray, H: np.ndarray, H1: np.ndarray, rho_bar: np.ndarray | None,
+              marks: np.ndarray | None) -> np.ndarray:
         """Frame 2 warped by H1 into self.out1 (frame 1 by H too with ``symmetric``), the
-        warp's confidence times the confidences W into self.conf; ``rho_bar`` (the views'
-        extrapolation; None: none) and ``marks`` as :func:`~polycam.warp._warp_into`.
-        Returns frame 1 as the fused kernel reads it."""
+        warp's confidence times the confidences W into self.conf; M (4, 4) the estimate
+        whose warp this is; ``rho_bar`` (the views' extrapolation; None: none) and ``marks``
+        as :func:`~polycam.warp._warp_into`. Returns frame 1 as the fused kernel reads it."""
         lev, opts = self.lev, self.opts
         # with confidences (not symmetric) the warp folds them into conf: the warped W and
-        # frame 1's (unwarped) W0 in the same pass (warp._folded_confidence)
+        # frame 1's (unwarped) W0 in the same pass (warp._folded_confidence); while the warp
+        # has moved no ray by more than _W_SETTLED samples since they were made, the rays
+        # inside keep them (warp._warp_into's lag_confidence)
         fold = not opts.symmetric and (lev.W0 is not None or lev.W1 is not None)
+        lag = bool(fold and self.K1 == 2 and self.M_conf is not None and self.warp_change(self.M_conf, M) <= _W_SETTLED)
         _warp_into(self.src1, self.g, H1, opts.uv_taps, self.out1, self.conf,
                    rho_bar, opts.extrapolate_views, marks=marks,
                    scratch=self.warp_scratch, ratio=self.units1,
                    confidence_channels=self.K1 if fold else 0, W0=lev.W0 if fold else None,
-                   nodata=self.nodata1 if fold else None)
+                   nodata=self.nodata1 if fold else None, lag_confidence=lag)
+        if fold and not lag:
+            self.M_conf = np.array(M, float)
         if not opts.symmetric:
             return lev.L0
         conf = self.conf

@@ -85,6 +85,10 @@ def _store_typed(a, idx, val):
 
 _CHUNK = 64                                       # directions per stack buffer (_xy_row)
 
+_OUTSIDE = -np.inf
+"""A float warp's mark of a ray outside the grid that a lagged warp leaves to the
+extrapolation (:func:`_xy_row`'s ``lag`` 2; warped values are finite)."""
+
 
 def _stack_buffer(dtype):
     """An intrinsic ``f(n)`` returning a pointer to ``n`` (an integer literal) elements of
@@ -420,7 +424,7 @@ def _uv_row(srcT, wv, iv, wu, iu, Ur, lanes, has_lanes, tv, tu):
 
 @numba.njit(cache=True, inline="always")
 def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0, cq, crnd,
-            nd_row):
+            nd_row, lag):
     """Row jv of every view of ``out`` (K, F, Ny, Nx, Nv, Nu): bilinear interpolation across
     viewpoints of the row's (u, v)-warped images Uv (Nu M,) ((Nu, M) flattened, M >= K Ny Nx:
     (K, Ny, Nx) flattened, then padding) at each moved ray's focal-plane point in grid units,
@@ -433,7 +437,12 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
     with the unwarped frame's ``W0`` (F, Ny, Nx, Nv, Nu, if ``has_w0``) by
     :func:`_folded_confidence` (``cq``, ``crnd``: its q, rnd, :func:`_confidence_units`);
     ``nd_row`` (Nu,) uint8 with K = 3: :func:`_nodata_runs` of the row (0: the indicator is 0
-    in every view, so those directions blend as with K = 2).
+    in every view, so those directions blend as with K = 2). With ``lag`` 1 or 2 (``fold``, K = 2,
+    out float32), ok[face] holds the folded confidences of an earlier warp, and a ray inside keeps
+    its confidence when it is not 0: only L is blended, and W only for the rays inside without
+    one (scalar, as K = 1) (:func:`_warp_into`'s ``lag_confidence``). The rays outside get 0
+    with ``lag`` 1; with 2 they keep their confidence and get L = _OUTSIDE, for
+    :func:`_extrapolate_xy_kernel`, which fills or clears each of them.
 
     The blend loops are scalar: their stores to ``out`` keep LLVM from vectorising them
     (:func:`_stack_buffer`), and scalar loads are faster than gathers here for one channel
@@ -491,6 +500,19 @@ def _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio,
                         x0 = _bilinear(Uv, o, dx1, dy1, wx, wy) * r0 if good else 0.0
                         _store(o0, iu, x0)
                         okrow[iu] = _folded_confidence(good, np.float32(1.0), np.float32(0.0), w0row[iu], cq, crnd)
+                elif lag:
+                    for iu in range(numba.uint64(Nu)):
+                        o, wx, wy, good = _xy_position(a_x, b_x, a_y, b_y, sxr, syr, okr, iu, lim, ib_max, unx, nm)
+                        x0 = _bilinear(Uv, o, dx1, dy1, wx, wy) * r0 if good else 0.0
+                        _store(o0, iu, x0)
+                        if not good:
+                            if lag == 2:
+                                o0[iu] = _OUTSIDE
+                            else:
+                                okrow[iu] = 0
+                        elif okrow[iu] == 0:
+                            x1 = np.float32(_bilinear(Uv, o + c1, dx1, dy1, wx, wy) * r1)
+                            okrow[iu] = _folded_confidence(True, x1, np.float32(0.0), w0row[iu], cq, crnd)
                 else:
                     # two or three channels: a chunk of directions at a time, blended into the
                     # stack buffers (vectorised), then stored
@@ -618,7 +640,7 @@ def _bilinear(Uv, o, dx1, dy1, wx, wy):
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out, ok,
-                      slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S):
+                      slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, lag):
     """The warp of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu), one direction row v at a
     time: the row's (u, v) stencils (:func:`_uv_stencil_row`; us (Nu,), vs (Nv,) the sample
     values, R (3, 3) the ray rotation in face coordinates, f the focal length) and its
@@ -632,7 +654,8 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     :func:`_nodata_runs` of each row (else a dummy (1, Nu)), and the (u, v) warp leaves the
     "no data" channel out (it is 0) where no tap of a direction's stencil lies on a
     direction with samples without data in some view: S (Nv + 1, Nu + 1) int32 counts them
-    (a summed-area table: S[v, u] = their number in rows < v, columns < u)."""
+    (a summed-area table: S[v, u] = their number in rows < v, columns < u). ``lag``: as
+    :func:`_xy_row`."""
     K = ratio.shape[0]
     _, _, Ny, Nx = out.shape[:4]
     Nv, Nu, M = srcT.shape
@@ -644,12 +667,13 @@ def _warp_rows_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx
     for c in numba.prange(chunks):
         # (the int64 cast: one specialisation of the worker, not an int64 and a uint64 one)
         _warp_rows_chunk(np.int64(c), chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
-                         face, ratio, out, ok, slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, dens, m2, has_nd)
+                         face, ratio, out, ok, slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, dens, m2, has_nd,
+                         lag)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, ratio, out,
-                     ok, slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, dens, m2, has_nd):
+                     ok, slot, E, edges, fold, W0, has_w0, cq, crnd, ND, S, dens, m2, has_nd, lag):
     """Chunk c of ``chunks`` of :func:`_warp_rows_kernel`'s direction rows (serial: the
     parallel kernel only distributes the chunks, which keeps its compilation short)."""
     K = ratio.shape[0]
@@ -691,7 +715,7 @@ def _warp_rows_chunk(c, chunks, srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_
         if has_nd:
             _nodata_runs(Ur, 2 * nxy, nxy, lanes, ND[jv])
         _xy_row(Uv, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, jv, M, ratio, out, ok, fold, W0, has_w0,
-                cq, crnd, ND[jv if has_nd else 0])
+                cq, crnd, ND[jv if has_nd else 0], lag)
 
 
 def _perimeter(Ny: int, Nx: int) -> np.ndarray:
@@ -707,7 +731,7 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
-                           e_max, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND):
+                           e_max, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND, lag):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
@@ -727,7 +751,9 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     edge view refills it with the same value), and with ``has_marks`` so does ``marks``
     (F, Ny, Nx, Nv, Nu) (else a dummy). With ``fold`` and K = 3, the "no data" channel is
     left at 0 where ND (Nv, Nu) (:func:`_warp_rows_kernel`) is 0 at every node: it is 0
-    there."""
+    there. With ``lag`` (:func:`_xy_row`'s ``lag`` 2) the rays to fill are those whose L is
+    _OUTSIDE: each is filled, keeping its confidence in ok when that is not 0 (only L is
+    extrapolated for it), or else cleared (L and ok 0)."""
     K = ratio.shape[0]
     has_nd = fold and K == 3
     _, _, Ny, Nx = out.shape[:4]
@@ -742,10 +768,20 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
         for jy in range(Ny):
             for ix in range(Nx):
                 okrow = ok[face, jy, ix, jv]
+                orow = out[0, face, jy, ix, jv]
                 w0row = W0[face, jy, ix, jv] if has_w0 else W0[0, 0, 0, 0]
                 for iu in range(Nu):
+                    keep = 0
+                    if lag:
+                        if orow[iu] != _OUTSIDE:
+                            continue
+                        keep = okrow[iu]            # the earlier warp's confidence (0: none)
+                        orow[iu] = 0                # cleared unless filled below
+                        okrow[iu] = 0
+                    elif okrow[iu] > 0.0:
+                        continue
                     r = rho[jv, iu]
-                    if okrow[iu] > 0.0 or not ok_uv[jv, iu] or not r == r:
+                    if not ok_uv[jv, iu] or not r == r:
                         continue
                     fx = ax_[jy, ix] + bx_[jy, ix] * slope_x[jv, iu]
                     fy = ay_[jy, ix] + by_[jy, ix] * slope_y[jv, iu]
@@ -782,7 +818,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 continue
                         elif not okr[ou]:
                             continue
-                        for k in range(_channels(K, has_nd, ND, vals, ov, ou, 1, tu)):
+                        for k in range(1 if keep > 0 else _channels(K, has_nd, ND, vals, ov, ou, 1, tu)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             if tu == 4:
@@ -796,7 +832,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                     elif tu == 1:                        # along v only
                         if not (ok_uv[ov, ou] and ok_uv[ov + 1, ou] and ok_uv[ov + 2, ou] and ok_uv[ov + 3, ou]):
                             continue
-                        for k in range(_channels(K, has_nd, ND, vals, ov, ou, 4, 1)):
+                        for k in range(1 if keep > 0 else _channels(K, has_nd, ND, vals, ov, ou, 4, 1)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), ratio[k] * (
@@ -811,7 +847,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                 good = good and ok_uv[ov + q, ou + t]
                         if not good:
                             continue
-                        for k in range(_channels(K, has_nd, ND, vals, ov, ou, 4, 4)):
+                        for k in range(1 if keep > 0 else _channels(K, has_nd, ND, vals, ov, ou, 4, 4)):
                             o0 = ((ov * K + k) * P + p0) * Nu + ou
                             o1 = ((ov * K + k) * P + p1) * Nu + ou
                             val = 0.0
@@ -821,7 +857,9 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                     acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
                                 val += wv[q] * acc
                             _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), val * ratio[k])
-                    if fold:
+                    if keep > 0:
+                        okrow[iu] = keep
+                    elif fold:
                         okrow[iu] = _folded_confidence(True, vals[1], vals[2], w0row[iu], cq, crnd)
                     else:
                         okrow[iu] = 1.0
@@ -1004,13 +1042,34 @@ def _face_abs_max(a: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
     return m.reshape(F, -1).max(axis=1).astype(np.float64)
 
 
-@numba.njit(cache=True)
-def _any_at_most_zero(a):
-    """Whether a (n,) has a value <= 0 (no temporary)."""
-    for k in range(a.shape[0]):
-        if a[k] <= 0.0:
-            return True
-    return False
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _view_abs_max_min_kernel(a, out_max, out_min):
+    """out_max[n] = max |a[n]|, out_min[n] = min a[n] over each view image of a (N, Nv, Nu)
+    (column-wise extremes first, as :func:`~polycam.eq5._abs_max_where`: they vectorise)."""
+    N, Nv, Nu = a.shape
+    for n in numba.prange(N):
+        hi = np.zeros(Nu, np.float32)
+        lo = np.full(Nu, np.inf, np.float32)
+        for v in range(Nv):
+            row = a[n, v]
+            for u in range(Nu):
+                x = row[u]
+                y = abs(x)
+                hi[u] = y if y > hi[u] else hi[u]
+                lo[u] = x if x < lo[u] else lo[u]
+        out_max[n] = hi.max()
+        out_min[n] = lo.min()
+
+
+def _face_abs_max_min(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((F,), (F,)) float64: max |a| and min a over each face of a (F, Ny, Nx, Nv, Nu) or
+    (F, Ny Nx, Nv, Nu) float32 C (finite), in one pass."""
+    F, Nv, Nu = a.shape[0], a.shape[-2], a.shape[-1]
+    flat = a.reshape(-1, Nv, Nu)
+    hi = np.empty(flat.shape[0], np.float32)
+    lo = np.empty(flat.shape[0], np.float32)
+    _view_abs_max_min_kernel(flat, hi, lo)
+    return hi.reshape(F, -1).max(axis=1).astype(np.float64), lo.reshape(F, -1).min(axis=1).astype(np.float64)
 
 
 def _padded(m: int) -> int:
@@ -1074,7 +1133,8 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                extrapolate_views: float = 0.0,
                marks: np.ndarray | None = None, scratch: np.ndarray | None = None,
                ratio: np.ndarray | None = None, confidence_channels: int = 0,
-               W0: np.ndarray | None = None, nodata: np.ndarray | None = None) -> None:
+               W0: np.ndarray | None = None, nodata: np.ndarray | None = None,
+               lag_confidence: bool = False) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
@@ -1096,11 +1156,19 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     :func:`_apply_warped_confidence` does, in the same pass, without storing the warped W).
     With K = 3, ``nodata`` (F, Nv, Nu) uint8 (:func:`~polycam.motion._warp_source`; None:
     from srcT) is nonzero where some view has a sample without data: the (u, v) warp
-    leaves the indicator out where no stencil tap touches one (it is 0 there)."""
+    leaves the indicator out where no stencil tap touches one (it is 0 there).
+    ``lag_confidence`` (K = 2, out float32): ok holds the folded confidences of an earlier warp
+    of the same source, W0 and ok dims, by a motion that moved no ray far from this one; a ray
+    that is inside the grid or filled by the extrapolation keeps its confidence unless it is 0
+    (then it gets a fresh one), so the warped W is not blended again for it (:func:`_xy_row`,
+    :func:`_extrapolate_xy_kernel`); L is warped as always. The motion solver's re-warps
+    (``polycam.motion._W_SETTLED``)."""
     _, F, Ny, Nx, Nv, Nu = out.shape
     fold = confidence_channels > 0
     if fold and ok.dtype != np.uint16:
         raise ValueError("_warp_into: folded confidences need a uint16 ok")
+    if lag_confidence and (confidence_channels != 2 or out.dtype != np.float32):
+        raise ValueError("_warp_into: lag_confidence needs confidence_channels 2 and a float32 out")
     K = confidence_channels if fold else out.shape[0]
     cq, crnd = _confidence_units(ok) if fold else (1.0, 0.0)
     has_w0 = W0 is not None
@@ -1112,6 +1180,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
     y, x = np.meshgrid(ys, xs, indexing="ij")
     extrapolate = rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1)
+    lag = (2 if extrapolate else 1) if lag_confidence else 0     # (_xy_row)
     slot = _perimeter(Ny, Nx)
     e_shape = (Nv, K, int(slot.max()) + 1, Nu) if extrapolate else (1, 1, 1, 1)
     n_e = math.prod(e_shape)
@@ -1141,14 +1210,14 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
             else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
-                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd, ND, S)
+                          ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd, ND, S, lag)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
                                    float(extrapolate_views), ratio[k], out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd,
-                                   ND)
+                                   ND, lag)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,

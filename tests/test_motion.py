@@ -23,7 +23,7 @@ from polycam.derivatives import plenoptic_derivatives
 from polycam.eq5 import _RHO_NONE
 from polycam.trajectory import Trajectory
 
-from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
+from tolerances import (MOTION_W_LAG_REL, MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
                         MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
@@ -346,8 +346,11 @@ def test_no_data_channel_left_out_only_when_empty(scene, monkeypatch):
     W_holes = W.copy()
     W_holes[..., :3] = 0.0
     assert motion._warp_source(L1, W_holes)[1] == 3 and motion._warp_source(L1, None)[1] == 1
+    monkeypatch.setattr(motion, "_W_SETTLED", -1.0)        # fresh confidences at every warp (K = 3 has no lag)
     lean = estimate_motion(L0, L1, grid, W0=W, W1=W)
-    monkeypatch.setattr(motion, "_any_at_most_zero", lambda a: True)       # warp the channel anyway
+    face_abs_max_min = motion._face_abs_max_min
+    monkeypatch.setattr(motion, "_face_abs_max_min",                        # warp the channel anyway
+                        lambda a: (face_abs_max_min(a)[0], np.zeros(a.shape[0])))
     full = estimate_motion(L0, L1, grid, W0=W, W1=W)
     assert lean and np.array_equal(lean.T_prev_next, full.T_prev_next)
     assert np.array_equal(lean.covariance, full.covariance)
@@ -841,6 +844,36 @@ def test_finest_level_extrapolates_from_its_first_warp(scene, monkeypatch):
     assert all(rho_shape is None for _, rho_shape, _ in seen)
 
 
+@pytest.mark.parametrize("faces", [("+z",), ALL], ids=["one-face", "six-faces"])
+def test_rewarps_keep_the_warped_confidences(scene, faces, monkeypatch):
+    """With confidences W the finest level's re-warps, which move the rays by less than
+    _W_SETTLED samples, keep the warped W of the earlier warp (lag_confidence); the estimate
+    is that of fresh confidences at every warp to MOTION_W_LAG_REL of each motion component
+    (W of a resampled frame: 0.5 or 1 per sample, here at random)."""
+    lags = []
+    warp_into = pm._warp_into
+
+    def spy(*args, **kw):
+        lags.append(kw.get("lag_confidence", False))
+        return warp_into(*args, **kw)
+
+    monkeypatch.setattr(pm, "_warp_into", spy)
+    grid = make_grid(faces, views=9, directions=32 if len(faces) > 1 else 48, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(5)
+    W0, W1 = (np.where(rng.random(grid.shape) < 0.6, 0.5, 1.0).astype(np.float32) for _ in range(2))
+    lagged = estimate_motion(L0, L1, grid, W0=W0, W1=W1)
+    assert lagged and lags[-1] and not lags[0], lags          # the last (finest) re-warp lags
+    lags.clear()
+    monkeypatch.setattr(pm, "_W_SETTLED", -1.0)
+    fresh = estimate_motion(L0, L1, grid, W0=W0, W1=W1)
+    assert fresh and not any(lags)
+    diff = np.abs(rt_from_T(lagged.T_prev_next) - rt_from_T(fresh.T_prev_next)) / np.abs(rt)
+    assert np.all(diff < MOTION_W_LAG_REL), diff
+    assert not np.array_equal(lagged.T_prev_next, fresh.T_prev_next)     # the lag did change W
+
+
 def test_finer_rho_bar_takes_the_nearest_coarse_direction():
     """ρ̄ (u per unit x) is the same physical quantity at every level: the finer level's
     directions take the value of the nearest coarse direction, NaN (unknown) included."""
@@ -978,6 +1011,56 @@ def test_warped_confidence_in_place(rng):
         q = conf0.astype(np.uint16)
         _apply_warped_confidence(q, out[:channels])
         assert np.all(np.abs(q - expected.astype(np.float64) * 65535) <= 0.5 + 1e-3) and q.max() > 60000
+
+
+@pytest.mark.parametrize("extrapolate", [False, True])
+@pytest.mark.parametrize("directions", [16, 80])
+def test_warp_lags_the_confidences(rng, extrapolate, directions):
+    """A lagged re-warp (``lag_confidence``, the solver's re-warps while W has not moved far)
+    warps L as a fresh warp does, bit for bit, and keeps the earlier warp's confidence of each
+    ray it keeps inside or fills by Eq. 6, unless that was 0 (then the fresh one); rays it leaves
+    empty get 0. By the same motion it gives the fresh warp's confidences. Only with the W
+    channel alone (K = 2) and a float32 L."""
+    from polycam.motion import _warp_source
+    from polycam.warp import _warp_into
+
+    grid = make_grid(("+z", "-x"), views=5, directions=directions)
+    L1 = rng.random(grid.shape).astype(np.float32)
+    W1 = np.where(rng.random(grid.shape) < 0.5, 0.5, 1.0).astype(np.float32)    # as a resampled frame's
+    W0 = np.where(rng.random(grid.shape) < 0.01, 0.0, W1).astype(np.float32)   # some without confidence
+    src, K, units, nodata = _warp_source(L1, W1)
+    assert K == 2
+    rho = np.full((grid.shape[0],) + grid.shape[3:], 0.5) if extrapolate else None
+    kw = dict(rho=rho, extrapolate_views=2.0, ratio=units, confidence_channels=2, W0=W0)
+    M_a = T_from_rt(np.array([0.004, -0.003, 0.002, 0.012, -0.02, 0.015]))
+    M_b = T_from_rt(np.array([0.0043, -0.0027, 0.0021, 0.0122, -0.0197, 0.0151]))
+
+    def warp(M, conf=None):
+        L = np.empty((1,) + grid.shape, np.float32)
+        lag = conf is not None
+        conf = np.empty(grid.shape, np.uint16) if conf is None else conf.copy()
+        _warp_into(src, grid, M, 6, L, conf, lag_confidence=lag, **kw)
+        return L[0], conf
+
+    L_a, conf_a = warp(M_a)
+    L_b, conf_b = warp(M_b)
+    out, ok_b = np.empty((2,) + grid.shape, np.float32), np.empty(grid.shape, np.float32)
+    filled = np.zeros(grid.shape, np.uint8)             # by the extrapolation
+    _warp_into(src, grid, M_b, 6, out, ok_b, rho=rho, extrapolate_views=2.0, ratio=units, marks=filled)
+    L_lag, conf_lag = warp(M_b, conf_a)
+    assert np.array_equal(L_lag, L_b)
+    expected = np.where(ok_b > 0, np.where(conf_a > 0, conf_a, conf_b), 0)
+    assert np.array_equal(conf_lag, expected)
+    kept = (ok_b > 0) & (conf_a > 0)
+    assert np.any(kept & (conf_a != conf_b)) and np.any((ok_b > 0) & (conf_a == 0) & (conf_b > 0))
+    assert np.any((ok_b == 0) & (conf_a > 0))                    # some left the grid: cleared
+    assert np.any(kept & (filled > 0) & (conf_a != conf_b)) == extrapolate
+    L_same, conf_same = warp(M_a, conf_a)
+    assert np.array_equal(L_same, L_a) and np.array_equal(conf_same, conf_a)
+    src3, K3, units3, _ = _warp_source(L1, np.where(W1 > 0.6, W1, 0.0).astype(np.float32))
+    with pytest.raises(ValueError, match="lag_confidence"):
+        _warp_into(src3, grid, M_b, 6, np.empty((1,) + grid.shape, np.float32), conf_a.copy(), ratio=units3,
+                   confidence_channels=K3, lag_confidence=True)
 
 
 @pytest.mark.parametrize("extrapolate", [False, True])
