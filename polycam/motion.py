@@ -378,8 +378,9 @@ _W_SETTLED = 0.25
 """With confidences W, a re-warp keeps the warped W of each ray inside from an earlier warp
 while the warp has moved no ray by more than this many samples (of any axis) since
 (:meth:`_Solver.warp_change`; :func:`~polycam.warp._warp_into`'s ``lag_confidence``): W is a
-weight, and blending it again costs ~4 ms of the finest level's warp. Measured: docs/motion_log.md
-Session 35."""
+weight, and blending and extrapolating it again cost ~8 ms of the finest level's second warp
+(bench_motion's speed pair: that warp moves the rays 0.1 samples, the coarse levels' re-warps more
+than 1). Estimates within 7e-7 of fresh confidences (session 35, docs/motion_log.md)."""
 
 _NO_RHO = np.zeros((1,) * 5, np.int16)
 """Placeholder ρ̂ for :func:`~polycam.eq5._prepare_kernel` without depth_regressors (never read)."""
