@@ -23,7 +23,8 @@ from polycam.derivatives import plenoptic_derivatives
 from polycam.eq5 import _RHO_NONE
 from polycam.trajectory import Trajectory
 
-from tolerances import (MOTION_W_LAG_REL, MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
+from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
+                        MOTION_W_LAG_REL,
                         MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
