@@ -1092,7 +1092,7 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     g0 = levels[0].grid
     if not math.isfinite(thr) or g0.x.count < 3 or g0.y.count < 3:
         return 0, math.nan
-    from .scales import view_disparity
+    from .scales import VIEW_DISPARITY_AGREE, view_disparity
 
     def per_view(g: LightFieldGrid) -> float:
         """Samples of level grid g per sample of the finest, per view step of g per the finest's."""
@@ -1107,7 +1107,7 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     L = lev.L0[views]
     W = None if lev.W0 is None else lev.W0[views]
     # (one frame as both: their mean carries its whole noise, twice that of two frames' mean)
-    d_faces = view_disparity(L, L, sub, W0=W, noise_var=2.0 * _noise_variance(lev))
+    d_faces = view_disparity(L, L, sub, W0=W, noise_var=2.0 * _noise_variance(lev), agree=VIEW_DISPARITY_AGREE)
     if not np.any(np.isfinite(d_faces)):
         return 0, math.nan
     d = float(np.nanmax(d_faces)) / per_view(g)          # finest level's samples per its view step

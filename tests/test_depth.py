@@ -225,6 +225,47 @@ def test_view_disparity_on_noisy_frames(rng, Z, freqs, expect):
         assert np.isnan(d[0])
 
 
+def test_agreeing_lambdas_keep_what_both_stereo_equations_say():
+    """view_disparity(agree=...)'s ray test (scales._agreeing_lambdas): where both stereo
+    equations are measured a ray counts only if their λ = Z / f agree (same sign, within the
+    factor; both still, inf, agree), with |λ|; a ray with one equation keeps it as it is."""
+    from polycam.scales import _agreeing_lambdas
+
+    inf, nan = np.inf, np.nan
+    lam_x = np.array([4.0, -3.0, 2.0, inf, inf, nan, 5.0, 1.0, -2.0, -1.0], np.float32)
+    lam_y = np.array([4.4, -3.3, -2.0, inf, 6.0, 5.0, nan, 3.0, -2.5, nan], np.float32)
+    out = _agreeing_lambdas(lam_x, lam_y, 2.0)
+    np.testing.assert_array_equal(out["stereo_x"], np.array([4.0, 3.0, nan, inf, nan, nan, 5.0, nan, 2.0, -1.0],
+                                                            np.float32))
+    np.testing.assert_array_equal(out["stereo_y"], np.array([4.4, 3.3, nan, inf, nan, 5.0, nan, nan, 2.5, nan],
+                                                            np.float32))
+    assert out["stereo_x"].dtype == np.float32
+
+
+def test_agreeing_lambdas_leave_noise_to_the_still_rays(rng):
+    """The failure the agreement fixes (session 35: 3 of 96 noisy solves of the paper's 12 m scene
+    stopped one or two (u, v) levels early): a face whose rays see noise only, where the still gate
+    let two thirds of one equation's rays through — their λ of either sign, independent between
+    the equations. The median over λ > 0 of that equation is the noise's disparity, above the
+    solver's 0.75 samples per view step; over the agreeing rays it is that of the still ones, 0."""
+    from polycam.scales import VIEW_DISPARITY_AGREE, _agreeing_lambdas
+
+    n, ratio = 144, 0.5
+    lam_x = rng.standard_normal(n).astype(np.float32) * 0.3
+    lam_x[:44] = np.inf                                    # still in x: a third
+    lam_y = rng.standard_normal(n).astype(np.float32) * 0.3
+    lam_y[:100] = np.inf                                   # still in y: most
+    rng.shuffle(lam_y)
+
+    def disparity(lam):
+        lam = lam[~np.isnan(lam) & (lam > 0)]
+        return ratio / float(np.median(lam))               # as view_disparity
+
+    assert disparity(lam_x) > 0.75
+    out = _agreeing_lambdas(lam_x, lam_y, VIEW_DISPARITY_AGREE)
+    assert max(disparity(out["stereo_x"]), disparity(out["stereo_y"])) == 0.0
+
+
 def test_scale_selection_cap_leaves_only_the_allowed_candidates(rng):
     g = plane_grid()
     W = waves(rng, [30.0, 50.0, 250.0])
