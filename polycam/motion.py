@@ -1085,8 +1085,9 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     up to the third (cheap: ~1 ms on 9 x 9 x 32 x 32, and coarse levels alias least), scaled by
     that level's (u, v) step over the (x, y) step relative to the finest's, its rays gated
     against that level's sensor noise (``noise_var``: rays without texture left out, rays whose
-    views differ by no more than the noise counted as disparity 0). Needs 3 views along
-    x and y. A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
+    views differ by no more than the noise counted as disparity 0) and counted only where the
+    two stereo equations agree (``agree``: :data:`~polycam.scales.VIEW_DISPARITY_AGREE`). Needs
+    3 views along x and y. A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
     view step: the search stops before it."""
     thr = opts.max_view_disparity
     g0 = levels[0].grid
