@@ -526,10 +526,8 @@ def _agreeing_lambdas(lam_x: np.ndarray, lam_y: np.ndarray, factor: float) -> di
     both inf), as |λ|; NaN where both are measured and do not; as given where only one is."""
     both = ~np.isnan(lam_x) & ~np.isnan(lam_y)
     ax, ay = np.abs(lam_x), np.abs(lam_y)
-    with np.errstate(invalid="ignore"):
-        same = (np.sign(lam_x) == np.sign(lam_y)) & (np.maximum(ax, ay) <= factor * np.minimum(ax, ay))
-    still = np.isinf(ax) & np.isinf(ay)
-    ok = same | still
+    # (both inf: the same sign, and inf <= factor x inf)
+    ok = (np.sign(lam_x) == np.sign(lam_y)) & (np.maximum(ax, ay) <= factor * np.minimum(ax, ay))
     return {name: np.where(both, np.where(ok, np.abs(lam), np.nan), lam).astype(lam.dtype)
             for name, lam in (("stereo_x", lam_x), ("stereo_y", lam_y))}
 
