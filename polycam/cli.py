@@ -121,12 +121,15 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
 
 def cmd_motion(args: argparse.Namespace) -> int:
     from .depth_cli import open_source, solver_options
+    from .errors import InputError
     from .motion_options import describe_options
 
     opts = solver_options(args)                       # before anything is read or written
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step,   # validates before the solver import
                         xy_oversample=args.xy_oversample)
+    if len(store) < 2:
+        raise InputError(f"{src}: has {len(store)} frame(s); motion needs a frame pair (at least 2)")
     truth_name = src / "groundtruth.tum"
     if hasattr(store, "resampler"):
         F, Ny, Nx, Nv, Nu = store.grid.shape

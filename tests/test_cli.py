@@ -239,7 +239,7 @@ def test_motion_rejects_a_bad_option_before_writing(tmp_path, two_frame_lightfie
 
 def test_motion_needs_two_frames(tmp_path):
     lf = _small_lightfield(tmp_path, 1)
-    assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum")), "frame")
+    assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum")), str(lf), "1 frame(s)")
     assert not (tmp_path / "t.tum").exists()
 
 
