@@ -143,7 +143,11 @@ def cmd_motion(args: argparse.Namespace) -> int:
         print("solver options: " + described)
     scale_selection = args.scale_selection == "on"
     with _progress(f"motion {src.name}", len(store) - 1) as advance:
-        traj, results = estimate_trajectory(store, progress=advance, options=opts, scale_selection=scale_selection)
+        try:
+            traj, results = estimate_trajectory(store, progress=advance, options=opts,
+                                                scale_selection=scale_selection)
+        except InputError as e:                       # e.g. a frame with NaNs: name the store
+            raise InputError(f"{src}: {e}") from None
     write_tum(args.out, traj)
     failed = [r for r in results if not r]
     print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"

@@ -131,6 +131,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
     from .depth import confident_mask, depth_of_pair, grey_frame, view_mask
     from .depth_io import write_depth_folder
     from .errors import InputError
+    from .lightfield import finite_frame
     from .motion_options import changed_options
     from .motion_weights import frame_noise_variance
 
@@ -147,10 +148,12 @@ def cmd_depth(args: argparse.Namespace) -> int:
         raise InputError(f"--keep must be in (0, 1], got {args.keep}")
     grid = store.grid
     ts = np.asarray(store.timestamps_ns, np.int64)
-    L0, L1 = store.frame(i), store.frame(i + 1)
     get_w = getattr(store, "weights", None)
     W0 = get_w(i) if get_w else None
     W1 = get_w(i + 1) if get_w else None
+    # NaNs where W is not 0 are an error (also with --traj, where no solver would see them)
+    L0 = finite_frame(f"frame {i}", store.frame(i), W0, who=str(src))
+    L1 = finite_frame(f"frame {i + 1}", store.frame(i + 1), W1, who=str(src))
     if args.traj:
         M = pair_motion_from_trajectory(args.traj, int(ts[i]), int(ts[i + 1]))
         motion = {"motion_source": str(args.traj)}

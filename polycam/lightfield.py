@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import FormatError
+from .errors import FormatError, InputError
 from .rays import RayBundle
 from .tomlio import Table, load_toml
 
@@ -27,6 +27,7 @@ __all__ = [
     "Axis",
     "LightFieldGrid",
     "load_grid",
+    "finite_frame",
 ]
 
 FACE_NAMES = ("+z", "-z", "+x", "-x", "+y", "-y")
@@ -218,3 +219,22 @@ def _check_faces_attr(path, faces) -> tuple[Face, ...]:
             raise FormatError(path, "f must be > 0", where)
         out.append(Face(str(fa["name"]), R, float(fa["z_pi"]), float(fa["f"])))
     return tuple(out)
+
+
+def finite_frame(name: str, L: np.ndarray, W: np.ndarray | None = None, who: str = "") -> np.ndarray:
+    """``L`` (any dims) itself when every sample is finite. Non-finite samples are an
+    :class:`~polycam.errors.InputError` (``who``: ``name``: ...) unless the confidence ``W``
+    (``L``'s dims, or without ``L``'s trailing colour axis; None: no confidences) is 0 at
+    each of them; then a copy of ``L`` with
+    them set to 0 (samples without data: docs/formats.md, the light-field store)."""
+    L = np.asarray(L)
+    if np.isfinite(L).all():
+        return L
+    bad = ~np.isfinite(L)
+    w = None if W is None else np.asarray(W)
+    if w is not None and w.ndim == L.ndim - 1:        # a colour frame: one W for its channels
+        w = w[..., None]
+    if w is None or np.any(bad & (w > 0)):
+        raise InputError(f"{who + ': ' if who else ''}{name} contains NaN or infinite samples where the "
+                         "confidence W is not 0; mask them with W = 0")
+    return np.where(bad, np.zeros((), L.dtype), L)

@@ -148,7 +148,7 @@ from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _
                   _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
-from .lightfield import Axis, LightFieldGrid
+from .lightfield import Axis, LightFieldGrid, finite_frame
 from .motion_options import MotionOptions
 from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
                              min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
@@ -1024,13 +1024,7 @@ def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray |
         raise InputError(f"motion: {name} has dims {L.shape}, but the grid is {grid.shape} "
                          "(F, Ny, Nx, Nv, Nu)")
     L = np.ascontiguousarray(L, dtype=np.float32)     # no copy when it already is (never written)
-    if not np.isfinite(L).all():
-        bad = ~np.isfinite(L)
-        if W is None or np.any(bad & (W > 0)):
-            raise InputError(f"motion: {name} contains NaN or infinite samples where the "
-                             "confidence W is not 0; mask them with W = 0")
-        L = np.where(bad, np.float32(0.0), L)
-    return L
+    return finite_frame(name, L, W, who="motion")
 
 
 def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,

@@ -243,6 +243,19 @@ def test_motion_needs_two_frames(tmp_path):
     assert not (tmp_path / "t.tum").exists()
 
 
+def test_motion_names_the_store_of_a_frame_with_nans(tmp_path):
+    from polycam.lfstore import open_lightfield, write_lightfield
+
+    store = open_lightfield(_small_lightfield(tmp_path, 3))
+    frames = [np.array(store.frame(i), np.float32) for i in range(len(store))]
+    frames[2][1, 2, 2, 5, 7] = np.nan                 # no confidences: W is 1 everywhere
+    bad = tmp_path / "nan.zarr"
+    write_lightfield(bad, store.grid, frames, list(store.timestamps_ns))
+    assert_one_line_error(polycam("motion", str(bad), "--out", str(tmp_path / "t.tum")),
+                          str(bad), "frame 2 contains NaN")
+    assert not (tmp_path / "t.tum").exists()
+
+
 def test_motion_on_a_broken_store_names_it(tmp_path):
     (tmp_path / "bad.zarr").mkdir()
     assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),

@@ -331,7 +331,8 @@ def test_pfm_and_png_round_trip(tmp_path, rng):
 # ----------------------------------------------------------------------------- the verb
 
 
-def _plane_store(path, frames: int = 2, Z: float = 1.5):
+def _plane_store(path, frames: int = 2, Z: float = 1.5, nan_frame: int | None = None):
+    """A plane's light field; ``nan_frame``: that frame gets one NaN sample (no confidences)."""
     from polycam.lfstore import write_lightfield
     from polycam.trajectory import Trajectory
 
@@ -342,7 +343,10 @@ def _plane_store(path, frames: int = 2, Z: float = 1.5):
         T.append(T[-1] @ MOTION)
     ts = np.arange(frames, dtype=np.int64) * 33_333_333
     truth = Trajectory(ts, np.stack(T))
-    write_lightfield(path, g, [render_plane(g, Z, W, Ti) for Ti in T], ts, groundtruth=truth)
+    L = [render_plane(g, Z, W, Ti) for Ti in T]
+    if nan_frame is not None:
+        L[nan_frame][0, 2, 2, 16, 16] = np.nan
+    write_lightfield(path, g, L, ts, groundtruth=truth)
     return g, truth
 
 
@@ -387,11 +391,18 @@ def test_depth_verb_estimates_the_motion(tmp_path, capsys, options, recorded):
     assert doc.get("motion_options", {}) == recorded
 
 
-@pytest.mark.parametrize("case", ["single_frame", "missing", "frame_range", "missing_traj", "bad_option"])
+@pytest.mark.parametrize("case", ["single_frame", "missing", "frame_range", "missing_traj", "bad_option",
+                                  "nan_sample", "nan_sample_traj"])
 def test_depth_verb_bad_input(tmp_path, capsys, case):
     from polycam.cli import main
+    from polycam.trajectory import write_tum
 
-    if case == "single_frame":
+    if case.startswith("nan_sample"):                # a NaN where W is not 0 (no W): named, also
+        _, truth = _plane_store(tmp_path / "lf.zarr", frames=2, nan_frame=1)   # without a solve
+        write_tum(tmp_path / "gt.tum", truth)
+        argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o")]
+        argv += ["--traj", str(tmp_path / "gt.tum")] if case == "nan_sample_traj" else []
+    elif case == "single_frame":
         _plane_store(tmp_path / "lf.zarr", frames=1)
         argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o")]
     elif case == "missing":
@@ -409,4 +420,6 @@ def test_depth_verb_bad_input(tmp_path, capsys, case):
     assert main(argv) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("polycam: error:") and "\n" not in err
+    if case.startswith("nan_sample"):
+        assert str(tmp_path / "lf.zarr") in err and "frame 1 contains NaN" in err
     assert not (tmp_path / "o" / "points.ply").exists()

@@ -7,9 +7,9 @@ import re
 import numpy as np
 import pytest
 
-from polycam.errors import FormatError
+from polycam.errors import FormatError, InputError
 from polycam.lightfield import (FACE_NAMES, Axis, LightFieldGrid, R_rig_face_for, _check_faces_attr,
-                                load_grid)
+                                finite_frame, load_grid)
 from tolerances import GEOMETRY_ATOL, GRID_RAY_ATOL
 
 GRID = """
@@ -181,3 +181,25 @@ def test_perturbed_array_keeps_cameras_on_viewpoints(rng):
         off = np.abs((c[:, axis] - a.min) / a.step - np.round((c[:, axis] - a.min) / a.step))
         assert off.max() < 0.3
     assert gridrules.column_spacing(np.array([0.0]), 0.02) == 0.02
+
+
+def test_finite_frame_masks_only_samples_without_data():
+    L = np.arange(2 * 3 * 4, dtype=np.float32).reshape(2, 3, 4)
+    assert finite_frame("frame 0", L) is L                      # finite: the input itself
+    bad = L.copy()
+    bad[1, 2, 3] = np.nan
+    bad[0, 0, 1] = np.inf
+    W = np.ones_like(L)
+    with pytest.raises(InputError, match=r"^a\.zarr: frame 4 contains NaN"):
+        finite_frame("frame 4", bad, None, who="a.zarr")        # no confidences
+    W[1, 2, 3] = 0.0
+    with pytest.raises(InputError, match="frame 4 contains NaN"):
+        finite_frame("frame 4", bad, W)                         # the inf has W = 1
+    W[0, 0, 1] = 0.0
+    out = finite_frame("frame 4", bad, W)
+    assert np.isnan(bad[1, 2, 3]) and out[1, 2, 3] == 0 and out[0, 0, 1] == 0   # a copy
+    np.testing.assert_array_equal(out[W > 0], L[W > 0])
+    colour = np.repeat(bad[..., None], 3, axis=-1)              # one W for a colour sample
+    out = finite_frame("frame 4", colour, W)
+    assert out.shape == colour.shape and np.isfinite(out).all()
+
