@@ -53,17 +53,33 @@ def plot_trajectory(path_png: str | os.PathLike, est: Trajectory, true: Trajecto
     plt.close(fig)
 
 
-def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors) -> None:
-    """Per frame pair translation and rotation errors, absolute and relative to the true motion."""
+def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarray | None = None) -> None:
+    """Per frame pair translation and rotation errors, absolute and relative to the true motion.
+
+    ``std``: (P, 6) the solver's standard deviations of each pair's (t [m], r [rad])
+    (:attr:`polycam.motion.PairResult.std`; infinite where unobservable: not drawn), drawn beside the errors as the
+    error norm they predict, √(Σ std²) over t and over r: where the bars stand far above
+    the marks, the error is not the noise the covariance describes (docs/motion.md,
+    "Camera arrays")."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = _pyplot()
     pairs = np.arange(len(err.t_err))
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    axes[0].bar(pairs, err.t_err * 1e3, color="tab:blue")
+    axes[0].bar(pairs, err.t_err * 1e3, color="tab:blue", label="error")
     axes[0].set_ylabel("translation error [mm]")
-    axes[1].bar(pairs, np.degrees(err.w_err), color="tab:orange")
+    axes[1].bar(pairs, np.degrees(err.w_err), color="tab:orange", label="error")
     axes[1].set_ylabel("rotation error [deg]")
+    if std is not None:
+        std = np.asarray(std, float).reshape(len(pairs), 6)
+        predicted = (np.sqrt(np.sum(std[:, :3] ** 2, axis=1)) * 1e3, np.degrees(np.sqrt(np.sum(std[:, 3:] ** 2, axis=1))))
+        for ax, p in zip(axes, predicted):
+            p = np.where(np.isfinite(p), p, np.nan)       # unobservable: infinite, not drawn
+            ax.plot(pairs, p, "_", color="black", ms=22, mew=2, label="reported 1-σ (norm)")
+            ax.legend(fontsize=8)
     for ax, rel in zip(axes, (err.t_rel, err.w_rel)):
-        ax.set_xlabel("frame pair")
+        ax.set_xlabel("frame pair (i, i+1)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # pairs are whole numbers
         ax.set_title(f"median {100 * np.median(rel):.2f}% of the true motion")
         ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()

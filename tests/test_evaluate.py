@@ -35,3 +35,26 @@ def test_mismatched_lengths_are_an_input_error():
     b = traj([[0] * 6] * 4)
     with pytest.raises(InputError, match="same timestamps"):
         pair_errors(a, b)
+
+
+def test_error_plot_draws_the_reported_std_where_finite(tmp_path, monkeypatch):
+    """errors.png: bars of each pair's error, marks of the norm of its reported std (none
+    where a pair is unobservable: infinite std)."""
+    import matplotlib.axes
+
+    from polycam.plots import plot_pair_errors
+
+    true = traj([[0] * 6] + [[0, 0, 0, 0, 0, 0.01]] * 3)
+    est = traj([[0] * 6] + [[0, 0, 0.001, 0, 0, 0.0101]] * 3)
+    std = np.full((3, 6), 1e-4)
+    std[1] = np.inf
+    marks = []
+    plot = matplotlib.axes.Axes.plot
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot",
+                        lambda self, x, y, *a, **k: marks.append(np.asarray(y)) or plot(self, x, y, *a, **k))
+    plot_pair_errors(tmp_path / "errors.png", pair_errors(est, true), std)
+    assert (tmp_path / "errors.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    t_marks, w_marks = marks
+    np.testing.assert_allclose(t_marks[[0, 2]], np.sqrt(3) * 1e-4 * 1e3)    # mm
+    np.testing.assert_allclose(w_marks[[0, 2]], np.degrees(np.sqrt(3) * 1e-4))
+    assert np.isnan(t_marks[1]) and np.isnan(w_marks[1])
