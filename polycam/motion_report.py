@@ -63,7 +63,8 @@ def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairRes
                         truth=None, timestamps_ns: np.ndarray | None = None,
                         options: MotionOptions | None = None, scale_selection: bool | None = None) -> list[str]:
     """A report folder: ``pairs.csv``, ``trajectory.png``, with a ground truth
-    ``errors.png`` (each pair's error beside the norm of its reported standard deviations), and with ``options`` ``options.toml`` (the solver's settings: every
+    ``errors.png`` (each pair's error beside the norm of its reported standard
+    deviations), and with ``options`` ``options.toml`` (the solver's settings: every
     :class:`~polycam.motion.MotionOptions` field under ``[motion]``, ``scale_selection``
     too when given, so that a report says how it was made). Returns the names of the
     files written.

@@ -625,6 +625,11 @@ def _write_summary(report: Path, summary: dict, written: list[str]) -> None:
 
 ![trajectory](trajectory.png)
 ![per-pair errors](errors.png)
+
+(Each pair's error beside the error norm its reported standard deviations predict; on
+camera arrays the translation's error is several times that: model error coherent over
+the image, which the residuals' scatter does not show. docs/motion.md, "Camera arrays".)
+
 ![calibration residuals](calibration_residuals.png)
 ![light-field mosaic](mosaic.png)
 ![epipolar-plane images](epi.png)
