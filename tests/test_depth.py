@@ -26,8 +26,8 @@ from polycam import scales as scales_mod
 from polycam.scales import (MOTION_UV_SCALES, Scale, ScaleTracker, depth_estimates, depth_scale_selected,
                             estimate_motion_scale_selected, scale_derivatives, select_scales, view_disparity)
 
-from tolerances import (DEPTH_NEAR_SELECTED_REL, DEPTH_PLANE_MEDIAN_REL, DEPTH_PNG_ATOL_M, DEPTH_PLY_ATOL,
-                        DEPTH_SPHERES_MEDIAN_REL, VIEW_DISPARITY_NOISY_REL, VIEW_DISPARITY_REL)
+from tolerances import (DEPTH_BOUNDARY_BLED_MAX, DEPTH_NEAR_SELECTED_REL, DEPTH_PLANE_MEDIAN_REL, DEPTH_PNG_ATOL_M,
+                        DEPTH_PLY_ATOL, DEPTH_SPHERES_MEDIAN_REL, VIEW_DISPARITY_NOISY_REL, VIEW_DISPARITY_REL)
 
 MOTION = T_from_rt(np.array([0.0017, 0.0012, 0.0012, 0.002, -0.0015, 0.001]))   # T_rig0_rig1 from rt = (r [rad], t [m])
 
@@ -128,6 +128,62 @@ def test_depth_points_lie_on_the_plane(rng):
     assert np.all(j[1] == 2) and np.all(j[2] == 2)
     dirs = d[np.ravel_multi_index(j[1:], g.shape[1:])]
     assert np.allclose(np.cross(P, dirs), 0, atol=1e-4)
+
+
+def render_occlusion(grid: LightFieldGrid, Z_fg: float, Z_bg: float, waves_fg, waves_bg,
+                     T_world_rig=np.eye(4)) -> tuple[np.ndarray, np.ndarray]:
+    """(1, Ny, Nx, Nv, Nu) frame of the half-plane z = Z_fg, X < 0 (world = rig frame of frame
+    0) before the plane z = Z_bg, each with its waves (as :func:`render_plane`), and the
+    (Ny, Nx, Nv, Nu) bool of the rays that see the half-plane."""
+    R, t = T_world_rig[:3, :3], T_world_rig[:3, 3]
+    y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
+    f = grid.faces[0].f
+    o = np.stack([x, y, np.zeros_like(x)], -1) @ R.T + t
+    d = np.stack([u, v, np.full_like(u, f)], -1) @ R.T
+
+    def hit(Z, ws):
+        s = (Z - o[..., 2]) / d[..., 2]
+        X, Y = o[..., 0] + s * d[..., 0], o[..., 1] + s * d[..., 1]
+        return X, 0.5 + sum(a * np.cos(kx * X + ky * Y + ph) for a, kx, ky, ph in ws)
+
+    X_fg, L_fg = hit(Z_fg, waves_fg)
+    _, L_bg = hit(Z_bg, waves_bg)
+    fg = X_fg < 0.0
+    return np.where(fg, L_fg, L_bg)[None].astype(np.float32), fg
+
+
+def test_depth_boundary_keeps_the_foregrounds_depth_off_the_background():
+    """At an occlusion the foreground's edge dominates the fusion windows of the background
+    rays beside it and lends them its depth; the boundary test (a neighbouring window one
+    depth explains clearly better) ranks those rays last, so the kept half holds none."""
+    rng = np.random.default_rng(5)
+    g = plane_grid(views=9, directions=64)
+    w_fg, w_bg = waves(rng, [30.0, 45.0, 70.0]), waves(rng, [15.0, 25.0, 40.0])
+    L0, fg = render_occlusion(g, 1.0, 2.0, w_fg, w_bg)
+    L1, _ = render_occlusion(g, 1.0, 2.0, w_fg, w_bg, MOTION)
+    Z = np.where(fg, 1.0, 2.0)[None]
+    c = g.x.count // 2
+    wrong = {}
+    for boundary in (0, 4):
+        dm = depth_of_pair(L0, L1, g, MOTION, noise_var=0.0, boundary=boundary)
+        keep = confident_mask(dm)[0, c, c]
+        assert keep.mean() > 0.4
+        rel = np.abs(dm.Z[0, c, c][keep] / Z[0, c, c][keep] - 1)
+        wrong[boundary] = np.mean(rel > 0.25)
+        assert np.median(rel) < 0.03
+    assert wrong[4] <= DEPTH_BOUNDARY_BLED_MAX < 0.2 * wrong[0]     # without the test: 4.4 %
+
+
+def test_at_boundary_compares_the_windows_beside_each_ray():
+    from polycam.depth import _at_boundary
+
+    c = np.full((1, 1, 1, 9, 9), 0.9, np.float32)
+    c[..., 4, 8] = 0.95                                  # a better window 4 to the right of (4, 4)
+    got = _at_boundary(c, 4, 0.02)[0, 0, 0]
+    assert got[4, 4] and got[0, 4] and got[8, 4] and got[0, 8] and got[8, 8]   # (u, v) offsets ±4 reach it
+    assert got.sum() == 5                                # (4, 8) itself and the others do not
+    assert not _at_boundary(c, 4, 0.06).any()            # a gain of 0.05 is not more than 0.06
+    assert not _at_boundary(c, 9, 0.02).any()            # offsets past the grid: no window
 
 
 def test_spheres_depth_vs_traced_distance():
