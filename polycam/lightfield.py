@@ -225,8 +225,8 @@ def finite_frame(name: str, L: np.ndarray, W: np.ndarray | None = None, who: str
     """``L`` (any dims) itself when every sample is finite. Non-finite samples are an
     :class:`~polycam.errors.InputError` (``who``: ``name``: ...) unless the confidence ``W``
     (``L``'s dims, or without ``L``'s trailing colour axis; None: no confidences) is 0 at
-    each of them; then a copy of ``L`` with
-    them set to 0 (samples without data: docs/formats.md, the light-field store)."""
+    each of them; then a copy of ``L`` with them set to 0 (samples without data:
+    docs/formats.md, the light-field store)."""
     L = np.asarray(L)
     if np.isfinite(L).all():
         return L

@@ -57,10 +57,10 @@ def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarr
     """Per frame pair translation and rotation errors, absolute and relative to the true motion.
 
     ``std``: (P, 6) the solver's standard deviations of each pair's (t [m], r [rad])
-    (:attr:`polycam.motion.PairResult.std`; infinite where unobservable: not drawn), drawn beside the errors as the
-    error norm they predict, √(Σ std²) over t and over r: where the bars stand far above
-    the marks, the error is not the noise the covariance describes (docs/motion.md,
-    "Camera arrays")."""
+    (:attr:`polycam.motion.PairResult.std`; infinite where unobservable: not drawn), drawn
+    beside the errors as the error norm they predict, √(Σ std²) over t and over r: where the
+    bars stand far above the marks, the error is not the noise the covariance describes
+    (docs/motion.md, "Camera arrays")."""
     from matplotlib.ticker import MaxNLocator
 
     plt = _pyplot()
@@ -72,8 +72,8 @@ def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarr
     axes[1].set_ylabel("rotation error [deg]")
     if std is not None:
         std = np.asarray(std, float).reshape(len(pairs), 6)
-        predicted = (np.sqrt(np.sum(std[:, :3] ** 2, axis=1)) * 1e3, np.degrees(np.sqrt(np.sum(std[:, 3:] ** 2, axis=1))))
-        for ax, p in zip(axes, predicted):
+        norm_t, norm_r = np.sqrt(np.sum(std[:, :3] ** 2, axis=1)), np.sqrt(np.sum(std[:, 3:] ** 2, axis=1))
+        for ax, p in zip(axes, (norm_t * 1e3, np.degrees(norm_r))):
             p = np.where(np.isfinite(p), p, np.nan)       # unobservable: infinite, not drawn
             ax.plot(pairs, p, "_", color="black", ms=22, mew=2, label="reported 1-σ (norm)")
             ax.legend(fontsize=8)
