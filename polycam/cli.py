@@ -165,12 +165,15 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if truth is not None:
         import numpy as np
 
-        from .evaluate import ate_rmse, pair_errors
+        from .evaluate import ate_rmse, error_over_std, pair_errors
 
         err = pair_errors(traj, truth)
         print(f"against {truth_name}: median per-pair error translation "
               f"{100 * np.median(err.t_rel):.2f}%, rotation {100 * np.median(err.w_rel):.2f}%; "
               f"ATE {1e3 * ate_rmse(traj, truth):.3f} mm")
+        k_t, k_r = error_over_std(err, np.stack([r.std for r in results]))
+        print(f"  errors / the reported std (median over the pairs; 1: the covariance explains them): "
+              f"translation {k_t:.1f}x, rotation {k_r:.1f}x")
     if args.report:
         from .motion_report import write_motion_report
 

@@ -15,7 +15,7 @@ from .errors import InputError
 from .geometry import T_inverse, r_from_R
 from .trajectory import Trajectory
 
-__all__ = ["PairErrors", "pair_errors", "ate_rmse"]
+__all__ = ["PairErrors", "pair_errors", "ate_rmse", "error_over_std"]
 
 
 @dataclass(frozen=True)
@@ -66,3 +66,19 @@ def ate_rmse(est: Trajectory, true: Trajectory) -> float:
     _check_same_frames(est, true)
     a, b = est.rebased().T_world_rig[:, :3, 3], true.rebased().T_world_rig[:, :3, 3]
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+def error_over_std(err: PairErrors, std: np.ndarray) -> tuple[float, float]:
+    """How many times the reported uncertainty the errors are: the median over the pairs of
+    ``t_err / √(Σ std_t²)`` and ``w_err / √(Σ std_r²)``, ``std`` (P, 6) the pairs' standard
+    deviations of (t [m], r [rad]) (:attr:`polycam.motion.PairResult.std`). √(Σ std²) is the
+    RMS error norm the covariance predicts, so 1 means it explains the errors. Pairs with an
+    infinite or zero std (unobservable, failed) are left out; NaN without any."""
+    std = np.asarray(std, float).reshape(len(err.t_err), 6)
+    out = []
+    for e, s in ((err.t_err, std[:, :3]), (err.w_err, std[:, 3:])):
+        norm = np.sqrt(np.sum(s * s, axis=1))
+        ok = np.isfinite(norm) & (norm > 0)
+        out.append(float(np.median(e[ok] / norm[ok])) if ok.any() else float("nan"))
+    return out[0], out[1]
+

@@ -250,7 +250,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
                                 "the cameras do not cover the grid")
 
     # 5. motion
-    from .evaluate import ate_rmse, pair_errors
+    from .evaluate import ate_rmse, error_over_std, pair_errors
     from .lfstore import open_lightfield
     from .motion import MotionOptions, estimate_trajectory
     from .motion_report import write_motion_report
@@ -280,13 +280,15 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "ate_m": ate_rmse(traj, truth),
          "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan")}
+    m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, np.stack([r.std for r in results]))
     summary["motion"] = m
     first = (f" (median; the first took {m['seconds_first_pair']:.0f} s, compiling the kernels)"
              if m["seconds_first_pair"] > 3 * m["seconds_per_pair"] + 1 else "")
     echo(f"motion    {out / 'trajectory.tum'}: {m['pairs']} frame pairs, {m['failed']} failed, "
          f"{m['seconds_per_pair']:.1f} s per pair{first}; median error translation {100 * m['median_t_rel']:.1f}%, "
          f"rotation {100 * m['median_w_rel']:.1f}%; ATE {1e3 * m['ate_m']:.2f} mm; inliers "
-         f"{100 * m['median_inlier_fraction']:.0f}%, predicted std {1e3 * m['median_std_t_m']:.2f} mm")
+         f"{100 * m['median_inlier_fraction']:.0f}%, predicted std {1e3 * m['median_std_t_m']:.2f} mm (the errors "
+         f"{m['error_over_std_t']:.1f}x it; rotation {m['error_over_std_w']:.1f}x)")
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")

@@ -165,6 +165,7 @@ def test_motion_on_a_lightfield_with_report(tmp_path, selection):
                   "--scale-selection", selection)
     assert res.returncode == 0, res.stderr
     assert "against" in res.stdout  # compared with the store's ground truth
+    assert re.search(r"errors / the reported std .*translation \d+\.\dx, rotation \d+\.\dx", res.stdout)
     from polycam.trajectory import read_tum
 
     assert len(read_tum(tmp_path / "traj.tum")) == 3

@@ -58,3 +58,16 @@ def test_error_plot_draws_the_reported_std_where_finite(tmp_path, monkeypatch):
     np.testing.assert_allclose(t_marks[[0, 2]], np.sqrt(3) * 1e-4 * 1e3)    # mm
     np.testing.assert_allclose(w_marks[[0, 2]], np.degrees(np.sqrt(3) * 1e-4))
     assert np.isnan(t_marks[1]) and np.isnan(w_marks[1])
+
+
+def test_error_over_std_is_the_median_ratio_of_the_norms():
+    from polycam.evaluate import error_over_std
+
+    true = traj([[0] * 6] + [[0, 0, 0, 0, 0, 0.01]] * 4)
+    est = traj([[0] * 6] + [[0, 0, 0.001, 0, 0, 0.0101]] * 4)     # t off by 0.1 mm, r by 1 mrad
+    err = pair_errors(est, true)
+    std = np.full((4, 6), 1e-4 / np.sqrt(3))                       # norms 0.1 mm and 0.1 mrad
+    std[2] = np.inf                                                 # an unobservable pair: left out
+    k_t, k_r = error_over_std(err, std)
+    assert k_t == pytest.approx(1.0, rel=1e-6) and k_r == pytest.approx(10.0, rel=1e-6)
+    assert all(np.isnan(k) for k in error_over_std(err, np.full((4, 6), np.inf)))

@@ -38,6 +38,7 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
     summary = tomllib.loads((rep / "summary.toml").read_text())
     assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
     assert summary["motion"]["seconds_per_pair"] > 0 and summary["motion"]["seconds_first_pair"] > 0
+    assert summary["motion"]["error_over_std_t"] > 0 and summary["motion"]["error_over_std_w"] > 0
     assert summary["calibrate"]["rms_px"] < 0.5
     assert summary["resample"]["mean_W"] > 0.3
     assert summary["depth"]["points"] > 1000
