@@ -15,7 +15,7 @@ from .errors import InputError
 from .geometry import T_inverse, r_from_R
 from .trajectory import Trajectory
 
-__all__ = ["PairErrors", "pair_errors", "ate_rmse", "error_over_std"]
+__all__ = ["PairErrors", "pair_errors", "ate_rmse", "std_norms", "error_over_std"]
 
 
 @dataclass(frozen=True)
@@ -68,16 +68,21 @@ def ate_rmse(est: Trajectory, true: Trajectory) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
 
+def std_norms(std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) [m] and (P,) [rad]: √(Σ std²) over t and over r of ``std`` (P, 6), the pairs'
+    standard deviations of (t, r) (:attr:`polycam.motion.PairResult.std`): the RMS error
+    norm the covariance predicts (infinite where unobservable)."""
+    std = np.asarray(std, float).reshape(-1, 6)
+    return np.sqrt(np.sum(std[:, :3] ** 2, axis=1)), np.sqrt(np.sum(std[:, 3:] ** 2, axis=1))
+
+
 def error_over_std(err: PairErrors, std: np.ndarray) -> tuple[float, float]:
     """How many times the reported uncertainty the errors are: the median over the pairs of
-    ``t_err / √(Σ std_t²)`` and ``w_err / √(Σ std_r²)``, ``std`` (P, 6) the pairs' standard
-    deviations of (t [m], r [rad]) (:attr:`polycam.motion.PairResult.std`). √(Σ std²) is the
-    RMS error norm the covariance predicts, so 1 means it explains the errors. Pairs with an
+    ``t_err`` and ``w_err`` over :func:`std_norms` of ``std`` (P, 6), the RMS error norms the
+    covariance predicts, so 1 means it explains the errors. Pairs with an
     infinite or zero std (unobservable, failed) are left out; NaN without any."""
-    std = np.asarray(std, float).reshape(len(err.t_err), 6)
     out = []
-    for e, s in ((err.t_err, std[:, :3]), (err.w_err, std[:, 3:])):
-        norm = np.sqrt(np.sum(s * s, axis=1))
+    for e, norm in zip((err.t_err, err.w_err), std_norms(std)):
         ok = np.isfinite(norm) & (norm > 0)
         out.append(float(np.median(e[ok] / norm[ok])) if ok.any() else float("nan"))
     return out[0], out[1]

@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from .evaluate import PairErrors
+from .evaluate import PairErrors, std_norms
 from .trajectory import Trajectory
 
 __all__ = ["plot_trajectory", "plot_pair_errors"]
@@ -58,7 +58,7 @@ def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarr
 
     ``std``: (P, 6) the solver's standard deviations of each pair's (t [m], r [rad])
     (:attr:`polycam.motion.PairResult.std`; infinite where unobservable: not drawn), drawn
-    beside the errors as the error norm they predict, √(Σ std²) over t and over r: where the
+    beside the errors as the error norm they predict (:func:`~polycam.evaluate.std_norms`): where the
     bars stand far above the marks, the error is not the noise the covariance describes
     (docs/motion.md, "Camera arrays")."""
     from matplotlib.ticker import MaxNLocator
@@ -71,8 +71,7 @@ def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarr
     axes[1].bar(pairs, np.degrees(err.w_err), color="tab:orange", label="error")
     axes[1].set_ylabel("rotation error [deg]")
     if std is not None:
-        std = np.asarray(std, float).reshape(len(pairs), 6)
-        norm_t, norm_r = np.sqrt(np.sum(std[:, :3] ** 2, axis=1)), np.sqrt(np.sum(std[:, 3:] ** 2, axis=1))
+        norm_t, norm_r = std_norms(std)
         for ax, p in zip(axes, (norm_t * 1e3, np.degrees(norm_r))):
             p = np.where(np.isfinite(p), p, np.nan)       # unobservable: infinite, not drawn
             ax.plot(pairs, p, "_", color="black", ms=22, mew=2, label="reported 1-σ (norm)")
