@@ -18,14 +18,12 @@ ways gives the two motion-based estimates of Eq. 7::
 All four are linear in λ: ``a_i λ = b_i`` (:func:`depth_equations`). They are fused
 per ray by weighted least squares over a small (u, v) neighbourhood
 (prefilter-weighted sums of ``a²`` and ``a b``): ``λ = Σ a b / Σ a²``. The
-confidence is the information ``Σ a²`` times the fraction of the equations' energy
-explained by one depth (near 0 at occlusion boundaries, where two depths mix, and
-in textureless areas). A ray whose window one depth explains clearly worse than a
-window centred a few samples beside it is taken to straddle a depth boundary and
-ranks last (its confidence scaled down): at an occlusion the foreground's edge
-dominates the windows of the background rays beside it and lends them its depth
-(docs/depth.md, "Occlusion boundaries"). :func:`depth_from_derivatives` fuses the two stereo
-equations and the positional motion equation (the directional one has the noisy
+confidence is ``λ² / var(λ)``, var(λ) from what one depth leaves unexplained in the window
+(large at occlusion boundaries, where two depths mix) and from the sensor noise's share
+(large in textureless areas): it ranks the rays by how precise their depth is (docs/depth.md,
+"Fusion and confidence"), and so ranks last the background rays beside a silhouette, to which
+the foreground's edge lends its depth ("Occlusion boundaries"). :func:`depth_from_derivatives`
+fuses the two stereo equations and the positional motion equation (the directional one has the noisy
 ``L_t`` on its left side); :mod:`polycam.scales` compares all four to choose the
 derivative scales (paper Sect. 4.1). :func:`confident_mask` and
 :func:`depth_points` turn a depth map into a point cloud (file writing is in
@@ -42,9 +40,9 @@ from .derivatives import FILTERS, Derivatives, correlate_axis
 from .geometry import T_inverse, rt_from_T
 from .lightfield import LightFieldGrid
 
-__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "BOUNDARY_SHIFT", "BOUNDARY_GAIN", "BOUNDARY_FACTOR",
-           "depth_equations", "equation_noise", "window_sum", "depth_from_derivatives", "depth_of_pair",
-           "grey_frame", "confident_mask", "view_mask", "depth_points"]
+__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "CONFIDENCE_FLOOR", "depth_equations", "equation_noise",
+           "window_sum", "window_weight_energy", "depth_from_derivatives", "depth_of_pair", "grey_frame",
+           "confident_mask", "view_mask", "depth_points"]
 
 DEPTH_FILTERS = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
 """Derivative filters for depth (the motion solver's defaults; 9 viewpoints leave 7 valid with fs3)."""
@@ -52,20 +50,9 @@ DEPTH_FILTERS = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
 EQUATIONS = ("stereo_x", "stereo_y", "motion_dir", "motion_pos")
 """Names of the four depth equations of Eq. 6–7, in the order of :func:`depth_equations`."""
 
-BOUNDARY_SHIFT = 4
-"""[(u, v) samples] the depth-boundary test (:func:`depth_from_derivatives`'s ``boundary``)
-compares a ray's fusion window with the 8 windows centred at offsets {−s, 0, s}² other than
-(0, 0) from it; 4 = the default window's reach (fs5 twice: ±4 samples)."""
-
-BOUNDARY_GAIN = 0.02
-"""A ray is at a depth boundary when one of those windows' consistency (the energy fraction one
-depth explains, in [0, 1]) exceeds its own by more than this."""
-
-BOUNDARY_FACTOR = 0.03
-"""The confidence of a ray at a depth boundary is multiplied by this: a ``keep`` fraction
-(:func:`confident_mask`) takes such rays last. Measured (docs/depth.md, "Occlusion boundaries"):
-the demo's room, 90th percentile of the kept rays' depth error 41 % → 12 %; HCI *antinous*,
-median disparity error of the most confident half 0.137 → 0.082 px (k = 4)."""
+CONFIDENCE_FLOOR = 1e-6
+"""The smallest relative variance of λ the confidence grants (float32 sums resolve no
+less): confidence ≤ 1e6."""
 
 
 @dataclass(frozen=True)
@@ -75,8 +62,9 @@ class DepthMap:
     Z: np.ndarray
     """[m] depth along each face's z axis from its focal plane Π (NaN where unknown)."""
     confidence: np.ndarray
-    """Information × consistency, ≥ 0 (0 = no estimate; × :data:`BOUNDARY_FACTOR` at a depth
-    boundary); comparable within one frame pair."""
+    """λ² / var(λ) ≥ 0, the depth's squared ratio to its uncertainty from the fusion window's
+    misfit and sensor noise (1 / relative variance; at most 1 / :data:`CONFIDENCE_FLOOR`;
+    0 = no estimate); dimensionless, so comparable across frame pairs and derivative scales."""
     consistency: np.ndarray
     """In [0, 1]: fraction of the equations' energy explained by one depth."""
 
@@ -189,48 +177,55 @@ def depth_equations(der: Derivatives, grid: LightFieldGrid,
     return out
 
 
-def _at_boundary(consistency: np.ndarray, shift: int, gain: float) -> np.ndarray:
-    """(F, Ny, Nx, Nv, Nu) bool: rays with a window centred at a (u, v) offset {−shift, 0,
-    shift}² other than (0, 0) from them (inside the grid) whose ``consistency`` (same dims) exceeds
-    theirs by more than ``gain``."""
-    out = np.zeros(consistency.shape, bool)
-    Nv, Nu = consistency.shape[-2:]
-    for dv in (-shift, 0, shift):
-        for du in (-shift, 0, shift):
-            if not (dv or du) or abs(dv) >= Nv or abs(du) >= Nu:
-                continue
-            # the rays ``dst`` compared with the windows centred at ``src`` = dst + (dv, du)
-            dst = (Ellipsis, slice(max(-dv, 0), Nv - max(dv, 0)), slice(max(-du, 0), Nu - max(du, 0)))
-            src = (Ellipsis, slice(max(dv, 0), Nv - max(-dv, 0)), slice(max(du, 0), Nu - max(-du, 0)))
-            out[dst] |= consistency[src] > consistency[dst] + np.float32(gain)
-    return out
+def window_weight_energy(window: int) -> float:
+    """Σ w² of :func:`window_sum`'s normalised 2-D weights (Σ w = 1): the variance of a
+    window-weighted mean of unit-variance white noise, ~1 / the window's effective number of
+    samples (0.052 for the default window 4: ~19 samples); 1 without smoothing."""
+    taps = np.array([1.0])
+    for _ in range(max(0, window // 2)):
+        taps = np.convolve(taps, np.asarray(FILTERS["fs5"].prefilter, float))
+    return float(np.sum(taps * taps) ** 2)
 
 
 def _fuse(sums: list[tuple[np.ndarray, np.ndarray, np.ndarray]], valid: np.ndarray, window: int,
           grid: LightFieldGrid, min_confidence: float,
-          noise: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None, boundary: int = 0) -> DepthMap:
+          noise: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> DepthMap:
     """DepthMap from per-ray sums (a², a b, b²) of the equations to fuse; ``noise``: their
     noise moments (:func:`equation_noise`), taken out of the window sums (errors in
-    variables: the noise energy of a in Σ a² would shrink λ = Σ a b / Σ a² towards 0);
-    ``boundary`` > 0: the rays at a depth boundary (:func:`_at_boundary` at that offset)
-    get BOUNDARY_FACTOR times their confidence."""
+    variables: the noise energy of a in Σ a² would shrink λ = Σ a b / Σ a² towards 0)
+    and counted in the confidence.
+
+    The confidence is λ² / var(λ) with var(λ) from the window: its misfit energy
+    ``Σb² − (Σab)² / Σa²`` (the part one depth does not explain: two depths mixed, model error)
+    plus the noise's share, ``κ Σ var(b − λ a)`` with κ = :func:`window_weight_energy`, over the
+    explained energy ``(Σab)² / Σa²`` = λ² Σa²."""
     aa = sum(s[0] for s in sums)
     ab = sum(s[1] for s in sums)
     bb = sum(s[2] for s in sums)
     Saa = window_sum(aa * valid, window)
     Sab = window_sum(ab * valid, window)
     Sbb = window_sum(bb * valid, window)
+    N = None
     if noise:
-        for S, i in ((Saa, 0), (Sab, 1), (Sbb, 2)):
-            S -= window_sum(np.broadcast_to(sum(n[i] for n in noise), valid.shape) * valid, window)
+        N = [window_sum(np.broadcast_to(sum(n[i] for n in noise), valid.shape) * valid, window) for i in range(3)]
+        Saa -= N[0]
+        Sab -= N[1]
+        Sbb -= N[2]
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = np.where(Saa > 0, Sab / Saa, np.nan)
         # energy explained by the best single depth: (Σab)² / (Σa² Σb²) ∈ [0, 1]
         consistency = np.where((Saa > 0) & (Sbb > 0), (Sab * Sab) / (Saa * Sbb), 0.0)
     consistency = np.clip(np.nan_to_num(consistency), 0.0, 1.0).astype(np.float32)
-    confidence = (np.maximum(Saa, 0.0) * consistency * (valid > 0)).astype(np.float32)
-    if boundary > 0:
-        confidence[_at_boundary(consistency, boundary, BOUNDARY_GAIN)] *= np.float32(BOUNDARY_FACTOR)
+    # confidence = λ² / var(λ) = explained / (misfit + κ × the noise energy of b − λ a)
+    explained = consistency * np.maximum(Sbb, 0.0)
+    unexplained = (1.0 - consistency) * np.maximum(Sbb, 0.0)
+    if N is not None:
+        lam0 = np.nan_to_num(lam)
+        noise_r = np.maximum(N[2] - 2 * lam0 * N[1] + lam0 * lam0 * N[0], 0.0)
+        unexplained += np.float32(window_weight_energy(window)) * noise_r
+    with np.errstate(divide="ignore", invalid="ignore"):
+        confidence = np.where(explained > 0, explained / np.maximum(unexplained, CONFIDENCE_FLOOR * explained), 0.0)
+    confidence = (np.nan_to_num(confidence) * (valid > 0)).astype(np.float32)
     Z = np.empty_like(lam, dtype=np.float32)
     for k, face in enumerate(grid.faces):
         Z[k] = lam[k] * face.f
@@ -242,8 +237,7 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
                            T_prev_next: np.ndarray | None = None, window: int = 4,
                            min_confidence: float = 0.0,
                            equations: tuple[str, ...] = ("stereo_x", "stereo_y", "motion_pos"),
-                           valid: np.ndarray | None = None, noise: np.ndarray | None = None,
-                           boundary: int = BOUNDARY_SHIFT) -> DepthMap:
+                           valid: np.ndarray | None = None, noise: np.ndarray | None = None) -> DepthMap:
     """Per-ray depth from the plenoptic derivatives of a frame pair.
 
     ``der``: :func:`~polycam.derivatives.plenoptic_derivatives` of frames (L0, L1).
@@ -258,11 +252,8 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     variances in L_x, L_y, L_u, L_v, L_t (:func:`polycam.derivatives.derivative_noise`);
     its expected energy is taken out of the fused sums, without which noise in the
     positional derivatives biases the depth towards the rig (at σ = 4 grey levels by ~16 %
-    on the paper's spheres at 4 m; docs/depth.md). None: no correction. ``boundary``: [(u, v)
-    samples] a ray whose window's consistency is more than :data:`BOUNDARY_GAIN` below that
-    of a window centred ``boundary`` samples away in u, v or both straddles a depth boundary
-    (at an occlusion, the foreground's edge lends its depth to the background rays beside
-    it) and gets :data:`BOUNDARY_FACTOR` times its confidence; 0: no such test.
+    on the paper's spheres at 4 m; docs/depth.md), and its share of var(λ) joins the
+    confidence's. None: no correction, and the confidence counts only the window's misfit.
     """
     unknown = [e for e in equations if e not in EQUATIONS]
     if unknown:
@@ -281,7 +272,7 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     m = np.broadcast_to(der.valid, der.Lx.shape)
     if valid is not None:
         m = m & np.broadcast_to(valid, der.Lx.shape)
-    return _fuse(sums, m.astype(np.float32), window, grid, min_confidence, moments, boundary)
+    return _fuse(sums, m.astype(np.float32), window, grid, min_confidence, moments)
 
 
 def grey_frame(L: np.ndarray) -> np.ndarray:
@@ -292,14 +283,12 @@ def grey_frame(L: np.ndarray) -> np.ndarray:
 
 def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
                   T_prev_next: np.ndarray | None = None, *, window: int = 4,
-                  filters: str | dict = DEPTH_FILTERS, noise_var: float | None = None,
-                  boundary: int = BOUNDARY_SHIFT) -> DepthMap:
+                  filters: str | dict = DEPTH_FILTERS, noise_var: float | None = None) -> DepthMap:
     """Single-scale depth of the frame pair (L0, L1), each (F, Ny, Nx, Nv, Nu) (a trailing
     colour axis is averaged): :func:`depth_from_derivatives` of their plenoptic
     derivatives with the rig motion ``T_prev_next`` (4, 4) ``T_rig0_rig1`` (None: stereo only),
     corrected for the sensor noise of variance ``noise_var`` per sample (None: estimated
-    from the frames, :func:`polycam.motion_weights.frame_noise_variance`; 0: no correction);
-    ``boundary``: as :func:`depth_from_derivatives`."""
+    from the frames, :func:`polycam.motion_weights.frame_noise_variance`; 0: no correction)."""
     from .derivatives import derivative_noise, plenoptic_derivatives
     from .motion_weights import frame_noise_variance
 
@@ -308,7 +297,7 @@ def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
     if noise_var is None:
         noise_var = frame_noise_variance(g0, g1, grid)
     return depth_from_derivatives(der, grid, T_prev_next=T_prev_next, window=window,
-                                  noise=derivative_noise(noise_var, grid, filters), boundary=boundary)
+                                  noise=derivative_noise(noise_var, grid, filters))
 
 
 def confident_mask(dm: DepthMap, *, keep: float = 0.5, W: np.ndarray | None = None,
