@@ -95,7 +95,11 @@ covariance is a cluster-robust sandwich over tiles of rays (residuals of
 filtered derivatives are correlated over the filter support) around the
 noise-corrected normal matrix ``AᵀWA − E`` (E = expected energy of sensor noise in
 the derivatives, with the noise level estimated from second differences across
-viewpoints); the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as ``covariance_iid``.
+viewpoints), kept as ``covariance_noise``; the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as
+``covariance_iid``. The reported ``covariance`` adds ``d dᵀ``, ``d`` the change of (t, r) from
+the estimate of the (u, v) level above the finest to the final one: model error coherent over
+the image (aliasing across the views, resampling) moves the estimate without showing in the
+residuals, and the two levels see it differently.
 
 Measured (benchmarks/bench_motion.py, paper Sect. 5 set-up: six faces, f = 60,
 9 x 9 views 1 cm apart, 64 x 64 directions, 3 x 3 supersampling, |t| = 1.5 cm,
@@ -121,11 +125,13 @@ vectorises them; work arrays are kept per thread for the next call on the same g
 (:func:`free_work_buffers`). The kernels: :mod:`polycam.eq5` (rows and normal sums),
 :mod:`polycam.warp`, :mod:`polycam.whitening` (generalised least squares).
 
-Limits: the covariance describes noise, not the systematic errors of aliased
-or occluded data (it can be several times too small on
-noise-free synthetic frames); under noise it matches the scatter of repeated
-estimates to within about 1.5x (tests/test_motion.py). One face alone couples
-t and ω (condition numbers of 10²–10³).
+Limits: ``covariance_noise`` describes noise, not the systematic errors of aliased
+or occluded data (on resampled camera-array sessions the errors are 3–5x its standard
+deviations, RMS per axis); the level change brings that to ~2x (the errors' median to ~1.5x
+their predicted norm), and makes six faces of clean noisy frames 1.5–2x conservative in t
+(docs/motion.md, "How far to trust the covariance"). Under noise alone ``covariance_noise``
+matches the scatter of repeated estimates to within about 1.5x (tests/test_motion.py). One face
+alone couples t and ω (condition numbers of 10²–10³).
 
 This module does no file I/O; :func:`estimate_trajectory` streams frames from
 a light-field store (anything with ``grid``, ``timestamps_ns``, ``frame(i)``,
@@ -211,7 +217,13 @@ class PairResult:
     T_prev_next: np.ndarray
     """(4, 4) ``T_rig[i]_rig[i+1]``: pose of frame i+1 in the rig frame of frame i."""
     covariance: np.ndarray
-    """(6, 6) covariance of (t [m], r [rad]) of ``T_prev_next`` (cluster-robust sandwich)."""
+    """(6, 6) covariance of (t [m], r [rad]) of ``T_prev_next``: ``covariance_noise`` plus
+    ``level_change level_changeᵀ`` (the model error the residuals do not show, estimated by how
+    far the finest level moved the estimate of the level above it; docs/motion.md, "How far to
+    trust the covariance")."""
+    covariance_noise: np.ndarray
+    """(6, 6) the part of ``covariance`` the residuals' scatter explains: a cluster-robust
+    sandwich over tiles of rays."""
     covariance_iid: np.ndarray
     """(6, 6) ``σ² (AᵀWA)⁻¹`` mapped like ``covariance`` (assumes independent residuals)."""
     sigma: float
@@ -241,6 +253,10 @@ class PairResult:
     """Disparity per view step [(u, v) samples of the frames] that chose ``uv_level`` (the
     largest over the faces; NaN when not measured: ``max_view_disparity`` inf, fewer than 3
     views along x or y, no texture)."""
+    level_change: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
+    """(6,) (t [m], r [rad]) of ``T_prev_next`` minus those of the estimate the level above the
+    finest (u, v) level handed down to it (NaN with one level: ``covariance`` is then
+    ``covariance_noise``)."""
 
     @property
     def ok(self) -> bool:
@@ -1129,7 +1145,10 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     sol = None
     solver = None
     diag = None
+    coarse = None
     for li in range(len(levels) - 1, -1, -1):
+        if li == 0 and diag is not None:
+            coarse = M.copy()                     # the estimate the level above hands down
         # the coarser level's extrapolation disparity ρ̄ (it has one only with depth_regressors at
         # a level < _DR_LEVELS), its grid and disparity-gate decision, handed down (None: no ρ̄)
         coarse_rho = None if solver is None or solver.rho_bar is None else (solver.rho_bar, solver.lev.grid,
@@ -1173,8 +1192,11 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     continue                      # converged: now the whitened (GLS) re-solves
                 if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
+    change = None
+    if coarse is not None:
+        change = np.concatenate([M[:3, 3] - coarse[:3, 3], r_from_R(M[:3, :3]) - r_from_R(coarse[:3, :3])])
     return _result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters),
-                   math.sqrt(_noise_variance(levels[0])))
+                   math.sqrt(_noise_variance(levels[0])), change)
 
 
 def _finer_rho_bar(rho_bar: np.ndarray, coarse: LightFieldGrid, fine: LightFieldGrid) -> np.ndarray:
@@ -1262,7 +1284,9 @@ def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
 
 
 def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str = "",
-            noise_sigma: float = math.nan) -> PairResult:
+            noise_sigma: float = math.nan, level_change: np.ndarray | None = None) -> PairResult:
+    """The :class:`PairResult` of the final solve ``diag`` at estimate ``M``; ``level_change``:
+    (6,) its (t, r) minus the coarser level's (None: one level)."""
     sol, (C_sand, C_iid, sigma2), H = diag
     num = sol["num"]
     base_n = sol["base_n"]
@@ -1270,8 +1294,14 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
     # map the increment covariance to the rig's (t, r): M = H exp(−δ) H = M · exp(Ad(H⁻¹)(−δ))
     # (one-sided warping: H = M_e, M = exp(−δ) M_e = M · exp(Ad(M⁻¹)(−δ)))
     J = ray_to_rig_jacobian(M, H if opts.symmetric else None)
-    cov = J @ C_sand @ J.T
+    cov_noise = J @ C_sand @ J.T
     cov_iid = J @ C_iid @ J.T
+    # the model error the residuals cannot show (at the fixed point they are orthogonal to the
+    # regressors, so a regressor error coherent over the image moves the estimate unseen): the
+    # coarser level sees the scene through other filters and aliasing, and how far the finest level
+    # moved its estimate measures that error's size (and includes the coarser level's own noise)
+    change = np.full(6, np.nan) if level_change is None else np.asarray(level_change, float)
+    cov = cov_noise + (np.outer(change, change) if np.all(np.isfinite(change)) else 0.0)
     unobs_vecs = sol["unobs"]
     texture = sol["texture"]
     if texture < _TEXTURE_FLOOR:
@@ -1281,7 +1311,7 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
         # (J maps parameters one to one up to a rotation within t and within ω)
         touched = np.sum(unobs_vecs ** 2, axis=0) > 0.01
         touched = touched | np.concatenate([[touched[:3].any()] * 3, [touched[3:].any()] * 3])
-        for C in (cov, cov_iid):
+        for C in (cov, cov_noise, cov_iid):
             C[touched, :] = 0.0
             C[:, touched] = 0.0
             C[touched, touched] = np.inf
@@ -1299,10 +1329,11 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
         reason = "the solution diverged"
     if reason:
         log.warning("pair %d: %s", index, reason)
-    return PairResult(index=index, T_prev_next=M, covariance=cov, covariance_iid=cov_iid,
+    return PairResult(index=index, T_prev_next=M, covariance=cov, covariance_noise=cov_noise, covariance_iid=cov_iid,
                       sigma=math.sqrt(sigma2), condition=sol["cond"], inlier_fraction=inl,
                       num_rays=num, iterations=n_solves, unobservable=names,
-                      unobservable_directions=unobs_vecs, reason=reason, noise_sigma=noise_sigma)
+                      unobservable_directions=unobs_vecs, reason=reason, noise_sigma=noise_sigma,
+                      level_change=change)
 
 
 def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = None,

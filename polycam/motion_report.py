@@ -3,11 +3,15 @@
 One row per frame pair ``(i, i+1)``::
 
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
-    sigma,noise_sigma,uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,
-    unobservable,reason
+    std_noise_t,std_noise_r,level_change_t,level_change_r,sigma,noise_sigma,uv_level,view_disparity,
+    condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
-the square roots of the covariance diagonal; ``sigma`` the robust residual scale and
+the square roots of the covariance diagonal; ``std_noise_t`` [m] and ``std_noise_r`` [rad] the
+norms (√Σ of the squares over the three axes) of the part of them the residuals' scatter explains
+(``PairResult.covariance_noise``), ``level_change_t`` [m] and ``level_change_r`` [rad] the norms of
+the change from the coarser (u, v) level's estimate that the covariance adds as model error
+(``PairResult.level_change``; empty with one level); ``sigma`` the robust residual scale and
 ``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
 :class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not
 given); ``uv_level`` the (u, v) pyramid level the estimate comes from and ``view_disparity``
@@ -34,6 +38,7 @@ __all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report", "write_motion_report"]
 PAIR_REPORT_COLUMNS = (
     "pair", "timestamp_ns", "t_x", "t_y", "t_z", "r_x", "r_y", "r_z",
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
+    "std_noise_t", "std_noise_r", "level_change_t", "level_change_r",
     "sigma", "noise_sigma", "uv_level", "view_disparity", "condition", "inlier_fraction", "num_rays", "iterations",
     "ok", "unobservable", "reason",
 )
@@ -51,8 +56,13 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
     for r in results:
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
+        sn = np.sqrt(np.clip(np.diag(r.covariance_noise), 0.0, None))
+        d = r.level_change
+        finite = np.all(np.isfinite(d))
+        change = [f"{np.linalg.norm(d[:3]):.6g}", f"{np.linalg.norm(d[3:]):.6g}"] if finite else ["", ""]
         w.writerow([r.index, ts, *(f"{v:.9g}" for v in r.t), *(f"{v:.9g}" for v in r.r),
-                    *(f"{v:.6g}" for v in std), f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
+                    *(f"{v:.6g}" for v in std), f"{np.linalg.norm(sn[:3]):.6g}", f"{np.linalg.norm(sn[3:]):.6g}",
+                    *change, f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
                     f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason])

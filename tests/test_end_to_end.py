@@ -16,7 +16,8 @@ from polycam.synth import synth_session
 from polycam.trajectory import read_tum
 from conftest import assert_one_line_error as _one_line_error
 from conftest import mock_grid_rig_text
-from tolerances import E2E_SMALL_RIG_MOTION_REL, E2E_STREAM_VS_STORE_ATOL
+from tolerances import (E2E_SMALL_RIG_MOTION_REL, E2E_STREAM_VS_STORE_ATOL, MOTION_ARRAY_NOISE_STD_RATIO_MIN,
+                        MOTION_ARRAY_STD_RATIO)
 
 RIG_TEXT = mock_grid_rig_text("e2e3x3", 64, 48)
 
@@ -62,6 +63,29 @@ def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys
     err = pair_errors(a, read_tum(session / "groundtruth.tum"))
     assert np.median(err.t_rel) < E2E_SMALL_RIG_MOTION_REL
     assert np.median(err.w_rel) < E2E_SMALL_RIG_MOTION_REL
+
+
+def test_covariance_counts_the_camera_arrays_model_error(tmp_path):
+    """On a resampled camera array the residuals do not show the model error (aliasing across
+    the views, resampling): the errors are several times the noise covariance's std. The
+    reported covariance adds the change from the coarser (u, v) level's estimate, and its std
+    explains the errors to within 2x."""
+    from polycam.evaluate import error_over_std, pair_errors
+    from polycam.motion import estimate_trajectory
+    from resample.stream import SessionLightField
+
+    (tmp_path / "rig.toml").write_text(RIG_TEXT)
+    lf = SessionLightField(synth_session(load_rig(tmp_path / "rig.toml"), tmp_path / "s", frames=9, seed=1))
+    traj, results = estimate_trajectory(lf)
+    err = pair_errors(traj, lf.groundtruth())
+    noise_std = np.stack([np.sqrt(np.diag(r.covariance_noise)) for r in results])
+    assert min(error_over_std(err, noise_std)) > MOTION_ARRAY_NOISE_STD_RATIO_MIN
+    lo, hi = MOTION_ARRAY_STD_RATIO
+    assert all(lo < k < hi for k in error_over_std(err, np.stack([r.std for r in results])))
+    for r in results:
+        d = r.level_change
+        assert np.all(np.isfinite(d)) and np.abs(d).max() > 0
+        np.testing.assert_allclose(r.covariance, r.covariance_noise + np.outer(d, d), rtol=1e-12, atol=1e-30)
 
 
 def test_motion_from_session_with_more_viewpoints(session, tmp_path, capsys):

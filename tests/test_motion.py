@@ -408,6 +408,8 @@ def test_covariance_matches_scatter_under_noise(scene):
         res = estimate_motion(n0, n1, grid, options=opts)
         est.append(np.concatenate([res.t, res.r]))
         std.append(res.std)
+        # one level: no coarser estimate to compare with, the covariance is the residuals'
+        assert np.all(np.isnan(res.level_change)) and np.array_equal(res.covariance, res.covariance_noise)
     scatter = np.std(np.array(est), axis=0, ddof=1)
     predicted = np.mean(np.array(std), axis=0)
     ratio = scatter / predicted
@@ -1315,7 +1317,7 @@ def test_pair_report_csv(scene, tmp_path):
 
     from polycam.motion_report import PAIR_REPORT_COLUMNS, write_pair_report
 
-    grid = make_grid(("+z",))
+    grid = make_grid(("+z",), directions=48)                    # 48 directions: a pyramid of 3 levels
     rt = np.array([0.0, 0.0, 0.0, T_STEP, 0.0, 0.0])
     good = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt)), grid)
     L = np.full(grid.shape, 0.5, np.float32)
@@ -1331,6 +1333,12 @@ def test_pair_report_csv(scene, tmp_path):
     # 5 views 1.5 cm apart see the room at ~0.03 samples per view step: the frames' own level
     assert rows[0]["uv_level"] == "0" and 0.0 < float(rows[0]["view_disparity"]) < 0.75
     assert rows[1]["view_disparity"] == ""                       # no texture: not measured
+    assert float(rows[1]["level_change_t"]) == 0.0               # nothing to move it
+    assert float(rows[0]["std_noise_t"]) > 0 and float(rows[0]["std_noise_r"]) > 0
+    d = good.level_change                                        # the change from the coarser level
+    assert float(rows[0]["level_change_t"]) == pytest.approx(np.linalg.norm(d[:3]), rel=1e-5)
+    assert np.linalg.norm(good.std[:3]) ** 2 == pytest.approx(float(rows[0]["std_noise_t"]) ** 2
+                                                              + np.linalg.norm(d[:3]) ** 2, rel=1e-4)
 
 
 def test_trajectory_from_zarr_store_matches_groundtruth(scene, tmp_path):
