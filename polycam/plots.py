@@ -59,8 +59,8 @@ def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarr
     ``std``: (P, 6) the solver's standard deviations of each pair's (t [m], r [rad])
     (:attr:`polycam.motion.PairResult.std`; infinite where unobservable: not drawn), drawn
     beside the errors as the error norm they predict (:func:`~polycam.evaluate.std_norms`): where the
-    bars stand far above the marks, the error is not the noise the covariance describes
-    (docs/motion.md, "Camera arrays")."""
+    bars stand far above the marks, the covariance does not explain the error (docs/motion.md,
+    "How far to trust the covariance")."""
     from matplotlib.ticker import MaxNLocator
 
     plt = _pyplot()

@@ -628,9 +628,10 @@ def _write_summary(report: Path, summary: dict, written: list[str]) -> None:
 ![trajectory](trajectory.png)
 ![per-pair errors](errors.png)
 
-(Each pair's error beside the error norm its reported standard deviations predict; on
-camera arrays the translation's error is several times that: model error coherent over
-the image, which the residuals' scatter does not show. docs/motion.md, "Camera arrays".)
+(Each pair's error beside the error norm its reported standard deviations predict: the
+residuals' scatter plus the change from the coarser (u, v) level's estimate, which stands in for
+the model error of a camera array that the residuals do not show; pairs.csv has both parts.
+docs/motion.md, "How far to trust the covariance".)
 
 ![calibration residuals](calibration_residuals.png)
 ![light-field mosaic](mosaic.png)
