@@ -37,7 +37,7 @@ import numpy as np
 
 from .depth import (DEPTH_FILTERS, EQUATIONS, DepthMap, depth_equations, depth_from_derivatives, equation_noise,
                     grey_frame, window_sum)
-from .derivatives import correlate_axis, derivative_noise, plenoptic_derivatives
+from .derivatives import correlate_axis, derivative_noise, filter_taps, min_filter_axis, plenoptic_derivatives
 from .lightfield import LightFieldGrid
 from .motion_weights import frame_noise_variance
 
@@ -200,11 +200,21 @@ def scale_derivatives(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, scal
     """Plenoptic derivatives of the pair at ``scale`` (one :class:`Scale` or one per face).
 
     Returns (:class:`~polycam.derivatives.Derivatives`, ``ok`` (F, Ny, Nx, Nv, Nu) bool:
-    the derivative's and the smoothing's support inside the grid).
+    the derivative filters' support inside the grid, and every smoothed sample it reads
+    with its own smoothing support inside the grid).
     """
     S0, ok0 = smooth_at_scale(L0, scale)
     S1, _ = smooth_at_scale(L1, scale)
     der = plenoptic_derivatives(S0, S1, grid, filters=filters)
+    if not ok0.all():
+        # a derivative reads ±radius smoothed samples along each axis; those near the border were
+        # smoothed with clipped taps (on 5 views, xy4 made a plane's depth 6 % too far)
+        pairs, _ = filter_taps(grid, filters)
+        ok = ok0.astype(np.float32)
+        for name, axis in (("y", 1), ("x", 2), ("v", 3), ("u", 4)):
+            if pairs[name] is not None and pairs[name].radius > 0:
+                ok = min_filter_axis(ok, pairs[name].radius, axis)
+        ok0 = ok > 0
     return der, ok0 & der.valid[None]
 
 
