@@ -301,15 +301,22 @@ def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
 
 
 def confident_mask(dm: DepthMap, *, keep: float = 0.5, W: np.ndarray | None = None,
-                   min_W: float = 0.5) -> np.ndarray:
+                   min_W: float = 0.5, max_rel_std: float | None = None) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) bool: rays with a finite positive depth whose confidence is in
     the best ``keep`` fraction of the rays with any confidence (and, with the light
-    field's confidence ``W`` of the same dims, ``W > min_W``)."""
+    field's confidence ``W`` of the same dims, ``W > min_W``). ``max_rel_std``: instead of
+    the fraction, the rays whose depth's predicted relative standard deviation (1 / √confidence)
+    is at most this (e.g. 0.05; docs/depth.md: the prediction holds to ~1.3x down to ~3 %)."""
     conf = dm.confidence
     if W is not None:
         conf = conf * (np.asarray(W) > min_W)
-    pos = conf[conf > 0]
-    thr = float(np.quantile(pos, 1.0 - keep)) if pos.size else np.inf
+    if max_rel_std is not None:
+        if not max_rel_std > 0:
+            raise ValueError(f"max_rel_std must be > 0, got {max_rel_std}")
+        thr = 1.0 / float(max_rel_std) ** 2
+    else:
+        pos = conf[conf > 0]
+        thr = float(np.quantile(pos, 1.0 - keep)) if pos.size else np.inf
     return (conf >= thr) & (conf > 0) & np.isfinite(dm.Z) & (dm.Z > 0)
 
 

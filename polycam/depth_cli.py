@@ -74,8 +74,12 @@ def add_parsers(sub) -> None:
                         "estimates agree (Sect. 4.1): about 2x lower depth error at 4-16 m, but smoothing across "
                         "viewpoints leaves only the inner views with depth; auto (default) = face with "
                         "--views central, off with --views all (docs/depth.md)")
-    p.add_argument("--keep", type=_positive_float, default=0.5, metavar="FRAC",
-                   help="keep the most confident FRAC of the rays (default 0.5)")
+    keep = p.add_mutually_exclusive_group()
+    keep.add_argument("--keep", type=_positive_float, default=0.5, metavar="FRAC",
+                      help="keep the most confident FRAC of the rays (default 0.5)")
+    keep.add_argument("--max-std", type=_positive_float, default=None, metavar="REL",
+                      help="instead, keep the rays whose depth's predicted relative standard deviation "
+                           "(1 / sqrt(confidence)) is at most REL, e.g. 0.05 (docs/depth.md)")
     add_source_options(p)
     add_solver_options(p)
     p.add_argument("--ascii-ply", action="store_true", help="write an ASCII PLY (default binary little-endian)")
@@ -183,12 +187,13 @@ def cmd_depth(args: argparse.Namespace) -> int:
 
         dm, sel = depth_scale_selected(g0, g1, grid, M, per=mode, W0=W0, noise_var=noise_var)
         scale_info = {"face_scales": [s.name for s in sel.face_scales()]}
-    mask = confident_mask(dm, keep=args.keep, W=W0)
+    mask = confident_mask(dm, keep=args.keep, W=W0, max_rel_std=args.max_std)
     views = view_mask(grid, 1 if args.views == "central" else None)
     L0a = np.asarray(L0, np.float32)
     meta = {"source": str(src), "frame": i, "frame_next": i + 1, "timestamp_ns": int(ts[i]),
             "timestamp_next_ns": int(ts[i + 1]), "T_prev_next": np.asarray(M, float).tolist(),
-            "keep": float(args.keep), "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)),
+            **({"keep": float(args.keep)} if args.max_std is None else {"max_rel_std": float(args.max_std)}),
+            "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)),
             **motion, **scale_info}
     summary = write_depth_folder(args.out, grid, dm, intensity=L0a, mask=mask, views=views, meta=meta,
                                  binary_ply=not args.ascii_ply)
