@@ -240,9 +240,8 @@ def test_smoothed_scale_derivatives_read_only_wholly_smoothed_samples():
     for views, scale, kept in ((9, Scale(2, 0), [2, 3, 4, 5, 6]), (9, Scale(4, 0), [3, 4, 5]),
                                (9, Scale(6, 0), [4]), (5, Scale(4, 0), [])):
         g = plane_grid(views=views, directions=32)
-        L0 = render_plane(g, 1.5, waves(np.random.default_rng(3), [8.0, 13.0, 20.0]))
-        L1 = render_plane(g, 1.5, waves(np.random.default_rng(3), [8.0, 13.0, 20.0]), MOTION)
-        der, ok = scale_derivatives(L0, L1, g, scale)
+        W = waves(np.random.default_rng(3), [8.0, 13.0, 20.0])
+        der, ok = scale_derivatives(render_plane(g, 1.5, W), render_plane(g, 1.5, W, MOTION), g, scale)
         c = views // 2
         assert list(np.flatnonzero(ok[0, c, :, 16, 16])) == kept, (views, scale)
         assert list(np.flatnonzero(ok[0, :, c, 16, 16])) == kept, (views, scale)
