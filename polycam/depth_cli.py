@@ -198,9 +198,15 @@ def cmd_depth(args: argparse.Namespace) -> int:
     summary = write_depth_folder(args.out, grid, dm, intensity=L0a, mask=mask, views=views, meta=meta,
                                  binary_ply=not args.ascii_ply)
     out = Path(args.out)
+    if summary["points"]:
+        kept = f"kept, median depth {summary['median_depth_m']:.2f} m"
+    else:                                  # say why, and what would keep some
+        best = float(np.max(dm.confidence[views], initial=0.0))
+        kept = ("kept: no ray with a depth" if best <= 0 else
+                f"kept: the best ray's predicted relative std is {100 / np.sqrt(best):.2g} %")
     print(f"wrote {out}: {summary['views']} view depth maps, {summary['points']} points in "
           f"{out / 'points.ply'}; {100 * summary['confident_fraction']:.0f}% of the written views' rays "
-          f"kept, median depth {summary['median_depth_m']:.2f} m (motion: {motion['motion_source']})")
+          f"{kept} (motion: {motion['motion_source']})")
     truth = store.groundtruth() if hasattr(store, "groundtruth") else None
     if truth is not None and not args.traj:
         from .evaluate import pair_errors

@@ -497,6 +497,10 @@ def test_depth_verb_keeps_rays_by_their_predicted_std(tmp_path, capsys):
         counts.append(ply["x"].size)
     assert 0 < counts[0] < counts[1]
     capsys.readouterr()
+    assert main([*base, "--out", str(tmp_path / "none"), "--max-std", "0.0001"]) == 0     # stricter than any ray
+    out = capsys.readouterr().out
+    assert " 0 points" in out and "the best ray's predicted relative std is" in out
+    assert read_ply(tmp_path / "none" / "points.ply")["x"].size == 0
     with pytest.raises(SystemExit) as e:
         main([*base, "--out", str(tmp_path / "x"), "--max-std", "0.05", "--keep", "0.3"])
     assert e.value.code == 2 and not (tmp_path / "x").exists()
