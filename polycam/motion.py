@@ -128,7 +128,7 @@ vectorises them; work arrays are kept per thread for the next call on the same g
 Limits: ``covariance_noise`` describes noise, not the systematic errors of aliased
 or occluded data (on resampled camera-array sessions the errors are 3–5x its standard
 deviations, RMS per axis); the level change brings that to ~2x (the errors' median to ~1.5x
-their predicted norm), and makes six faces of clean noisy frames 1.5–2x conservative in t
+their predicted norm), and makes six faces of clean noisy frames 1.3–2.5x conservative in t
 (docs/motion.md, "How far to trust the covariance"). Under noise alone ``covariance_noise``
 matches the scatter of repeated estimates to within about 1.5x (tests/test_motion.py). One face
 alone couples t and ω (condition numbers of 10²–10³).
