@@ -30,6 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .evaluate import std_norms
 from .motion import MotionOptions, PairResult
 from .tomlio import atomic_write_text
 
@@ -56,12 +57,11 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
     for r in results:
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
-        sn = np.sqrt(np.clip(np.diag(r.covariance_noise), 0.0, None))
-        d = r.level_change
-        finite = np.all(np.isfinite(d))
-        change = [f"{np.linalg.norm(d[:3]):.6g}", f"{np.linalg.norm(d[3:]):.6g}"] if finite else ["", ""]
+        noise = std_norms(np.sqrt(np.clip(np.diag(r.covariance_noise), 0.0, None)))
+        d = r.level_change                   # its norms as std_norms takes them: √Σ d² over t and r
+        change = [f"{v[0]:.6g}" for v in std_norms(np.abs(d))] if np.all(np.isfinite(d)) else ["", ""]
         w.writerow([r.index, ts, *(f"{v:.9g}" for v in r.t), *(f"{v:.9g}" for v in r.r),
-                    *(f"{v:.6g}" for v in std), f"{np.linalg.norm(sn[:3]):.6g}", f"{np.linalg.norm(sn[3:]):.6g}",
+                    *(f"{v:.6g}" for v in std), *(f"{v[0]:.6g}" for v in noise),
                     *change, f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
                     f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
