@@ -40,6 +40,10 @@ the defaults include ``depth_regressors=True``; the variants other than the expl
 linearised estimator at the true motion (:func:`linear_probe`): which part of the gap to the
 bound an estimator with noise-free regressors (oracle) would still have on the rays the warp
 keeps, with plain or whitened least squares, against the measured and the Eq. 6 regressors.
+``--frontier`` (``--frontier-only``) fits the bound's own linear model (its rays, its noise-free
+regressors, no warp) by least squares whitened with each floor of :data:`FRONTIER_FLOORS`, down to
+the exact whitening whose covariance the bound is: the noise and the bias of each, computed exactly
+(:func:`gls_frontier`): how close to the bound any fit of the model can come on the frames.
 ``--oracle-depth`` (a diagnostic) gives the solver the scene's true disparity in place of its
 estimate ρ̂ (:class:`OracleDepth`): the same rays get Eq. 6 regressors, ``ρ L_u, ρ L_v`` with
 the ray tracer's ρ, so the table shows what any better ρ̂ could still gain.
@@ -615,6 +619,63 @@ def _true_motion_mask(grid, ok: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (okv * valid).astype(np.float64)
 
 
+FRONTIER_FLOORS = (None, 1.0, 0.3, 0.1, 0.03, 0.0)
+"""Weightings of :func:`gls_frontier`: None = plain least squares, else whitened with this ridge; 0 is
+the exact generalised least squares whose covariance the bound is."""
+
+
+def gls_frontier(name: str, grid, L0, L1, M) -> None:
+    """The bound's own linear model as an estimator: how far from the bound any fit of it can get.
+
+    On the rays V of the bound, with the bound's noise-free regressors ``a`` (derivatives of the
+    noise-free pair, no warp: the midpoint linearisation of :func:`linear_model_bounds`, exact to
+    second order in the motion) and its data ``y = −L_t`` of the noise-free pair, the (whitened)
+    least-squares estimate ``(Aᵀ W A)⁻¹ Aᵀ W y`` for W = ``(⊗ₐ(K_a K_aᵀ + floor I))⁻¹`` (None: I).
+    Its error without noise is the bias (the linear model's error on these frames: silhouettes, the
+    aliasing of the directions), its covariance under noise is exact (no draws):
+    ``2σ² (AᵀWA)⁻¹ AᵀWΣ̃WA (AᵀWA)⁻¹`` with Σ̃ = ⊗ₐ K_a K_aᵀ; floor 0 is the estimator the bound is the
+    covariance of (noise 1.00 by construction). Printed per floor: noise / CRB, bias / CRB at
+    σ = 1 (the bias is fixed, so at σ it is bias / σ bounds) and the RMS error / CRB at σ = 1 and 4.
+    Where the exact fit's bias is many bounds, the bound counts information the model cannot use
+    on those frames (docs/motion.md, "Noise against the Cramér–Rao bound")."""
+    filters = MotionOptions().filters
+    crb, _ = linear_model_bounds(L0, L1, grid, M, filters)
+    bt1, bw1 = math.sqrt(np.trace(crb[:3, :3])), math.sqrt(np.trace(crb[3:, 3:]))     # per unit σ
+    der = plenoptic_derivatives(L0, L1, grid, filters=filters)
+    spec = _axis_filters(der, grid, filters)
+    sl = tuple(spec[a][0] for a in AXES)
+    mats = [spec[a][1] for a in AXES]
+    A = [ray_motion_coefficients(der, grid, k)[sl] for k in range(len(grid.faces))]
+    y = [der.Lt[k][sl] for k in range(len(grid.faces))]
+    rt = rt_from_T(T_inverse(M))
+    p_true = np.concatenate([rt[3:], rt[:3]])
+    J = _ray_to_rig(p_true)
+    print(f"\n## {name}: the bound's linear model fitted by (whitened) least squares, no warp, noise-free "
+          f"regressors (exact covariance, no draws); / CRB, t, ω\n")
+    print("| weighting | noise | bias at σ = 1 | RMS error σ = 1 | σ = 4 |")
+    print("|---|---|---|---|---|")
+    for floor in FRONTIER_FLOORS:
+        N = np.zeros((6, 6))
+        rhs = np.zeros(6)
+        meat = np.zeros((6, 6))
+        for Ak, yk in zip(A, y):
+            WA = Ak if floor is None else _apply_axes(Ak, [m + floor * np.eye(len(m)) for m in mats], inverse=True)
+            WA2 = WA.reshape(-1, 6)
+            N += WA2.T @ Ak.reshape(-1, 6)
+            rhs -= WA2.T @ yk.reshape(-1)
+            meat += 2.0 * WA2.T @ _apply_axes(WA, mats, inverse=False).reshape(-1, 6)
+        Ni = np.linalg.inv(N)
+        e = J @ (Ni @ rhs - p_true)
+        C = J @ Ni @ meat @ Ni.T @ J.T
+        noise = (math.sqrt(np.trace(C[:3, :3])) / bt1, math.sqrt(np.trace(C[3:, 3:])) / bw1)
+        bias = (255.0 * np.linalg.norm(e[:3]) / bt1, 255.0 * np.linalg.norm(e[3:]) / bw1)
+        tot = [", ".join(f"{math.hypot(b / s, n):.2f}" for b, n in zip(bias, noise)) for s in (1.0, 4.0)]
+        label = "least squares" if floor is None else ("whitened exactly (the bound's estimator)" if floor == 0
+                                                       else f"whitened, floor {floor:g}")
+        print(f"| {label} | {noise[0]:.2f}, {noise[1]:.2f} | {bias[0]:.2f}, {bias[1]:.2f} | {tot[0]} | {tot[1]} |",
+              flush=True)
+
+
 PROBE_FLOORS = (None, 0.3)
 """Weightings of the probe: None = plain least squares, else whitened with this ridge
 (``MotionOptions.whiten_floor``)."""
@@ -723,6 +784,10 @@ def main() -> None:
     ap.add_argument("--probe", action="store_true",
                     help="also the linearised estimator at the true motion, decomposed (oracle regressors, whitening)")
     ap.add_argument("--probe-only", action="store_true", help="only the --probe table")
+    ap.add_argument("--frontier", action="store_true",
+                    help="also the bound's own linear model fitted by (whitened) least squares: noise and bias "
+                         "per whitening floor, exact (gls_frontier)")
+    ap.add_argument("--frontier-only", action="store_true", help="only the --frontier table")
     ap.add_argument("--raw-bound", action="store_true",
                     help="also the CRB of the raw samples (exact renderer Jacobian, no filters) next to the linear model's")
     ap.add_argument("--blur", type=float, default=0.0,
@@ -786,7 +851,7 @@ def main() -> None:
                       flush=True)
         if args.raw_bound_only:
             continue
-        if not (args.variants_only or args.probe_only):
+        if not (args.variants_only or args.probe_only or args.frontier_only):
             with OracleDepth(rho[0]) if rho else contextlib.nullcontext():
                 noise_table(f"{label}, D = {args.distance:g} m, {main_name}", grid, L0, L1, M, sigmas, draws,
                             main_opts, not args.no_predict, args.antithetic, tuple(args.seed))
@@ -797,6 +862,8 @@ def main() -> None:
             fine = setup(faces, args.distance, 2 * ss, 64, args.blur, args.motion_scale, False, args.scene)[:4]
             quadrature_table(f"{label}, D = {args.distance:g} m, {high_name if args.high_noise else main_name}",
                              [(ss, grid, L0, L1, M), (2 * ss, *fine)], high_opts if args.high_noise else main_opts)
+        if args.frontier or args.frontier_only:
+            gls_frontier(f"{label}, D = {args.distance:g} m", grid, L0, L1, M)
         if args.probe or args.probe_only:
             linear_probe(f"{label}, D = {args.distance:g} m", grid, L0, L1, M, tuple(args.probe_sigmas), draws)
         if args.variants or args.variants_only:
