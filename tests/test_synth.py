@@ -442,6 +442,64 @@ def test_board_poses_are_varied_and_in_view(tmp_path):
     assert np.ptp(poses[:, 0, 3]) > 0.05 and np.all(poses[:, 2, 3] > 0.1)
 
 
+def _two_face_rig(tmp_path, fov_deg: float, second: str, height: int = 240):
+    """Two faces of a cube rig, two 320 x ``height`` cameras each, 3 cm apart: +z and ``second`` (+x or +y)."""
+    rot = {"+x": "[0.0, 1.5707963268, 0.0]", "+y": "[-1.5707963268, 0.0, 0.0]"}[second]
+    axis = {"+x": (1, 0, 0), "+y": (0, 1, 0)}[second]
+    cams = []
+    for k, (face, r, n) in enumerate((("pz", "[0.0, 0.0, 0.0]", (0, 0, 1)), (second, rot, axis))):
+        side = np.cross(n, (0, 1, 0) if second == "+x" or k == 0 else (1, 0, 0))
+        for j in range(2):
+            p = 0.05 * np.asarray(n, float) + (j - 0.5) * 0.03 * side
+            cams.append(f'[[camera]]\nid = "f{k}_{j}"\nposition = [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}]\n'
+                        f"rotation = {r}\n")
+    return load_rig(_rig_file(tmp_path, f"""[rig]
+name = "two_faces"
+[defaults]
+width = 320
+height = {height}
+fov_deg = {fov_deg}
+""" + "\n".join(cams)))
+
+
+def test_board_poses_bridge_faces_that_look_apart(tmp_path, repo):
+    """Cameras looking through two faces of a cube (as rigs/cube6x3x3.toml's: 90 deg lenses on 4:3
+    images, so +z and +y leave a 16 deg gap between their views): every third board frame is held
+    across the faces' common edge, and both faces' cameras detect it (what ties the faces together in
+    a board calibration); a board too small to be read across the edge gets a clear error instead;
+    the nested cube's default session has bridge frames for each of its 12 edges."""
+    import cv2
+
+    from polycam.board import load_board
+    from polycam.errors import InputError
+    from polycam.session import open_session
+    from polycam.synth import camera_groups, default_board_frames
+
+    poster = load_board(repo / "rigs" / "boards" / "charuco_7x9.toml")
+    rig = _two_face_rig(tmp_path, 90.0, "+y")
+    models = true_cameramodels(rig, seed=3)
+    assert camera_groups(models) == [["f0_0", "f0_1"], ["f1_0", "f1_1"]]
+    out = synth_board_session(rig, tmp_path / "b", board=poster, frames=6, seed=3)
+    s = open_session(out)
+    detector = cv2.aruco.CharucoDetector(poster.cv2_board())
+    for i in range(6):
+        seen = {}
+        for cam_id in s.calibration():
+            _, ids, _, _ = detector.detectBoard(s.read_frame(i)[cam_id])
+            seen[cam_id] = 0 if ids is None else len(ids)
+        per_face = [max(seen["f0_0"], seen["f0_1"]), max(seen["f1_0"], seen["f1_1"])]
+        if i % 3 == 2:                                  # a bridge: read by both faces
+            assert min(per_face) >= 8, (i, seen)
+        else:                                           # aimed at one camera: read there
+            assert max(per_face) >= 8, (i, seen)
+    a4 = load_board(_rig_file(tmp_path, BOARD_TOML, "board.toml"))
+    with pytest.raises(InputError, match="large enough"):
+        board_poses(a4, models, 3, seed=3)
+    cube = true_cameramodels(load_rig(repo / "rigs" / "cube6x3x3.toml"))
+    assert len(camera_groups(cube)) == 6 and default_board_frames(cube) == 144
+    assert default_board_frames(models) == 25 and default_board_frames(true_cameramodels(_small_rig(tmp_path))) == 25
+
+
 def test_pattern_scene_is_refused(tmp_path):
     from polycam.errors import InputError
 

@@ -13,8 +13,9 @@ from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield
                      quantize, render_lightfield)
 from .scenes import (SCENE_NAMES, Scene, SphereGrid, TextureBuilder, Textures, make_scene, room_scene,
                      spheres_scene)
-from .sessions import (board_poses, scene_for_rig, synth_board_session, synth_lightfield, synth_session,
-                       trajectory_for_rig, true_cameramodels, write_lightfield_sequence)
+from .sessions import (board_poses, camera_groups, default_board_frames, scene_for_rig, synth_board_session,
+                       synth_lightfield, synth_session, trajectory_for_rig, true_cameramodels,
+                       write_lightfield_sequence)
 
 __all__ = [
     # scenes
@@ -28,6 +29,6 @@ __all__ = [
     "default_lightfield_grid", "lightfield_face_rays", "LightFieldRenderer", "render_lightfield",
     "CameraArrayRenderer", "BoardRenderer", "quantize",
     # products on disk
-    "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "write_lightfield_sequence", "synth_lightfield",
-    "synth_session", "synth_board_session",
+    "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "camera_groups",
+    "default_board_frames", "write_lightfield_sequence", "synth_lightfield", "synth_session", "synth_board_session",
 ]

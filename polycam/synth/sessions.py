@@ -46,6 +46,8 @@ from .scenes import Scene, make_scene, room_scene
 __all__ = [
     "true_cameramodels",
     "board_poses",
+    "camera_groups",
+    "default_board_frames",
     "write_lightfield_sequence",
     "synth_lightfield",
     "synth_session",
@@ -244,12 +246,135 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
 # ----------------------------------------------------------------------------- boards
 
 
+FACE_GROUP_DEG = 30.0
+"""Cameras whose optical axes lie within this angle of a group's first camera look through one face
+(:func:`camera_groups`)."""
+ADJACENT_FACE_DEG = 120.0
+"""Two faces whose mean optical axes are less than this apart are adjacent: a board held across their
+common edge can be seen by both (:func:`board_poses`' bridge frames)."""
+BRIDGE_CORNERS = 8
+"""A bridge frame shows at least this many inner corners (:func:`_corners_seen`: with the squares
+around them, large enough) to at least :data:`BRIDGE_CAMERAS` cameras of each of its two faces
+(ChArUco keeps partial views of 8 corners by default)."""
+BRIDGE_CAMERAS = 2
+"""Cameras of each face that must see a bridge frame (:data:`BRIDGE_CORNERS`)."""
+BRIDGE_SQUARE_PX = 20.0
+"""[px] smallest projected square of a corner counted as seen by a bridge frame (a 5 x 5 ArUco marker
+of 3 / 4 of the square then has ~2 px per bit)."""
+BRIDGE_SHARE = 3
+"""With several faces, every BRIDGE_SHARE-th frame of :func:`board_poses` is a bridge frame."""
+BRIDGE_FRAMES_PER_PAIR = 4
+"""Bridge frames per pair of adjacent faces in :func:`default_board_frames` (the calibration's camera graph
+needs 2 frames seen together per link: ``calib.board_solve.MIN_SHARED_FRAMES``)."""
+
+
+def camera_groups(models: dict, cam_ids: list[str] | None = None) -> list[list[str]]:
+    """The cameras grouped by viewing direction: each group (a face of a multi-face rig, e.g. the
+    nested cube's) holds the cameras whose optical axis (rig frame) lies within
+    :data:`FACE_GROUP_DEG` of its first camera's, in ``cam_ids`` order (default: the models')."""
+    ids = list(cam_ids) if cam_ids is not None else list(models)
+    cos_max = math.cos(math.radians(FACE_GROUP_DEG))
+    groups: list[list[str]] = []
+    first_axis: list[np.ndarray] = []
+    for cid in ids:
+        axis = T_rig_cam_of(models[cid])[:3, 2]
+        for g, a in zip(groups, first_axis):
+            if float(a @ axis) >= cos_max:
+                g.append(cid)
+                break
+        else:
+            groups.append([cid])
+            first_axis.append(axis)
+    return groups
+
+
+def _adjacent_pairs(models: dict, groups: list[list[str]]) -> tuple[list[tuple[int, int]], list[np.ndarray]]:
+    """(pairs (a, b) of adjacent groups, each group's unit mean optical axis in the rig frame)."""
+    axes = []
+    for g in groups:
+        a = np.mean([T_rig_cam_of(models[c])[:3, 2] for c in g], axis=0)
+        axes.append(a / np.linalg.norm(a))
+    cos_min = math.cos(math.radians(ADJACENT_FACE_DEG))
+    pairs = [(a, b) for a in range(len(groups)) for b in range(a + 1, len(groups)) if axes[a] @ axes[b] > cos_min]
+    return pairs, axes
+
+
+def default_board_frames(models: dict, cam_ids: list[str] | None = None, single: int = 25) -> int:
+    """Board frames a calibration session of these cameras needs by default: ``single`` when they
+    all look one way; with several faces, :data:`BRIDGE_FRAMES_PER_PAIR` bridge frames per pair of
+    adjacent faces, which are every :data:`BRIDGE_SHARE`-th frame of :func:`board_poses` (the nested
+    cube: 12 pairs, 144 frames, 16 aimed at each face)."""
+    groups = camera_groups(models, cam_ids)
+    if len(groups) == 1:
+        return single
+    pairs, _ = _adjacent_pairs(models, groups)
+    return max(single, BRIDGE_SHARE * BRIDGE_FRAMES_PER_PAIR * len(pairs))
+
+
+def _corners_seen(model, T_rig_board: np.ndarray, board, margin_px: float) -> int:
+    """How many of the board's inner corners a detector can be expected to find in the camera's
+    image: the four squares around the corner (its ChArUco markers) project inside the image with
+    ``margin_px`` to spare, and a square is at least :data:`BRIDGE_SQUARE_PX` wide there."""
+    mrcal = _mrcal()
+    lensmodel, intr = model.intrinsics()
+    W, H = (float(v) for v in model.imagersize())
+    T_cam_board = T_inverse(T_rig_cam_of(model)) @ T_rig_board
+    s = float(board.square_length)
+    offsets = np.array([[0, 0, 0], [s, 0, 0], [0, s, 0], [-s, -s, 0], [s, -s, 0], [-s, s, 0], [s, s, 0]], float)
+    pts = board.object_points()[:, None, :] + offsets                           # (N, 7, 3)
+    p = pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    front = p[..., 2] > 0.05
+    q = mrcal.project(np.where(front[..., None], p, np.array([0.0, 0.0, 1.0])), lensmodel, intr)   # (N, 7, 2)
+    inside = front & np.all(np.isfinite(q), axis=-1) & np.all(q >= margin_px - 0.5, axis=-1) & \
+        (q[..., 0] <= W - 0.5 - margin_px) & (q[..., 1] <= H - 0.5 - margin_px)
+    size = np.minimum(np.linalg.norm(q[:, 1] - q[:, 0], axis=-1), np.linalg.norm(q[:, 2] - q[:, 0], axis=-1))
+    return int(np.sum(np.all(inside, axis=1) & (size >= BRIDGE_SQUARE_PX)))
+
+
+def _bridge_pose(board, models: dict, group_a: list[str], group_b: list[str], axis_a: np.ndarray,
+                 axis_b: np.ndarray, rng, tilt_deg: float, roll_deg: float, margin_px: float) -> np.ndarray:
+    """``T_rig_board`` of a board held across the edge between two faces: its centre on the bisector of
+    their mean optical axes, 0.25–0.45 m out from the centroid of their cameras (distances for a
+    poster-sized board such as rigs/boards/charuco_7x9.toml), facing it (tilted by up to half of
+    ``tilt_deg`` and rolled by up to ``roll_deg``), redrawn until :data:`BRIDGE_CAMERAS` cameras of
+    each face see :data:`BRIDGE_CORNERS` inner corners (:func:`_corners_seen`)."""
+    bw, bh = board.size_m
+    centre_b = np.array([bw / 2.0, bh / 2.0, 0.0])
+    centre_rig = np.mean([T_rig_cam_of(models[c])[:3, 3] for c in group_a + group_b], axis=0)
+    d = axis_a + axis_b
+    d /= np.linalg.norm(d)
+    across = axis_a - axis_b
+    across -= (across @ d) * d
+    across /= np.linalg.norm(across)
+    for _ in range(500):
+        x = across if rng.uniform() < 0.5 else np.cross(d, across)     # the board's long side across or along
+        R = np.stack([x, np.cross(d, x), d], axis=1)                     # board z away from the rig
+        phi = rng.uniform(0.0, 2.0 * np.pi)
+        tilt = math.radians(rng.uniform(-tilt_deg, tilt_deg) / 2.0)
+        az = math.radians(rng.uniform(-roll_deg, roll_deg))
+        R = R @ R_from_r(tilt * np.array([math.cos(phi), math.sin(phi), 0.0])) @ R_from_r(np.array([0.0, 0.0, az]))
+        p = centre_rig + d * rng.uniform(0.25, 0.45) + rng.normal(0.0, 0.02, 3)
+        T = T_from_Rt(R, p - R @ centre_b)
+        if all(sum(_corners_seen(models[c], T, board, margin_px) >= BRIDGE_CORNERS for c in g) >= BRIDGE_CAMERAS
+               for g in (group_a, group_b)):
+            return T
+    raise InputError(f"could not place the board across the edge between the faces of cameras {group_a[0]} and "
+                     f"{group_b[0]} so that both see {BRIDGE_CORNERS} of its corners (do their fields of view "
+                     "overlap? is the board large enough?)")
+
+
 def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: float = 40.0,
                 roll_deg: float = 20.0, fill: tuple[float, float] = (0.6, 0.95), margin_px: float = 4.0,
                 cam_ids: list[str] | None = None, spread: float = 0.5, min_visible: float = 1.0) -> np.ndarray:
     """(frames, 4, 4) seeded board poses ``T_rig_board`` for calibration sessions.
 
-    Frame i aims at camera ``cam_ids[i % N]`` (default: the models' order): seen
+    When the cameras look through several faces (:func:`camera_groups`: the nested cube's), every
+    :data:`BRIDGE_SHARE`-th frame is a *bridge*: a board held across the edge between two adjacent
+    faces, seen by cameras of both (:func:`_bridge_pose`), the pairs of adjacent faces in turn; a
+    board calibration can tie faces together only through such views, so the faces' fields of view
+    must overlap. The other frames aim at the cameras in turn, as for one face.
+
+    Otherwise frame i aims at camera ``cam_ids[i % N]`` (default: the models' order): seen
     square-on, the board's squared area would span a fraction ``fill`` (uniform) of
     that camera's image along the limiting dimension (fx-based scale), its centre at a
     random point of the central half of the image, facing the camera, tilted by up to
@@ -275,8 +400,18 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
     inner_b = board.object_points()
     lo, hi = 0.5 - spread / 2.0, 0.5 + spread / 2.0
     out = np.empty((frames, 4, 4))
+    groups = camera_groups(models, ids)
+    pairs, axes = _adjacent_pairs(models, groups) if len(groups) > 1 else ([], [])
+    n_aimed = 0
     for i in range(frames):
-        model = models[ids[i % len(ids)]]
+        if pairs and i % BRIDGE_SHARE == BRIDGE_SHARE - 1:
+            a, b = pairs[(i // BRIDGE_SHARE) % len(pairs)]
+            out[i] = _bridge_pose(board, models, groups[a], groups[b], axes[a], axes[b], rng, tilt_deg, roll_deg,
+                                  margin_px)
+            continue
+        cid = ids[n_aimed % len(ids)]
+        n_aimed += 1
+        model = models[cid]
         lensmodel, intr = model.intrinsics()
         W, H = (float(v) for v in model.imagersize())
         T_rig_cam = T_rig_cam_of(model)
@@ -301,7 +436,7 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
             if (np.all(ok) if min_visible >= 1.0 else np.mean(ok) >= min_visible):
                 break
         else:
-            raise InputError(f"could not place the board inside the view of camera {ids[i % len(ids)]} "
+            raise InputError(f"could not place the board inside the view of camera {cid} "
                              "(is the board too large for the lens?)")
         out[i] = T_rig_cam @ T_cam_board
     return out
