@@ -46,11 +46,14 @@ from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
 
 __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
-           "write_ply", "UNUSABLE", "MIN_VIEWS"]
+           "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS"]
 
 _REPO = Path(__file__).resolve().parents[1]
 DEFAULT_RIG = _REPO / "rigs" / "mock5x5.toml"
 DEFAULT_BOARD = _REPO / "rigs" / "boards" / "charuco_5x7.toml"
+DEFAULT_BOARD_FACES = _REPO / "rigs" / "boards" / "charuco_7x9.toml"
+"""The default board of a rig whose cameras look through several faces (``polycam.synth.camera_groups``):
+large enough to be seen across the edge between two faces (``polycam.synth.board_poses``' bridge frames)."""
 
 UNUSABLE = {
     "calib_rms_px": 1.0,        # [px] board residual RMS above which the calibration is unusable
@@ -69,8 +72,10 @@ and pyramid (a 3x3 rig needs in-between views; see :attr:`RunOptions.xy_oversamp
 class RunOptions:
     """Sizes and settings of :func:`run_chain` (defaults: a few minutes on 2 cores)."""
 
-    board_frames: int = 25
-    """Board poses in the calibration session (each aims at one camera in turn)."""
+    board_frames: int | None = None
+    """Board poses in the calibration session (each aims at one camera in turn; with cameras that
+    look through several faces every third is held across an edge between two faces). None:
+    :func:`polycam.synth.default_board_frames` (25; 144 for the nested cube's six faces)."""
     frames: int = 5
     """Frames of the motion session (frames - 1 pairs)."""
     seed: int | None = None
@@ -130,10 +135,13 @@ def _stage(name: str):
         raise _fail(name, str(e)) from None
 
 
-def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path: str | os.PathLike = DEFAULT_BOARD,
+def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path: str | os.PathLike | None = None,
               options: RunOptions | None = None, progress_factory: Callable | None = None,
               echo: Callable[[str], None] = lambda s: None) -> dict:
     """Run the chain (module docstring) for rig file ``rig_path`` into folder ``out``.
+
+    ``board_path``: the calibration board (None: :data:`DEFAULT_BOARD`, or :data:`DEFAULT_BOARD_FACES`
+    when the rig's cameras look through several faces).
 
     Returns the summary dict (also written to ``out/report/summary.toml``).
     ``progress_factory(description, total)``: a context manager yielding
@@ -148,16 +156,26 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     from .rig import MockSpec, load_rig
 
     opts = options or RunOptions()
-    rig_path, board_path, out = Path(rig_path), Path(board_path), Path(out)
+    rig_path, out = Path(rig_path), Path(out)
     if not rig_path.is_file():
         raise InputError(f"{rig_path}: no such rig file")
     rig = load_rig(rig_path)
-    board = load_board(board_path)
     if opts.frames < 2:
         raise InputError(f"run: need at least 2 motion frames, got {opts.frames}")
     seed = opts.seed if opts.seed is not None else (rig.mock.seed if rig.mock is not None else 0)
     # the mock driver simulates every camera of the rig, seeded by the run's seed
     rig = dataclasses.replace(rig, mock=dataclasses.replace(rig.mock or MockSpec(), seed=seed))
+    from .synth import camera_groups, default_board_frames, true_cameramodels
+
+    true_models = true_cameramodels(rig, seed=seed, perturb_position_m=opts.perturb_position_m,
+                                    perturb_rotation_deg=opts.perturb_rotation_deg,
+                                    perturb_focal_frac=opts.perturb_focal_frac)
+    ids = [c.id for c in rig.cameras]
+    if board_path is None:
+        board_path = DEFAULT_BOARD if len(camera_groups(true_models, ids)) == 1 else DEFAULT_BOARD_FACES
+    board = load_board(board_path)
+    board_frames = opts.board_frames or default_board_frames(true_models, ids)
+    W0, H0 = rig.cameras[0].width, rig.cameras[0].height
     out.mkdir(parents=True, exist_ok=True)
     report = out / "report"
     report.mkdir(exist_ok=True)
@@ -166,17 +184,10 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     def bar(desc: str, total):
         return progress_factory(desc, total) if progress_factory else nullcontext(None)
 
-    from .synth import true_cameramodels
-
-    true_models = true_cameramodels(rig, seed=seed, perturb_position_m=opts.perturb_position_m,
-                                    perturb_rotation_deg=opts.perturb_rotation_deg,
-                                    perturb_focal_frac=opts.perturb_focal_frac)
-    W0, H0 = rig.cameras[0].width, rig.cameras[0].height
-
     # 1. board session
     t0 = time.perf_counter()
-    with bar(f"1/6 board session ({len(rig.cameras)} cameras)", opts.board_frames) as adv, _stage("board"):
-        rec = _record_mock(rig, out / "board_session", opts.board_frames, true_models, board, opts.supersample, adv)
+    with bar(f"1/6 board session ({len(rig.cameras)} cameras)", board_frames) as adv, _stage("board"):
+        rec = _record_mock(rig, out / "board_session", board_frames, true_models, board, opts.supersample, adv)
     s = time.perf_counter() - t0
     summary["board"] = {**rec, "seconds": s}
     echo(f"board     {out / 'board_session'}: {len(rig.cameras)} cameras x {rec['frames']} frames of "
@@ -584,7 +595,8 @@ def _plot_depth(path: Path, image, Z, Z_true, stats: dict) -> None:
         im = axes[2].imshow(Z_true, cmap="turbo", vmin=lo, vmax=hi)
         axes[2].set_title("true depth Z [m] (ray tracer)")
         fig.colorbar(im, ax=axes[2], fraction=0.035)
-        rel = 100 * (Z - Z_true) / Z_true
+        with np.errstate(divide="ignore", invalid="ignore"):      # rays without a true depth: blank
+            rel = np.where(np.isfinite(Z_true) & (Z_true > 0), 100 * (Z - Z_true) / Z_true, np.nan)
         im = axes[3].imshow(rel, cmap="coolwarm", vmin=-20, vmax=20)
         axes[3].set_title(f"error [%]: median |err| {100 * stats['median_rel_error']:.1f}% "
                           f"({stats['views']} views)", fontsize=9)
@@ -656,11 +668,13 @@ def add_parsers(sub) -> None:
     p.add_argument("rig", nargs="?", default=str(DEFAULT_RIG), metavar="RIG.toml",
                    help="rig file with a [mock] table (default rigs/mock5x5.toml)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--board", default=str(DEFAULT_BOARD), metavar="BOARD.toml",
-                   help="calibration board (default rigs/boards/charuco_5x7.toml)")
+    p.add_argument("--board", default=None, metavar="BOARD.toml",
+                   help="calibration board (default rigs/boards/charuco_5x7.toml; for a rig whose cameras look "
+                        "through several faces rigs/boards/charuco_7x9.toml, large enough to be seen across an edge)")
     p.add_argument("--frames", type=_positive_int, default=RunOptions.frames, help="motion frames (default 5)")
     p.add_argument("--board-frames", type=_positive_int, default=RunOptions.board_frames,
-                   help="board frames (default 25)")
+                   help="board frames (default 25; for a rig whose cameras look through several faces, 12 per "
+                        "pair of adjacent faces: 144 for the nested cube, a third of them held across an edge)")
     p.add_argument("--seed", type=int, default=None, help="default: the rig's [mock] seed")
     p.add_argument("--uv-step", type=_positive_float, default=RunOptions.uv_step_px, metavar="PX",
                    help="direction spacing of the light field in camera pixels (default 2)")
