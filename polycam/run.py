@@ -295,11 +295,12 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     summary["motion"] = m
     first = (f" (median; the first took {m['seconds_first_pair']:.0f} s, compiling the kernels)"
              if m["seconds_first_pair"] > 3 * m["seconds_per_pair"] + 1 else "")
+    solved = (f"inliers {100 * m['median_inlier_fraction']:.0f}%, predicted std {1e3 * m['median_std_t_m']:.2f} mm "
+              f"(the errors {m['error_over_std_t']:.1f}x it; rotation {m['error_over_std_w']:.1f}x)"
+              if ok else "no pair solved")
     echo(f"motion    {out / 'trajectory.tum'}: {m['pairs']} frame pairs, {m['failed']} failed, "
          f"{m['seconds_per_pair']:.1f} s per pair{first}; median error translation {100 * m['median_t_rel']:.1f}%, "
-         f"rotation {100 * m['median_w_rel']:.1f}%; ATE {1e3 * m['ate_m']:.2f} mm; inliers "
-         f"{100 * m['median_inlier_fraction']:.0f}%, predicted std {1e3 * m['median_std_t_m']:.2f} mm (the errors "
-         f"{m['error_over_std_t']:.1f}x it; rotation {m['error_over_std_w']:.1f}x)")
+         f"rotation {100 * m['median_w_rel']:.1f}%; ATE {1e3 * m['ate_m']:.2f} mm; {solved}")
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")

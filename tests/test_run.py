@@ -65,3 +65,17 @@ def test_run_stops_at_an_unusable_stage(tmp_path, capsys):
 def test_run_bad_rig_file_is_one_line(tmp_path, capsys):
     code = main(["run", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "run")])
     _one_line_error(capsys, code, "nope.toml")
+
+
+def test_run_single_camera_stops_at_motion_naming_the_unobservable(tmp_path, capsys):
+    """One camera cannot see the translation: the chain calibrates and resamples, then stops at the
+    motion stage with the solver's reason, and its summary line says no pair was solved (no NaNs)."""
+    (tmp_path / "rig.toml").write_text(mock_grid_rig_text("one", 160, 120, rows=1, cols=1))
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(tmp_path / "run"), "--board-frames", "6",
+                 "--frames", "2"])
+    cap = capsys.readouterr()
+    assert code == 1
+    motion = [line for line in cap.out.splitlines() if line.startswith("motion")]
+    assert len(motion) == 1 and "no pair solved" in motion[0] and "nan" not in motion[0], cap.out
+    assert cap.err.strip().splitlines()[-1].startswith("polycam: error: run: motion: ")
+    assert "unobservable: t_x, t_y, t_z" in cap.err
