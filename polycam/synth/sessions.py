@@ -311,6 +311,13 @@ def default_board_frames(models: dict, cam_ids: list[str] | None = None, single:
     return max(single, BRIDGE_SHARE * BRIDGE_FRAMES_PER_PAIR * len(pairs))
 
 
+def _in_image(q: np.ndarray, W: float, H: float, margin_px: float) -> np.ndarray:
+    """(...) bool: the pixel coordinates q (..., 2) are finite and inside a W x H image (pixel centres at
+    integers) with ``margin_px`` to spare."""
+    return np.all(np.isfinite(q), axis=-1) & np.all(q >= margin_px - 0.5, axis=-1) & \
+        (q[..., 0] <= W - 0.5 - margin_px) & (q[..., 1] <= H - 0.5 - margin_px)
+
+
 def _corners_seen(model, T_rig_board: np.ndarray, board, margin_px: float) -> int:
     """How many of the board's inner corners a detector can be expected to find in the camera's
     image: the four squares around the corner (its ChArUco markers) project inside the image with
@@ -325,8 +332,7 @@ def _corners_seen(model, T_rig_board: np.ndarray, board, margin_px: float) -> in
     p = pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     front = p[..., 2] > 0.05
     q = mrcal.project(np.where(front[..., None], p, np.array([0.0, 0.0, 1.0])), lensmodel, intr)   # (N, 7, 2)
-    inside = front & np.all(np.isfinite(q), axis=-1) & np.all(q >= margin_px - 0.5, axis=-1) & \
-        (q[..., 0] <= W - 0.5 - margin_px) & (q[..., 1] <= H - 0.5 - margin_px)
+    inside = front & _in_image(q, W, H, margin_px)
     size = np.minimum(np.linalg.norm(q[:, 1] - q[:, 0], axis=-1), np.linalg.norm(q[:, 2] - q[:, 0], axis=-1))
     return int(np.sum(np.all(inside, axis=1) & (size >= BRIDGE_SQUARE_PX)))
 
@@ -431,8 +437,7 @@ def board_poses(board, models: dict, frames: int, *, seed: int = 0, tilt_deg: fl
             if np.any(pc[:, 2] <= 0.05):
                 continue
             qc = mrcal.project(pc, lensmodel, intr)
-            ok = np.all(np.isfinite(qc), axis=1) & np.all(qc >= margin_px - 0.5, axis=1) & \
-                (qc[:, 0] <= W - 0.5 - margin_px) & (qc[:, 1] <= H - 0.5 - margin_px)
+            ok = _in_image(qc, W, H, margin_px)
             if (np.all(ok) if min_visible >= 1.0 else np.mean(ok) >= min_visible):
                 break
         else:
