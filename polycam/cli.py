@@ -25,8 +25,9 @@ __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
 NOISY_HINT_GREY = 1.0
 """Sensor noise [grey levels of 255] from which ``polycam motion`` with the default preset points to
-``--preset noisy`` on frames without confidences (docs/motion.md, "Noise": the defaults are 1.5–2x
-the bound there)."""
+``--preset noisy`` on frames without confidences (docs/motion.md, "Noise": on six faces of finely
+integrated pixels the defaults are 1.3–2.3x the bound there, the noise options 1.1–1.4x; "Which
+preset": not on every kind of frame, so a hint, not an automatic choice)."""
 
 STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli", "polycam.depth_cli")
 """Modules whose ``add_parsers(subparsers)`` add the pipeline stages' verbs."""
@@ -82,8 +83,8 @@ def cmd_synth_lightfield(args: argparse.Namespace) -> int:
     with _progress(f"rendering {args.out}", args.frames) as advance:
         synth_lightfield(args.out, grid=grid, scene=args.scene, distance=args.distance,
                          frames=args.frames, seed=args.seed, supersample=args.supersample,
-                         step_t=args.step_t, step_r_deg=args.step_r, fps=args.fps,
-                         overwrite=args.overwrite, progress=advance)
+                         step_t=args.step_t, step_r_deg=args.step_r, fps=args.fps, noise=args.noise,
+                         bit_depth=args.bit_depth, overwrite=args.overwrite, progress=advance)
     print(f"wrote {args.out}: {args.frames} frames, {len(grid.faces)} face(s), "
           f"{grid.shape[1]}x{grid.shape[2]} views of {grid.shape[3]}x{grid.shape[4]}; "
           f"ground truth in {Path(args.out) / 'groundtruth.tum'}")
@@ -178,7 +179,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from .motion_report import write_motion_report
 
         written = write_motion_report(args.report, results, traj, truth, store.timestamps_ns, options=opts,
-                                      scale_selection=scale_selection)
+                                      scale_selection=scale_selection, preset=args.preset)
         print(f"report in {args.report}: {', '.join(written)}")
     return 0
 
@@ -195,8 +196,9 @@ def _noise_line(results, preset: str, confidences: bool = False) -> str:
     med = statistics.median(vals)
     line = f"  sensor noise {med:.2f} grey levels (of 255, median over the pairs)"
     if preset == "default" and med >= NOISY_HINT_GREY and not confidences:
-        line += ("; with a grey level or more, --preset noisy comes closer to the noise bound "
-                 "at about twice the time (docs/motion.md, \"Noise\")")
+        line += ("; with a grey level or more, --preset noisy came closer to the noise bound on six-face "
+                 "frames of finely integrated pixels, at about twice the time: try it on your frames "
+                 "(docs/motion.md, \"Which preset\")")
     return line
 
 
@@ -284,6 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--step-t", type=_nonneg_float, default=0.015, help="typical translation per frame [m]")
     pl.add_argument("--step-r", type=_nonneg_float, default=0.2, help="typical rotation per frame [deg]")
     pl.add_argument("--fps", type=_positive_float, default=30.0)
+    pl.add_argument("--noise", type=_nonneg_float, default=0.0,
+                    help="std of Gaussian sensor noise per sample in [0, 1] units, seeded (default 0)")
+    pl.add_argument("--bit-depth", type=int, choices=(8, 16), default=None,
+                    help="round the samples to 8 or 16 bits, as a camera does (default: float samples)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing output")
     pl.set_defaults(func=cmd_synth_lightfield)
 

@@ -71,12 +71,14 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
 
 def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairResult], traj,
                         truth=None, timestamps_ns: np.ndarray | None = None,
-                        options: MotionOptions | None = None, scale_selection: bool | None = None) -> list[str]:
+                        options: MotionOptions | None = None, scale_selection: bool | None = None,
+                        preset: str | None = None) -> list[str]:
     """A report folder: ``pairs.csv``, ``trajectory.png``, with a ground truth
     ``errors.png`` (each pair's error beside the norm of its reported standard
     deviations), and with ``options`` ``options.toml`` (the solver's settings: every
-    :class:`~polycam.motion.MotionOptions` field under ``[motion]``, ``scale_selection``
-    too when given, so that a report says how it was made). Returns the names of the
+    :class:`~polycam.motion.MotionOptions` field under ``[motion]``, ``scale_selection`` and
+    ``preset`` (the ``--preset`` the options started from) too when given, so that
+    a report says how it was made). Returns the names of the
     files written.
 
     traj, truth: :class:`~polycam.trajectory.Trajectory` (``truth`` optional, same timestamps).
@@ -100,6 +102,8 @@ def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairRes
         doc = {f.name: getattr(options, f.name) for f in fields(options)}
         if scale_selection is not None:
             doc["scale_selection"] = bool(scale_selection)
+        if preset is not None:
+            doc["preset"] = preset
         atomic_write_text(report / "options.toml", "# polycam motion: the solver's settings (MotionOptions)\n"
                           + tomli_w.dumps({"motion": doc}))
         written.append("options.toml")

@@ -226,6 +226,7 @@ def test_motion_takes_solver_options_and_records_them(tmp_path):
     assert doc["smooth_c"] == 0.0 and doc["eiv"] is True and doc["whiten"] == "on" and doc["levels"] == 2
     assert doc["model_weight"] is True and doc["model_weight_gain"] == 8.0 and doc["depth_pool_views"] is True
     assert doc["uv_taps"] == 6 and doc["scale_selection"] is False       # the option over the preset; the defaults
+    assert doc["preset"] == "noisy"
 
 
 @pytest.mark.parametrize("option, problem", [("nope=1", "not a solver option"), ("eiv=maybe", "true or false"),

@@ -22,7 +22,7 @@ from polycam.synth import (CameraArrayRenderer, SphereGrid, board_poses, default
 from polycam.trajectory import read_tum
 
 from conftest import shared_data
-from tolerances import (RENDER_CONSTANCY_ATOL, RENDER_PROJECTION_PX, RENDER_SHIFT_ATOL,
+from tolerances import (MOTION_NOISE_SIGMA_REL, RENDER_CONSTANCY_ATOL, RENDER_PROJECTION_PX, RENDER_SHIFT_ATOL,
                         RENDER_SUPERSAMPLE_ATOL, SYNTH_BACKGROUND_MAX, SYNTH_BOARD_CORNER_MAX_PX,
                         SYNTH_BOARD_CORNER_RMS_PX, SYNTH_BOARD_DETECTED_MIN, SYNTH_STEP_RTOL)
 
@@ -384,6 +384,38 @@ def test_lightfield_store_and_ground_truth(tmp_path):
     np.testing.assert_allclose(gt.T_world_rig, ref.T_world_rig, atol=1e-8)
     np.testing.assert_array_equal(lf.frame(1), render_lightfield(spheres_scene(4.0, seed=1), grid,
                                                                   ref.T_world_rig[1], supersample=1))
+
+
+
+@pytest.mark.parametrize("bit_depth", [None, 8])
+def test_lightfield_store_with_sensor_noise(tmp_path, bit_depth):
+    """``synth_lightfield(noise=, bit_depth=)`` (``polycam synth lightfield --noise --bit-depth``):
+    seeded Gaussian noise on the rendered samples, rounded to the 8-bit lattice when asked
+    (and then clipped to [0, 1]); the motion solver measures that noise (with the rounding's
+    1/12 step² on 8-bit frames)."""
+    from polycam.lfstore import open_lightfield
+    from polycam.motion_weights import frame_noise_variance
+
+    grid = default_lightfield_grid("+z", directions=32)        # views 1 cm apart: smooth across them
+    sigma = 2.0 / 255.0
+    kw = dict(grid=grid, scene="spheres", distance=4.0, frames=2, seed=1, supersample=1, step_t=0.02,
+              step_r_deg=0.5, noise=sigma, bit_depth=bit_depth)
+    lf = open_lightfield(synth_lightfield(tmp_path / "lf.zarr", **kw))
+    again = open_lightfield(synth_lightfield(tmp_path / "again.zarr", **kw))
+    ref = smooth_trajectory(2, step_t=0.02, step_r_deg=0.5, fps=30.0, seed=1)
+    clean = render_lightfield(spheres_scene(4.0, seed=1), grid, ref.T_world_rig[1], supersample=1)
+    L0, L1 = lf.frame(0), lf.frame(1)
+    np.testing.assert_array_equal(L1, again.frame(1))              # seeded
+    q2 = 0.0
+    if bit_depth == 8:
+        np.testing.assert_allclose(L1 * 255.0, np.rint(L1 * 255.0), atol=1e-4)
+        assert L1.min() >= 0.0 and L1.max() <= 1.0
+        q2 = (1.0 / 255.0) ** 2 / 12.0
+    inside = (clean > 3 * sigma) & (clean < 1 - 3 * sigma)         # no clipping there
+    expected = math.sqrt(sigma ** 2 + q2)
+    assert np.std((L1 - clean)[inside]) == pytest.approx(expected, rel=MOTION_NOISE_SIGMA_REL)
+    measured = math.sqrt(frame_noise_variance(L0, L1, grid))
+    assert measured == pytest.approx(expected, rel=MOTION_NOISE_SIGMA_REL)
 
 
 def test_board_session_is_detectable(tmp_path):

@@ -120,17 +120,30 @@ def _image_for(cam, radiance: np.ndarray, bit_depth: int | None, noise: float, r
 
 
 def write_lightfield_sequence(out: str | os.PathLike, scene: Scene, grid: LightFieldGrid,
-                              trajectory: Trajectory, *, supersample: int = 1, overwrite: bool = False,
+                              trajectory: Trajectory, *, supersample: int = 1, noise: float = 0.0,
+                              bit_depth: int | None = None, seed: int = 0, overwrite: bool = False,
                               progress: Progress | None = None) -> Path:
     """Render ``scene`` on ``grid`` at every pose of ``trajectory`` into a light-field store
-    ``out`` (SPEC.md), with the trajectory as ``groundtruth.tum``; returns the store path."""
+    ``out`` (SPEC.md), with the trajectory as ``groundtruth.tum``; returns the store path.
+    ``noise``: std of Gaussian sensor noise in [0, 1] units, drawn per frame from ``seed``;
+    ``bit_depth`` 8 or 16: the samples rounded to that many bits (and clipped to [0, 1], as a
+    camera's; stored as float32 multiples of 1 / 255 or 1 / 65535); None: float samples
+    (with noise, unclipped)."""
     from ..lfstore import LightFieldWriter
 
     renderer = LightFieldRenderer(scene, grid, supersample)
     n = len(trajectory)
+    scale = None if bit_depth is None else (255.0 if bit_depth == 8 else 65535.0)
     with LightFieldWriter(out, grid, overwrite=overwrite) as w:
         for i in range(n):
-            w.append(renderer.render(trajectory.T_world_rig[i]), int(trajectory.timestamps_ns[i]))
+            L = renderer.render(trajectory.T_world_rig[i])
+            if noise > 0 or scale is not None:
+                rng = np.random.default_rng([seed, _SALT_NOISE, i])
+                if scale is not None:
+                    L = (quantize(L, bit_depth, noise, rng) / np.float32(scale)).astype(np.float32)
+                else:
+                    L = (L + rng.normal(0.0, noise, L.shape)).astype(np.float32)
+            w.append(L, int(trajectory.timestamps_ns[i]))
             if progress is not None:
                 progress(i + 1, n)
         return w.close(groundtruth=trajectory)
@@ -139,21 +152,23 @@ def write_lightfield_sequence(out: str | os.PathLike, scene: Scene, grid: LightF
 def synth_lightfield(out: str | os.PathLike, *, grid: LightFieldGrid | None = None, scene: str | Scene = "spheres",
                      distance: float = 6.0, frames: int = 2, seed: int = 0, supersample: int = 2,
                      step_t: float = 0.015, step_r_deg: float = 0.2, fps: float = 30.0,
-                     trajectory: Trajectory | None = None, overwrite: bool = False,
-                     progress: Progress | None = None) -> Path:
+                     trajectory: Trajectory | None = None, noise: float = 0.0, bit_depth: int | None = None,
+                     overwrite: bool = False, progress: Progress | None = None) -> Path:
     """``polycam synth lightfield``: a seeded scene and smooth trajectory rendered into ``out``.
 
     grid: default :func:`~polycam.synth.render.default_lightfield_grid` on all six faces.
     scene: a :class:`Scene` or a name (``spheres``: all directions, ``spheres-forward``,
         ``room``) built with ``distance`` [m] and ``seed``.
     trajectory: default a smooth random one with RMS steps ``step_t`` [m], ``step_r_deg``.
+    noise, bit_depth: sensor noise and rounding (:func:`write_lightfield_sequence`; seeded
+        with ``seed``).
     """
     grid = grid if grid is not None else default_lightfield_grid("all")
     sc = scene if isinstance(scene, Scene) else make_scene(scene, distance, seed)
     traj = trajectory if trajectory is not None else make_trajectory(
         "smooth", frames, step_t=step_t, step_r_deg=step_r_deg, fps=fps, seed=seed)
-    return write_lightfield_sequence(out, sc, grid, traj, supersample=supersample, overwrite=overwrite,
-                                     progress=progress)
+    return write_lightfield_sequence(out, sc, grid, traj, supersample=supersample, noise=noise,
+                                     bit_depth=bit_depth, seed=seed, overwrite=overwrite, progress=progress)
 
 
 # ----------------------------------------------------------------------------- sessions
