@@ -352,9 +352,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 OMP_WAIT_POLICY_DEFAULT = "PASSIVE"
 """OpenMP wait policy the CLI sets unless the environment chooses one: numba's parallel
-kernels run on OpenMP, whose threads otherwise spin between parallel regions. Measured
-(benchmarks/bench_motion.py, full estimate): the same wall time and ~20 % less CPU on an
-idle 2-core machine, half the wall time when other processes load the cores."""
+kernels run on OpenMP, whose threads otherwise spin between parallel regions (~120 per
+estimate of benchmarks/bench_motion.py's frame pair). Measured on that pair (session 39,
+2 cores): on an idle machine ~8 % more wall time than OpenMP's default (140–143 against
+129–135 ms) for ~13 % less CPU (233 against 266–273 ms); with another process loading a core,
+35–40 % less wall time (244 against 378–407 ms, median). ``GOMP_SPINCOUNT=10000`` lies between
+(131–133 ms idle, 278–284 loaded). The benchmarks run with OpenMP's default."""
 
 
 def main(argv: list[str] | None = None) -> int:
