@@ -20,6 +20,7 @@ from pathlib import Path
 from .cliargs import nonneg_float as _nonneg_float
 from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
+from .cliargs import check_output_file, check_output_folder
 
 __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
@@ -126,6 +127,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
     from .motion_options import describe_options
 
     opts = solver_options(args)                       # before anything is read or written
+    check_output_file(args.out, "--out")
+    if args.report:
+        check_output_folder(args.report, "--report")
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step,   # validates before the solver import
                         xy_oversample=args.xy_oversample)

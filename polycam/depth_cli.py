@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .cliargs import check_output_folder
 from .cliargs import nonneg_int as _nonneg_int
 from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
@@ -140,6 +141,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
     from .motion_weights import frame_noise_variance
 
     opts = solver_options(args)                       # before anything is read or written
+    check_output_folder(args.out, "--out")
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step, xy_oversample=args.xy_oversample)
     n = len(store.timestamps_ns)

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Callable
 
 from .cliargs import positive_float as _positive_float
+from .cliargs import check_output_folder
 from .cliargs import positive_int as _positive_int
 
 __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
@@ -176,6 +177,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     board = load_board(board_path)
     board_frames = opts.board_frames or default_board_frames(true_models, ids)
     W0, H0 = rig.cameras[0].width, rig.cameras[0].height
+    check_output_folder(out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     report = out / "report"
     report.mkdir(exist_ok=True)

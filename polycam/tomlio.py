@@ -7,6 +7,7 @@ unknown keys are reported, so a typo in a user's file becomes one clear line
 
 from __future__ import annotations
 
+import errno
 import os
 import tomllib
 from pathlib import Path
@@ -145,6 +146,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """
     path = Path(path)
     tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    if not path.parent.is_dir():         # name the file asked for, not the temporary one
+        raise FileNotFoundError(errno.ENOENT, f"its folder {path.parent} does not exist", str(path))
     try:
         with open(tmp, "wb") as f:
             f.write(data)

@@ -239,6 +239,39 @@ def test_motion_rejects_a_bad_option_before_writing(tmp_path, two_frame_lightfie
     assert not (tmp_path / "t.tum").exists()
 
 
+@pytest.mark.parametrize("case", ["no_folder", "out_is_a_folder", "report_is_a_file"])
+def test_motion_checks_where_it_writes_before_solving(tmp_path, two_frame_lightfield, case):
+    """An --out it cannot write (its folder missing, or a folder) or a --report that is a file:
+    one line naming the option and the path before any solve, and nothing written."""
+    out, extra = tmp_path / "t.tum", []
+    if case == "no_folder":
+        out = tmp_path / "missing" / "t.tum"
+        fragments = ("--out", str(out), f"its folder {tmp_path / 'missing'} does not exist")
+    elif case == "out_is_a_folder":
+        out = tmp_path / "adir"
+        out.mkdir()
+        fragments = ("--out", str(out), "is a folder")
+    else:
+        (tmp_path / "rep").write_text("keep me")
+        extra = ["--report", str(tmp_path / "rep")]
+        fragments = ("--report", str(tmp_path / "rep"), "exists and is not a folder")
+    res = polycam("motion", str(two_frame_lightfield), "--out", str(out), *extra)
+    assert_one_line_error(res, *fragments)
+    assert "wrote" not in res.stdout and not (tmp_path / "t.tum").exists()
+    if case == "report_is_a_file":
+        assert (tmp_path / "rep").read_text() == "keep me"
+
+
+def test_atomic_write_names_the_file_asked_for(tmp_path):
+    """A missing folder is reported with the file asked for, not the temporary file beside it."""
+    from polycam.tomlio import atomic_write_text
+
+    with pytest.raises(FileNotFoundError) as e:
+        atomic_write_text(tmp_path / "missing" / "a.toml", "x = 1\n")
+    assert e.value.filename == str(tmp_path / "missing" / "a.toml")
+    assert "does not exist" in e.value.strerror
+
+
 def test_motion_needs_two_frames(tmp_path):
     lf = _small_lightfield(tmp_path, 1)
     assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum")), str(lf), "1 frame(s)")

@@ -523,7 +523,7 @@ def test_depth_verb_estimates_the_motion(tmp_path, capsys, options, recorded):
 
 
 @pytest.mark.parametrize("case", ["single_frame", "missing", "frame_range", "missing_traj", "bad_option",
-                                  "nan_sample", "nan_sample_traj"])
+                                  "nan_sample", "nan_sample_traj", "out_is_a_file"])
 def test_depth_verb_bad_input(tmp_path, capsys, case):
     from polycam.cli import main
     from polycam.trajectory import write_tum
@@ -544,6 +544,10 @@ def test_depth_verb_bad_input(tmp_path, capsys, case):
     elif case == "bad_option":
         _plane_store(tmp_path / "lf.zarr", frames=2)
         argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o"), "--option", "levels=none"]
+    elif case == "out_is_a_file":                    # refused before the solve
+        _plane_store(tmp_path / "lf.zarr", frames=2)
+        (tmp_path / "o").write_text("not a folder")
+        argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o")]
     else:
         _plane_store(tmp_path / "lf.zarr", frames=2)
         argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "o"), "--traj",
@@ -553,4 +557,8 @@ def test_depth_verb_bad_input(tmp_path, capsys, case):
     assert err.startswith("polycam: error:") and "\n" not in err
     if case.startswith("nan_sample"):
         assert str(tmp_path / "lf.zarr") in err and "frame 1 contains NaN" in err
+    if case == "out_is_a_file":
+        assert f"--out {tmp_path / 'o'}: exists and is not a folder" in err
+        assert (tmp_path / "o").read_text() == "not a folder"
+        return
     assert not (tmp_path / "o" / "points.ply").exists()

@@ -9,7 +9,7 @@ import numpy as np
 from polycam.cli import main
 from polycam.trajectory import read_tum
 from conftest import assert_one_line_error as _one_line_error
-from conftest import mock_grid_rig_text
+from conftest import REPO, mock_grid_rig_text
 from tolerances import E2E_RUN_DEPTH_REL, E2E_RUN_MOTION_REL
 
 RUN_RIG_TEXT = mock_grid_rig_text("run3x3", 160, 120)
@@ -65,6 +65,13 @@ def test_run_stops_at_an_unusable_stage(tmp_path, capsys):
 def test_run_bad_rig_file_is_one_line(tmp_path, capsys):
     code = main(["run", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "run")])
     _one_line_error(capsys, code, "nope.toml")
+
+
+def test_run_out_that_is_a_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "run").write_text("keep me")
+    code = main(["run", str(REPO / "rigs" / "mock5x5.toml"), "--out", str(tmp_path / "run")])
+    _one_line_error(capsys, code, f"--out {tmp_path / 'run'}: exists and is not a folder")
+    assert (tmp_path / "run").read_text() == "keep me"
 
 
 def test_run_single_camera_stops_at_motion_naming_the_unobservable(tmp_path, capsys):
