@@ -192,8 +192,10 @@ def load_grid(path: str | os.PathLike) -> LightFieldGrid:
         lo, hi, n = g.vector(key, 3)
         if n != int(n) or n < 1:
             raise g.error(key, f"count must be an integer >= 1, got {n}")
-        if (n > 1 and not hi > lo) or (n == 1 and hi != lo):
+        if n > 1 and not hi > lo:
             raise g.error(key, f"expected [min, max, count] with max > min, got {[lo, hi, n]}")
+        if n == 1 and hi != lo:
+            raise g.error(key, f"one sample (count 1) needs min = max, got {[lo, hi, n]}")
         axes[key] = Axis(lo, hi, int(n))
     g.finish()
     return LightFieldGrid.cube(names, f=f, z_pi=z_pi, **axes)

@@ -104,7 +104,7 @@ def test_axis_from_values_rejects_irregular():
     ("x = [-0.04, 0.04, 5]", "x = [0.04, -0.04, 5]", ["[grid].x", "max > min"]),
     ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 2.5]", ["[grid].x", "count"]),
     ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 0]", ["[grid].x", "count"]),
-    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 1]", ["[grid].x", "max > min"]),
+    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 1]", ["[grid].x", "count 1) needs min = max"]),
     ("u = [-0.5, 0.5, 11]", "u = [-0.5, 0.5, 11]\nw = 3", ["[grid].w", "unknown key"]),
     ("[grid]", "[other]\nk = 1\n[grid]", ["other", "unknown key"]),
 ])
