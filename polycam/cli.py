@@ -173,12 +173,19 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from .evaluate import ate_rmse, error_over_std, pair_errors
 
         err = pair_errors(traj, truth)
-        print(f"against {truth_name}: median per-pair error translation "
-              f"{100 * np.median(err.t_rel):.2f}%, rotation {100 * np.median(err.w_rel):.2f}%; "
-              f"ATE {1e3 * ate_rmse(traj, truth):.3f} mm")
-        k_t, k_r = error_over_std(err, np.stack([r.std for r in results]))
-        print(f"  errors / the reported std (median over the pairs; 1: the covariance explains them): "
-              f"translation {k_t:.1f}x, rotation {k_r:.1f}x")
+        solved = np.array([bool(r) for r in results])
+        ate = f"ATE {1e3 * ate_rmse(traj, truth):.3f} mm"
+        if not solved.any():
+            print(f"against {truth_name}: no pair solved; {ate}")
+        else:
+            # the failed pairs (their start, e.g. the previous pair's motion) are in the ATE only
+            of = f" (the {int(solved.sum())} solved pairs)" if not solved.all() else ""
+            err = err.subset(solved)
+            print(f"against {truth_name}: median per-pair error{of} translation "
+                  f"{100 * np.median(err.t_rel):.2f}%, rotation {100 * np.median(err.w_rel):.2f}%; {ate}")
+            k_t, k_r = error_over_std(err, np.stack([r.std for r, ok in zip(results, solved) if ok]))
+            print(f"  errors / the reported std (median over the pairs; 1: the covariance explains them): "
+                  f"translation {k_t:.1f}x, rotation {k_r:.1f}x")
     if args.report:
         from .motion_report import write_motion_report
 

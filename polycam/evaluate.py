@@ -41,6 +41,12 @@ class PairErrors:
         """(N-1,) rotation error relative to the true rotation angle."""
         return self.w_err / np.maximum(self.w_true, 1e-300)
 
+    def subset(self, keep: np.ndarray) -> "PairErrors":
+        """The errors of the pairs where ``keep`` (N-1,) bool is true (e.g. the solved ones)."""
+        keep = np.asarray(keep, bool)
+        return PairErrors(t_true=self.t_true[keep], w_true=self.w_true[keep], t_err=self.t_err[keep],
+                          w_err=self.w_err[keep])
+
 
 def _check_same_frames(est: Trajectory, true: Trajectory) -> None:
     if len(est) != len(true) or not np.array_equal(est.timestamps_ns, true.timestamps_ns):

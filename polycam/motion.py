@@ -209,7 +209,10 @@ class PairResult:
 
     Falsy when the estimate failed (``reason`` says why, e.g. unobservable
     directions); ``T_prev_next`` is then the best estimate in the observable
-    subspace (zero motion along the unobservable directions).
+    subspace (zero motion along the unobservable directions), or, when the final solve
+    had fewer than ``MotionOptions.min_rays`` usable rays or the grid is a linear array,
+    the estimate the solve started from (``T_init``: in a trajectory with
+    ``constant_velocity`` the previous pair's motion).
     """
 
     index: int
@@ -1066,6 +1069,13 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         raise InputError(f"motion: unknown derivative filter {e.args[0]!r}; expected one of "
                          f"{sorted(FILTERS)}") from None
     M = np.eye(4) if T_init is None else np.asarray(T_init, float).copy()
+    linear = _linear_array(grid)
+    if linear:
+        log.warning("pair %d: %s", index, linear)
+        C = np.diag(np.full(6, np.inf))
+        return PairResult(index=index, T_prev_next=M, covariance=C, covariance_noise=C.copy(), covariance_iid=C.copy(),
+                          sigma=math.nan, condition=math.inf, inlier_fraction=0.0, num_rays=0, iterations=0,
+                          reason=linear, noise_sigma=math.sqrt(_noise_variance(_Level(grid, L0, L1, W0, W1))))
     # the coarse levels' frames borrow the idle tails of the finest level's work arrays
     # (kept from the previous estimate; a session's peak memory is then one estimate's)
     _return_tails()
@@ -1146,6 +1156,7 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     solver = None
     diag = None
     coarse = None
+    M_start = np.array(M, float)
     for li in range(len(levels) - 1, -1, -1):
         if li == 0 and diag is not None:
             coarse = M.copy()                     # the estimate the level above hands down
@@ -1196,7 +1207,7 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
     if coarse is not None:
         change = np.concatenate([M[:3, 3] - coarse[:3, 3], r_from_R(M[:3, :3]) - r_from_R(coarse[:3, :3])])
     return _result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters),
-                   math.sqrt(_noise_variance(levels[0])), change)
+                   math.sqrt(_noise_variance(levels[0])), change, M_start)
 
 
 def _finer_rho_bar(rho_bar: np.ndarray, coarse: LightFieldGrid, fine: LightFieldGrid) -> np.ndarray:
@@ -1222,6 +1233,22 @@ def _few_views(grid: LightFieldGrid, filters: dict) -> str:
     return (" and ".join(f"{n} viewpoints along {k}" for k, n in tight) + " are all inside one ray's filter "
             "support, so a moved frame leaves no usable ray: resample onto more viewpoints (e.g. views "
             "between the cameras)")
+
+
+def _linear_array(grid: LightFieldGrid) -> str:
+    """The reason a grid is a linear array (one viewpoint along x or y, several along the
+    other), which the solver does not support; '' otherwise. Its warp keeps each ray on the
+    single-view axis while the Eq. 5 and 6 regressors see motion along it: measured on the
+    sphere scene (1 x 5 and 5 x 1 views), the solve then diverges or returns a wrong motion
+    as if it had succeeded."""
+    counts = {"x": grid.x.count, "y": grid.y.count}
+    if min(counts.values()) != 1 or max(counts.values()) == 1:
+        return ""
+    k = "x" if counts["x"] == 1 else "y"
+    other = "y" if k == "x" else "x"
+    return (f"one viewpoint along {k} and {counts[other]} along {other} (a linear array), which the motion "
+            "solver does not support: it needs several viewpoints along both axes, or one along both (a single "
+            "camera: rotation only)")
 
 
 _COARSE_SETTLED = 0.5
@@ -1284,11 +1311,17 @@ def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
 
 
 def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str = "",
-            noise_sigma: float = math.nan, level_change: np.ndarray | None = None) -> PairResult:
+            noise_sigma: float = math.nan, level_change: np.ndarray | None = None,
+            M_start: np.ndarray | None = None) -> PairResult:
     """The :class:`PairResult` of the final solve ``diag`` at estimate ``M``; ``level_change``:
-    (6,) its (t, r) minus the coarser level's (None: one level)."""
+    (6,) its (t, r) minus the coarser level's (None: one level). When the final solve had
+    fewer than ``opts.min_rays`` usable rays, the estimate carries no information (the warp
+    by the coarser levels' estimate may have moved every ray off the grid): the result's
+    motion is then ``M_start``, the estimate the solve started from (``T_init``), if given."""
     sol, (C_sand, C_iid, sigma2), H = diag
     num = sol["num"]
+    if num < opts.min_rays and M_start is not None:
+        M = M_start
     base_n = sol["base_n"]
     inl = sol["inliers"] / base_n if (sol["inliers"] is not None and base_n) else (1.0 if base_n else 0.0)
     # map the increment covariance to the rig's (t, r): M = H exp(−δ) H = M · exp(Ad(H⁻¹)(−δ))
@@ -1351,7 +1384,8 @@ def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = 
     capped by the disparity per view step; for grids whose views are far apart for the
     scene, e.g. one view per camera of a 2 cm array in a room).
     Returns the trajectory (``T_world_rig``, world = rig at the first frame) and the
-    per-pair results (falsy ones failed; their motion is still integrated).
+    per-pair results (falsy ones failed; their motion, :class:`PairResult`'s ``T_prev_next``, is
+    still integrated).
     """
     opts = options or MotionOptions()
     if option_overrides:

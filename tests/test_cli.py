@@ -272,6 +272,21 @@ def test_atomic_write_names_the_file_asked_for(tmp_path):
     assert "does not exist" in e.value.strerror
 
 
+def test_motion_on_a_linear_array_says_no_pair_solved(tmp_path):
+    """A store whose grid is a linear array (one viewpoint along x): every pair fails with the
+    reason, and the comparison with the ground truth says no pair was solved (no error medians of
+    the failed pairs' start estimates, no NaN ratios)."""
+    grid = tmp_path / "grid.toml"
+    grid.write_text('[grid]\nf = 60\nz_pi = 0.02\nfaces = ["+z"]\nx = [0, 0, 1]\ny = [-0.02, 0.02, 5]\n'
+                    'u = [-45, 45, 32]\nv = [-45, 45, 32]\n')
+    lf = tmp_path / "lf.zarr"
+    assert polycam("synth", "lightfield", "--grid", str(grid), "--frames", "3", "--out", str(lf)).returncode == 0
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"))
+    assert res.returncode == 0, res.stderr
+    assert "2 failed" in res.stdout and "(a linear array)" in res.stdout
+    assert "no pair solved" in res.stdout and "nan" not in res.stdout
+
+
 def test_motion_needs_two_frames(tmp_path):
     lf = _small_lightfield(tmp_path, 1)
     assert_one_line_error(polycam("motion", str(lf), "--out", str(tmp_path / "t.tum")), str(lf), "1 frame(s)")

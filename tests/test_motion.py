@@ -249,6 +249,45 @@ def test_three_viewpoints_fail_with_the_reason(scene):
     assert estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
 
 
+def test_linear_array_fails_with_the_reason_and_keeps_its_start(scene):
+    """One viewpoint along x and five along y (a linear array): the solver does not support it (it
+    diverged, or returned a wrong motion as a success), so the pair fails at once with the reason
+    and keeps the estimate it started from (here T_init)."""
+    g5 = make_grid(("+z",), views=5, directions=32)
+    grid = LightFieldGrid.cube(["+z"], f=g5.faces[0].f, z_pi=g5.faces[0].z_pi, x=Axis(0.0, 0.0, 1), y=g5.y,
+                               u=g5.u, v=g5.v)
+    T = T_from_rt(np.array([0.0, 0.0, R_STEP, T_STEP, 0.0, T_STEP]))
+    T_init = T_from_rt(np.array([0.0, 0.0, 0.0, 0.001, 0.0, 0.0]))
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid, T_init=T_init)
+    assert not res and res.num_rays < MotionOptions().min_rays
+    assert "one viewpoint along x and 5 along y (a linear array)" in res.reason
+    np.testing.assert_array_equal(res.T_prev_next, T_init)
+
+
+def test_pair_without_usable_rays_keeps_its_start(scene, monkeypatch):
+    """When the final solve has fewer than ``min_rays`` usable rays the pair fails and keeps the
+    estimate it started from (``T_init``), not what the levels before moved it to."""
+    import polycam.motion as pm
+
+    orig = pm._Solver.solve
+
+    def starved(self, M):
+        sol = orig(self, M)
+        if self.level == 0:
+            sol["num"] = 0
+        return sol
+
+    grid = make_grid(("+z",), views=5, directions=32)
+    T = T_from_rt(np.array([0.0, R_STEP, 0.0, T_STEP, 0.0, 0.0]))
+    T_init = T_from_rt(np.array([0.0, 0.0, 0.0, 0.001, 0.0, 0.0]))
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T)
+    assert not np.allclose(estimate_motion(L0, L1, grid, T_init=T_init).T_prev_next, T_init, atol=1e-4)
+    monkeypatch.setattr(pm._Solver, "solve", starved)
+    res = estimate_motion(L0, L1, grid, T_init=T_init)
+    assert not res and "usable rays" in res.reason
+    np.testing.assert_array_equal(res.T_prev_next, T_init)
+
+
 def test_input_errors(scene):
     grid = make_grid(("+z",))
     L = scene.render(grid, np.eye(4))
