@@ -138,6 +138,22 @@ def _frame_task(resampler, session_path: str, t: int, partial: str, threads: int
 # ----------------------------------------------------------------------------- the job
 
 
+def _check_faces_reached(geometry, session_path) -> None:
+    """:class:`~polycam.errors.InputError` when no camera ray reaches any face of the grid (the
+    store would hold W = 0 everywhere: a grid whose faces the cameras do not look through); a
+    warning naming the faces no ray reaches when others are reached (a six-face grid on a rig
+    that looks one way)."""
+    grid = geometry.grid
+    per_face = geometry.w0.reshape(len(grid.faces), -1).sum(axis=1)
+    empty = [face.name for face, w in zip(grid.faces, per_face) if not w > 0]
+    if len(empty) == len(grid.faces):
+        raise InputError(f"{session_path}: no camera ray reaches the grid's face(s) {' '.join(empty)}: "
+                         "check the grid's faces against the directions the cameras look in")
+    if empty:
+        log.warning("%s: no camera ray reaches face(s) %s of the grid: their samples get W = 0",
+                    session_path, " ".join(empty))
+
+
 def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                      calib_dir: str | os.PathLike | None = None, grid: LightFieldGrid | None = None,
                      options=None, uv_step_px: float = 1.0, scheduler: str | None = None,
@@ -183,6 +199,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
         t0 = time.perf_counter()
         resampler = Resampler(models, grid, channels=channels, options=options)
         t_geo = time.perf_counter() - t0
+        _check_faces_reached(resampler.geometry, sess.path)      # before the store is created
         attrs = {"resample": {"session": str(Path(session_path).resolve()),
                               "grid": "given" if grid_given else "auto",
                               "kernel": {"radius_xy": options.kernel.radius_xy,

@@ -121,6 +121,28 @@ def test_session_to_store_in_process(session, tmp_path):
         resample_session(path, out, scheduler="sync")
 
 
+def test_a_grid_the_cameras_do_not_see(session, tmp_path, caplog):
+    """A grid on the face behind the cameras is refused before the store is made (it would be
+    W = 0 everywhere); a grid with that face beside the one they look through is resampled,
+    with a warning naming the empty face."""
+    import logging
+
+    path, _ = session
+    front = auto_grid(open_session(path).calibration())
+    back = LightFieldGrid.cube(["-z"], f=front.faces[0].f, z_pi=front.faces[0].z_pi, x=front.x, y=front.y,
+                               u=front.u, v=front.v)
+    with pytest.raises(InputError, match="no camera ray reaches the grid's face"):
+        resample_session(path, tmp_path / "back.zarr", grid=back, scheduler="sync")
+    assert not (tmp_path / "back.zarr").exists() and not (tmp_path / "back.zarr.partial").exists()
+    both = LightFieldGrid.cube(["+z", "-z"], f=front.faces[0].f, z_pi=front.faces[0].z_pi, x=front.x,
+                               y=front.y, u=front.u, v=front.v)
+    assert [f.name for f in front.faces] == ["+z"]
+    with caplog.at_level(logging.WARNING, logger="resample.pipeline"):
+        resample_session(path, tmp_path / "both.zarr", grid=both, scheduler="sync")
+    assert any("face(s) -z" in r.getMessage() for r in caplog.records)
+    assert np.all(open_lightfield(tmp_path / "both.zarr").weights(0)[1] == 0)
+
+
 def test_dask_workers_write_the_same_store(session, tmp_path):
     """A local dask cluster of two worker processes (frames out of order, written straight
     into their chunks) gives the store of the in-process run, byte for byte."""
