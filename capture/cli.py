@@ -116,7 +116,7 @@ def _run(source, rig, out, args, title: str) -> int:
                         overwrite=args.overwrite, tolerance_ns=tol, queue_frames=args.queue,
                         png_threads=args.png_threads, stop_event=stop, on_update=display)
     where = f"wrote {out}" if out is not None else f"replayed {title}"
-    print(summary(result.stats, where, result.status))
+    print(summary(result.stats, where, result.status, recorded=out is not None))
     if out is not None:
         print(f"  statistics in {Path(out) / 'capture_stats.toml'}")
     return 0

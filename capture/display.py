@@ -77,10 +77,13 @@ class LiveDisplay:
             self._live = None
 
 
-def summary(stats: CaptureStats, where: str, status: str) -> str:
-    """End-of-run text: totals, drops, spread percentiles, problem cameras."""
+def summary(stats: CaptureStats, where: str, status: str, recorded: bool = True) -> str:
+    """End-of-run text: totals, drops, spread percentiles, problem cameras. ``recorded``: the
+    multi-frames were written (else played only, as a replay without ``--out``: the count is of
+    those played)."""
     sp = stats.spread_percentiles_ms()
-    lines = [f"{where}: {stats.written} multi-frames from {len(stats.cameras)} cameras in "
+    count = stats.written if recorded else stats.multiframes
+    lines = [f"{where}: {count} multi-frames from {len(stats.cameras)} cameras in "
              f"{stats.duration_s:.1f} s (stopped by {stats.stopped_by}; status {status})",
              f"  complete multi-frames {stats.complete}/{stats.multiframes}; sync spread p50 {sp['p50']:.3f} ms, "
              f"p90 {sp['p90']:.3f} ms, p99 {sp['p99']:.3f} ms, max {sp['max']:.3f} ms "
