@@ -94,7 +94,8 @@ def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairRes
     plot_trajectory(report / "trajectory.png", traj, truth)
     written = ["pairs.csv", "trajectory.png"]
     if truth is not None:
-        plot_pair_errors(report / "errors.png", pair_errors(traj, truth), np.stack([r.std for r in results]))
+        plot_pair_errors(report / "errors.png", pair_errors(traj, truth), np.stack([r.std for r in results]),
+                         solved=np.array([bool(r) for r in results]))
         written.append("errors.png")
     if options is not None:
         import tomli_w

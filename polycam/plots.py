@@ -53,34 +53,43 @@ def plot_trajectory(path_png: str | os.PathLike, est: Trajectory, true: Trajecto
     plt.close(fig)
 
 
-def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarray | None = None) -> None:
+def plot_pair_errors(path_png: str | os.PathLike, err: PairErrors, std: np.ndarray | None = None,
+                     solved: np.ndarray | None = None) -> None:
     """Per frame pair translation and rotation errors, absolute and relative to the true motion.
 
     ``std``: (P, 6) the solver's standard deviations of each pair's (t [m], r [rad])
     (:attr:`polycam.motion.PairResult.std`; infinite where unobservable: not drawn), drawn
     beside the errors as the error norm they predict (:func:`~polycam.evaluate.std_norms`): where the
     bars stand far above the marks, the covariance does not explain the error (docs/motion.md,
-    "How far to trust the covariance")."""
+    "How far to trust the covariance"). ``solved``: (P,) bool, False for the failed pairs (their
+    motion is the estimate they started from): drawn grey and left out of the titles' medians."""
     from matplotlib.ticker import MaxNLocator
 
     plt = _pyplot()
     pairs = np.arange(len(err.t_err))
+    solved = np.ones(len(pairs), bool) if solved is None else np.asarray(solved, bool)
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    axes[0].bar(pairs, err.t_err * 1e3, color="tab:blue", label="error")
+    for ax, e, colour in zip(axes, (err.t_err * 1e3, np.degrees(err.w_err)), ("tab:blue", "tab:orange")):
+        if solved.any():
+            ax.bar(pairs[solved], e[solved], color=colour, label="error")
+        if not solved.all():
+            ax.bar(pairs[~solved], e[~solved], color="0.75", label="failed pair (its start estimate)")
     axes[0].set_ylabel("translation error [mm]")
-    axes[1].bar(pairs, np.degrees(err.w_err), color="tab:orange", label="error")
     axes[1].set_ylabel("rotation error [deg]")
     if std is not None:
         norm_t, norm_r = std_norms(std)
         for ax, p in zip(axes, (norm_t * 1e3, np.degrees(norm_r))):
             p = np.where(np.isfinite(p), p, np.nan)       # unobservable: infinite, not drawn
             ax.plot(pairs, p, "_", color="black", ms=22, mew=2, label="reported 1-σ (norm)")
-            ax.legend(fontsize=8)
     for ax, rel in zip(axes, (err.t_rel, err.w_rel)):
         ax.set_xlabel("frame pair (i, i+1)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # pairs are whole numbers
-        ax.set_title(f"median {100 * np.median(rel):.2f}% of the true motion")
+        of = "" if solved.all() else f" ({int(solved.sum())} solved pairs)"
+        ax.set_title(f"median {100 * np.median(rel[solved]):.2f}% of the true motion{of}" if solved.any()
+                     else "no pair solved")
         ax.grid(alpha=0.3, axis="y")
+        if std is not None or not solved.all():
+            ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path_png, dpi=110)
     plt.close(fig)

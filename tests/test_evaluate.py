@@ -71,3 +71,26 @@ def test_error_over_std_is_the_median_ratio_of_the_norms():
     k_t, k_r = error_over_std(err, std)
     assert k_t == pytest.approx(1.0, rel=1e-6) and k_r == pytest.approx(10.0, rel=1e-6)
     assert all(np.isnan(k) for k in error_over_std(err, np.full((4, 6), np.inf)))
+
+
+def test_error_plot_greys_the_failed_pairs(tmp_path, monkeypatch):
+    """errors.png with ``solved``: the failed pairs' bars are grey and the titles' medians are of
+    the solved pairs ('no pair solved' without any)."""
+    import matplotlib.axes
+
+    from polycam.plots import plot_pair_errors
+
+    true = traj([[0] * 6] + [[0, 0, 0, 0, 0, 0.01]] * 3)
+    est = traj([[0] * 6, [0, 0, 0, 0, 0, 0.0101], [0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0.0102]])
+    bars, titles = [], []
+    bar, title = matplotlib.axes.Axes.bar, matplotlib.axes.Axes.set_title
+    monkeypatch.setattr(matplotlib.axes.Axes, "bar",
+                        lambda self, x, h, *a, **k: bars.append((list(x), k.get("color"))) or bar(self, x, h, *a, **k))
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title",
+                        lambda self, t, *a, **k: titles.append(t) or title(self, t, *a, **k))
+    plot_pair_errors(tmp_path / "errors.png", pair_errors(est, true), solved=np.array([True, False, True]))
+    assert ([0, 2], "tab:blue") in bars and ([1], "0.75") in bars
+    assert titles[0] == "median 1.50% of the true motion (2 solved pairs)"     # not the failed pair's 100 %
+    bars.clear(), titles.clear()
+    plot_pair_errors(tmp_path / "none.png", pair_errors(est, true), solved=np.zeros(3, bool))
+    assert titles == ["no pair solved"] * 2 and all(c == "0.75" for _, c in bars)
