@@ -75,6 +75,7 @@ def load_cameramodel(path: str | os.PathLike):
         return mrcal.cameramodel(str(path))
     except Exception as e:  # mrcal raises plain Exceptions for malformed models
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        msg = msg.split(". Errors for each attempt")[0]     # mrcal lists every parser it tried
         raise FormatError(path, f"not a valid mrcal cameramodel ({msg})") from None
 
 

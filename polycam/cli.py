@@ -195,6 +195,42 @@ def cmd_motion(args: argparse.Namespace) -> int:
     return 0
 
 
+def _info_calibration(path: Path) -> None:
+    """``polycam info`` of a calibration folder: its cameras (lens models, image sizes, centres in
+    the rig frame) and, when ``polycam calibrate`` wrote one, its report's summary."""
+    import numpy as np
+
+    from .cameras import load_cameramodel
+
+    files = sorted(path.glob("*.cameramodel"))
+    models = {f.stem: load_cameramodel(f) for f in files}
+    lens: dict[str, list[str]] = {}
+    for cam, m in models.items():
+        w, h = m.imagersize()
+        lens.setdefault(f"{m.intrinsics()[0]} {w}x{h}", []).append(cam)
+    centres = np.array([m.extrinsics_Rt_toref()[3] for m in models.values()])     # (N, 3) [m], rig frame
+    span = centres.max(axis=0) - centres.min(axis=0)
+    print(f"calibration {path}: {len(models)} cameras, centres spanning {1e3 * span[0]:.1f} x {1e3 * span[1]:.1f} x "
+          f"{1e3 * span[2]:.1f} mm (x, y, z in the rig frame)")
+    for what, cams in lens.items():
+        names = cams[0] if len(cams) == 1 else f"{len(cams)} cameras ({', '.join(cams[:3])}" + \
+            (", ...)" if len(cams) > 3 else ")")
+        print(f"  {names}: {what}")
+    report = path / "report.toml"
+    if report.is_file():
+        import tomllib
+
+        try:
+            c = tomllib.loads(report.read_text()).get("calibration", {})
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError):
+            print(f"  report: {report} is not readable TOML")
+            return
+        parts = [f"{k} {c[k]}" for k in ("method", "frames", "views") if k in c]
+        if "rms_px" in c:
+            parts.append(f"RMS {c['rms_px']} px")
+        print("  report: " + ", ".join(parts))
+
+
 def _noise_line(results, preset: str, confidences: bool = False) -> str:
     """The frames' sensor noise in grey levels of 255 (median over the pairs), with a hint to the
     noise options when the defaults ran on frames with a grey level or more and without
@@ -228,6 +264,8 @@ def _level_line(results) -> str:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from .errors import InputError
+
     path = Path(args.path)
     if (path / "session.toml").exists():
         from .session import open_session
@@ -244,6 +282,11 @@ def cmd_info(args: argparse.Namespace) -> int:
             print(f"  {names}: {count} images of {w}x{h} each")
         print(f"  calibration: {'yes' if s.calibration() is not None else 'no'}; "
               f"ground truth: {'yes' if s.groundtruth() is not None else 'no'}")
+    elif path.is_dir() and any(path.glob("*.cameramodel")):
+        _info_calibration(path)
+    elif path.is_dir() and not any((path / n).exists() for n in ("zarr.json", ".zgroup")):
+        raise InputError(f"{path}: neither a session (no session.toml), a calibration (no .cameramodel files) "
+                         "nor a light-field store (no zarr.json)")
     else:
         from .lfstore import open_lightfield
 
@@ -386,6 +429,9 @@ def main(argv: list[str] | None = None) -> int:
     except PolycamError as e:
         print(f"polycam: error: {e}", file=sys.stderr)
         return 1
+    except BrokenPipeError:                 # the reader went away (e.g. `polycam info X | head -1`)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # no second error at exit
+        return 141
     except OSError as e:
         if e.filename is None:
             raise

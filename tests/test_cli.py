@@ -144,7 +144,45 @@ def test_info_names_non_monotonic_timestamps(tmp_path):
 
 def test_info_on_something_that_is_neither(tmp_path):
     (tmp_path / "junk").mkdir()
-    assert_one_line_error(polycam("info", str(tmp_path / "junk")), "junk")
+    assert_one_line_error(polycam("info", str(tmp_path / "junk")), "junk", "neither a session", "no zarr.json")
+
+
+def test_info_on_a_calibration_folder(tmp_path):
+    """A folder of .cameramodel files: its cameras, lens model and image size, the span of the
+    centres, and the report's summary when ``polycam calibrate`` wrote one; a broken model is one
+    line naming the file (not mrcal's list of every parser it tried)."""
+    from polycam.cameras import nominal_cameramodel, write_cameramodel
+    from polycam.rig import load_rig
+
+    rig_file = tmp_path / "r.toml"
+    rig_file.write_text('[rig]\nname = "r"\n[defaults]\nwidth = 64\nheight = 48\n'
+                        '[grid]\nrows = 1\ncols = 3\npitch = 0.05\n')
+    calib = tmp_path / "calib"
+    calib.mkdir()
+    for cam in load_rig(rig_file).cameras:
+        write_cameramodel(nominal_cameramodel(cam), calib / f"{cam.id}.cameramodel")
+    (calib / "report.toml").write_text('[calibration]\nmethod = "mrcal"\nframes = 25\nviews = 75\nrms_px = 0.12\n')
+    res = polycam("info", str(calib))
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert lines[0].startswith(f"calibration {calib}: 3 cameras, centres spanning 100.0 x 0.0 x 0.0 mm")
+    assert "3 cameras (cam00, cam01, cam02): LENSMODEL_" in lines[1] and "64x48" in lines[1]
+    assert lines[2] == "  report: method mrcal, frames 25, views 75, RMS 0.12 px"
+    (calib / "cam01.cameramodel").write_text("not a model\n")
+    res = polycam("info", str(calib))
+    assert_one_line_error(res, "cam01.cameramodel", "not a valid mrcal cameramodel")
+    assert "Errors for each attempt" not in res.stderr
+
+
+def test_output_into_a_closed_pipe_is_quiet(tmp_path):
+    """A reader that goes away (``polycam info X | head -1``) ends the command with status 141
+    and nothing on stderr, not a traceback."""
+    lf = _small_lightfield(tmp_path, 1)
+    with subprocess.Popen([sys.executable, "-m", "polycam.cli", "info", str(lf)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, cwd=REPO) as p:
+        p.stdout.close()                      # before the command writes
+        err = p.stderr.read()
+        assert p.wait(timeout=120) == 141 and err == b"", err
 
 
 def _small_lightfield(tmp_path: Path, frames: int) -> Path:
