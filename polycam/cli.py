@@ -17,10 +17,10 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from .cliargs import check_output_file, check_output_folder
 from .cliargs import nonneg_float as _nonneg_float
 from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
-from .cliargs import check_output_file, check_output_folder
 
 __all__ = ["main", "build_parser", "STAGE_CLIS"]
 
