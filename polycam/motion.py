@@ -1062,6 +1062,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     W1 = None if W1 is None else _check_frame(f"weights of frame {index + 1}", W1, grid)
     L0 = _check_frame(f"frame {index}", L0, grid, W0)
     L1 = _check_frame(f"frame {index + 1}", L1, grid, W1)
+    W0, W1 = _pair_confidence(W0, W1, opts)
     fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
     try:
         filters = {k: FILTERS[fnames.get(k, "fs5")] for k in "xyuv"}
@@ -1092,6 +1093,20 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
                        noise_sigma=math.sqrt(_noise_variance(levels[0])))
     finally:
         _return_tails()
+
+
+def _pair_confidence(W0: np.ndarray | None, W1: np.ndarray | None,
+                     opts: MotionOptions) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The confidences the solver uses: (W0 W1, None) when both are given and W1 has no zeros
+    (unless ``opts.warp_confidence`` or ``opts.symmetric``): each ray is then weighted by both
+    frames' confidences at its own sample and the warp carries frame 2's L alone; else (W0, W1)
+    as given (W1 warped with the frame; :attr:`MotionOptions.warp_confidence`). W0, W1: (F, Ny,
+    Nx, Nv, Nu) float32 or None; the product goes to a work array (never into the caller's)."""
+    if W0 is None or W1 is None or opts.warp_confidence or opts.symmetric or not float(W1.min()) > 0.0:
+        return W0, W1
+    out = _work_array("w_pair", W0.shape)
+    np.multiply(W0, W1, out=out)
+    return out, None
 
 
 def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[int, float]:

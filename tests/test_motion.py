@@ -24,7 +24,7 @@ from polycam.eq5 import _RHO_NONE
 from polycam.trajectory import Trajectory
 
 from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
-                        MOTION_W_LAG_REL,
+                        MOTION_W_LAG_REL, MOTION_W_PAIR_REL,
                         MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
                         MOTION_COV_RATIO_MIN, MOTION_DEPTH_MEDIAN_REL, MOTION_NORMAL_SUMS_RTOL, MOTION_PURE_LEAK,
                         MOTION_NOISE_WEIGHT_KEEP, MOTION_PURE_REL, MOTION_SOLVE_RTOL, MOTION_SPHERES_REL,
@@ -665,11 +665,14 @@ def test_rho_windows_in_the_warped_frames_memory(scene, monkeypatch, with_w):
     assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
 
 
-@pytest.mark.parametrize("with_w", [False, True])
-def test_coarse_frames_in_the_work_arrays_tails(scene, monkeypatch, with_w):
+@pytest.mark.parametrize("with_w, warp_w", [(False, False), (True, False), (True, True)],
+                         ids=["no-W", "W-pair", "W-warped"])
+def test_coarse_frames_in_the_work_arrays_tails(scene, monkeypatch, with_w, warp_w):
     """A session's consecutive estimates put the coarse pyramid levels' frames in the idle
     tails of the finest level's work arrays, kept from the previous estimate: the estimate is
-    the same to the last bit as with frames of their own (a fresh thread's first estimate)."""
+    the same to the last bit as with frames of their own (a fresh thread's first estimate).
+    With W (no zeros) the levels hold L0, L1 and W0 W1 (``warp_confidence``: W0 and W1)."""
+    opts = MotionOptions(warp_confidence=warp_w)
     grid = make_grid(("+z",), views=9, directions=64, spacing=0.01)      # two coarse levels
     rt = np.array([0.002, -0.003, 0.001, 0.014, -0.01, 0.004])
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
@@ -688,11 +691,11 @@ def test_coarse_frames_in_the_work_arrays_tails(scene, monkeypatch, with_w):
 
     monkeypatch.setattr(pm, "_tail_array", count)
     pm.free_work_buffers()
-    a = estimate_motion(L0, L1, grid, **W)
+    a = estimate_motion(L0, L1, grid, options=opts, **W)
     assert lent and not any(lent)                     # nothing cached yet: frames of their own
     lent.clear()
-    b = estimate_motion(L0, L1, grid, **W)
-    assert len(lent) == 2 * (4 if with_w else 2) and all(lent)
+    b = estimate_motion(L0, L1, grid, options=opts, **W)
+    assert len(lent) == 2 * (2 + with_w + warp_w) and all(lent)
     assert np.array_equal(a.T_prev_next, b.T_prev_next) and np.array_equal(a.covariance, b.covariance)
     pm.free_work_buffers()
 
@@ -905,15 +908,50 @@ def test_rewarps_keep_the_warped_confidences(scene, faces, monkeypatch):
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
     rng = np.random.default_rng(5)
     W0, W1 = (np.where(rng.random(grid.shape) < 0.6, 0.5, 1.0).astype(np.float32) for _ in range(2))
-    lagged = estimate_motion(L0, L1, grid, W0=W0, W1=W1)
+    warped = MotionOptions(warp_confidence=True)              # (else W1, without zeros, is not warped)
+    lagged = estimate_motion(L0, L1, grid, W0=W0, W1=W1, options=warped)
     assert lagged and lags[-1] and not lags[0], lags          # the last (finest) re-warp lags
     lags.clear()
     monkeypatch.setattr(pm, "_W_SETTLED", -1.0)
-    fresh = estimate_motion(L0, L1, grid, W0=W0, W1=W1)
+    fresh = estimate_motion(L0, L1, grid, W0=W0, W1=W1, options=warped)
     assert fresh and not any(lags)
     diff = np.abs(rt_from_T(lagged.T_prev_next) - rt_from_T(fresh.T_prev_next)) / np.abs(rt)
     assert np.all(diff < MOTION_W_LAG_REL), diff
     assert not np.array_equal(lagged.T_prev_next, fresh.T_prev_next)     # the lag did change W
+
+
+def test_pair_confidence_instead_of_the_warped_one(scene, monkeypatch):
+    """With confidences W1 without zeros the warp carries frame 2's L alone and each ray is
+    weighted by W0 W1 at its own sample (``MotionOptions.warp_confidence`` False): the estimate is
+    that of the warped W1 to MOTION_W_PAIR_REL of each motion component; W1 with zeros (samples
+    without data) is still warped with its "no data" channel; the caller's W are not written."""
+    channels = []
+    warp_into = pm._warp_into
+
+    def spy(*args, **kw):
+        channels.append(kw.get("confidence_channels", 0))
+        return warp_into(*args, **kw)
+
+    monkeypatch.setattr(pm, "_warp_into", spy)
+    grid = make_grid(("+z",), views=9, directions=48, spacing=0.01)
+    rt = np.array([0.004, -0.003, 0.0035, 0.012, -0.009, 0.006])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    rng = np.random.default_rng(5)
+    W0, W1 = (np.where(rng.random(grid.shape) < 0.6, 0.5, 1.0).astype(np.float32) for _ in range(2))
+    W0c, W1c = W0.copy(), W1.copy()
+    pair = estimate_motion(L0, L1, grid, W0=W0, W1=W1)
+    assert pair and set(channels) == {1}                  # L only; W0 W1 folded in unwarped
+    np.testing.assert_array_equal(W0, W0c)
+    np.testing.assert_array_equal(W1, W1c)
+    channels.clear()
+    warped = estimate_motion(L0, L1, grid, W0=W0, W1=W1, options=MotionOptions(warp_confidence=True))
+    assert warped and set(channels) == {2}
+    diff = np.abs(rt_from_T(pair.T_prev_next) - rt_from_T(warped.T_prev_next)) / np.abs(rt)
+    assert np.all(diff < MOTION_W_PAIR_REL), diff
+    channels.clear()
+    W1[..., :2] = 0.0                  # samples without data: W1 warped as before (with the "no data"
+    assert estimate_motion(L0, L1, grid, W0=W0, W1=W1)     # channel where a level's W1 has zeros)
+    assert 1 not in channels and 3 in channels
 
 
 def test_finer_rho_bar_takes_the_nearest_coarse_direction():

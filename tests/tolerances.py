@@ -104,6 +104,7 @@ MOTION_DEPTH_POOL_GAIN = 0.9     # RMS error of the Eq. 6 regressors with ρ̂ p
 MOTION_DEPTH_RHO_POOLED_RTOL = 1e-4  # the same with ρ̂ pooled over the views (the kernel pools its int16 ρ̂: 1.5e-5 of each view's max; measured 2e-5)
 MOTION_DEPTH_RHO_FLIPS = 1e-3    # share of valid rays whose keep / replace decision differs between the two (threshold ties in float32; measured 0)
 MOTION_W_LAG_REL = 1e-5        # estimate with the solver's lagged confidences W (re-warps keep the warped W) vs fresh ones, relative to each component of the motion (random 0.5 / 1 W; measured 7e-7)
+MOTION_W_PAIR_REL = 5e-4       # estimate with W0 W1 at each ray's own sample vs W1 warped, relative to each component (random 0.5 / 1 W, one face; measured 4.9e-5, six faces 2e-6)
 MOTION_WARP_SOURCE_UNITS = 1.0   # warp of the int16 warp source vs the float32 warp, in source units (half a unit x the stencil gain, <= 1.93 for 6 x 6 Lagrange taps; measured 0.48)
 MOTION_SCALED_VIEWS_RTOL = 1.6e-5  # int16 scaled views (polycam.eq5): rounding error relative to the view's max |value| (half a step of 1/32767, plus float32 rounding)
 MOTION_INT16_WEIGHTS_REL = 1e-4  # normal sums with int16 base weights (units of 1/32767) vs float32 weights, relative to the largest |sum| (measured: see the test)
