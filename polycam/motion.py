@@ -161,7 +161,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              solver_filter_pairs)
 from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
-from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min,
+from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min, _warped_confidence_kernel,
                    _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
                    warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
@@ -393,8 +393,13 @@ finest level mostly converges in two solves instead of three (session 34: bench_
 speed pair 131–139 -> 111–113 ms, with W 156–164 -> 133–135 ms; the accuracy benchmarks as
 before: docs/motion_log.md)."""
 
+_NO_NODATA = np.zeros(1, np.float32)
+"""Placeholder "no data" channel for :func:`~polycam.warp._warped_confidence_kernel` (never read)."""
+
 _W_SETTLED = 0.25
-"""With confidences W, a re-warp keeps the warped W of each ray inside from an earlier warp
+"""With confidences W whose W1 is warped (``MotionOptions.warp_confidence``, or W1 with zeros; else
+W1 is taken at each ray's own sample and only W0 is folded), a re-warp keeps the warped W of each
+ray inside from an earlier warp
 while the warp has moved no ray by more than this many samples (of any axis) since
 (:meth:`_Solver.warp_change`; :func:`~polycam.warp._warp_into`'s ``lag_confidence``): W is a
 weight, and blending and extrapolating it again cost ~8 ms of the finest level's second warp
@@ -502,7 +507,12 @@ class _Solver:
         # the warp sources are int16 in units (F, K) per face and channel (warp._warp_into's
         # scaled warp: the warped frames are float32), L's common to both frames: the fused
         # kernel reads frame 1 rounded to them (l0g), so equal samples give L_t = 0 exactly
-        self.src1, self.K1, self.units1, self.nodata1 = _warp_source(lev.L1, lev.W1, "src1", lev.L0, lev.W0)
+        # W1 without zeros is not warped (MotionOptions.warp_confidence): each ray's confidence gets
+        # frame 2's W1 at its own sample after the warp (_Solver._warp), the source holds L alone
+        self.own_w1 = (lev.W1 is not None and not opts.warp_confidence and not opts.symmetric
+                       and float(lev.W1.min()) > 0.0)
+        self.src1, self.K1, self.units1, self.nodata1 = _warp_source(lev.L1, None if self.own_w1 else lev.W1, "src1",
+                                                                     lev.L0, lev.W0)
         self.l0g = self.units1[:, 0].astype(np.float32)
         self.src0, self.K0, self.units0, _ = _warp_source(lev.L0, lev.W0, None, lev.L1, lev.W1) if opts.symmetric \
             else (None, 0, None, None)
@@ -718,6 +728,8 @@ class _Solver:
                    nodata=self.nodata1 if fold else None, lag_confidence=lag)
         if fold and not lag:
             self.M_conf = np.array(M, float)
+        if self.own_w1:                           # × W1 at each ray's own sample, in conf's units
+            _warped_confidence_kernel(self.conf.reshape(-1), lev.W1.reshape(-1), _NO_NODATA, False, 1.0, 0.5)
         if not opts.symmetric:
             return lev.L0
         conf = self.conf
@@ -1062,7 +1074,6 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     W1 = None if W1 is None else _check_frame(f"weights of frame {index + 1}", W1, grid)
     L0 = _check_frame(f"frame {index}", L0, grid, W0)
     L1 = _check_frame(f"frame {index + 1}", L1, grid, W1)
-    W0, W1 = _pair_confidence(W0, W1, opts)
     fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
     try:
         filters = {k: FILTERS[fnames.get(k, "fs5")] for k in "xyuv"}
@@ -1093,20 +1104,6 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
                        noise_sigma=math.sqrt(_noise_variance(levels[0])))
     finally:
         _return_tails()
-
-
-def _pair_confidence(W0: np.ndarray | None, W1: np.ndarray | None,
-                     opts: MotionOptions) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The confidences the solver uses: (W0 W1, None) when both are given and W1 has no zeros
-    (unless ``opts.warp_confidence`` or ``opts.symmetric``): each ray is then weighted by both
-    frames' confidences at its own sample and the warp carries frame 2's L alone; else (W0, W1)
-    as given (W1 warped with the frame; :attr:`MotionOptions.warp_confidence`). W0, W1: (F, Ny,
-    Nx, Nv, Nu) float32 or None; the product goes to a work array (never into the caller's)."""
-    if W0 is None or W1 is None or opts.warp_confidence or opts.symmetric or not float(W1.min()) > 0.0:
-        return W0, W1
-    out = _work_array("w_pair", W0.shape)
-    np.multiply(W0, W1, out=out)
-    return out, None
 
 
 def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[int, float]:
