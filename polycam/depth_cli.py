@@ -61,13 +61,20 @@ def add_parsers(sub) -> None:
                        description="Estimate the motion of frames (I, I+1) (or take it from --traj), compute "
                                    "the depth of every ray (differential stereo and motion, fused, with a "
                                    "confidence) and write per-view depth maps (PFM float32 and 16-bit PNG in "
-                                   "mm) and a PLY point cloud in the rig frame of frame I. See docs/depth.md.")
+                                   "mm) and a PLY point cloud in the rig frame of frame I (--stereo-only: frame "
+                                   "I alone, from the stereo estimates). See docs/depth.md.")
     p.add_argument("source", metavar="LF.zarr|SESSION",
                    help="light-field store, or a recorded session (resampled on the fly)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--frame", type=_nonneg_int, default=0, metavar="I", help="first frame of the pair (default 0)")
-    p.add_argument("--traj", metavar="TRAJ.tum",
-                   help="take the pair's motion from this trajectory (T_world_rig) instead of estimating it")
+    motion_group = p.add_mutually_exclusive_group()
+    motion_group.add_argument("--traj", metavar="TRAJ.tum",
+                              help="take the pair's motion from this trajectory (T_world_rig) instead of "
+                                   "estimating it")
+    motion_group.add_argument("--stereo-only", action="store_true",
+                              help="depth of frame I alone from its two differential-stereo estimates (paper "
+                                   "Eq. 6: across the viewpoints, no motion): a light field of one frame, or a "
+                                   "static scene")
     p.add_argument("--views", choices=("central", "all"), default="central",
                    help="write maps (and points) for the central view of each face or all views (default central)")
     p.add_argument("--scale-selection", choices=("auto", "off", "face", "region"), default="auto",
@@ -145,22 +152,29 @@ def cmd_depth(args: argparse.Namespace) -> int:
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step, xy_oversample=args.xy_oversample)
     n = len(store.timestamps_ns)
-    if n < 2:
-        raise InputError(f"{src}: has {n} frame(s); depth needs a frame pair (at least 2)")
     i = args.frame
-    if i > n - 2:
-        raise InputError(f"{src}: --frame {i} needs frames {i} and {i + 1}, but there are {n} (0..{n - 1})")
+    stereo = args.stereo_only
+    j = i if stereo else i + 1                         # the pair's second frame (itself: stereo only)
+    if n < 2 and not stereo:
+        raise InputError(f"{src}: has {n} frame(s); depth needs a frame pair (at least 2), or --stereo-only "
+                         "for one frame's stereo depth")
+    if j > n - 1:
+        raise InputError(f"{src}: --frame {i} needs frame{'' if stereo else f's {i} and'} {j}, but there are {n} "
+                         f"(0..{n - 1})")
     if not args.keep <= 1.0:
         raise InputError(f"--keep must be in (0, 1], got {args.keep}")
     grid = store.grid
     ts = np.asarray(store.timestamps_ns, np.int64)
     get_w = getattr(store, "weights", None)
     W0 = get_w(i) if get_w else None
-    W1 = get_w(i + 1) if get_w else None
+    W1 = (get_w(j) if get_w else None) if not stereo else W0
     # NaNs where W is not 0 are an error (also with --traj, where no solver would see them)
     L0 = finite_frame(f"frame {i}", store.frame(i), W0, who=str(src))
-    L1 = finite_frame(f"frame {i + 1}", store.frame(i + 1), W1, who=str(src))
-    if args.traj:
+    L1 = finite_frame(f"frame {j}", store.frame(j), W1, who=str(src)) if not stereo else L0
+    if stereo:                     # Eq. 7's stereo estimates only (depth_of_pair without a motion)
+        M = None
+        motion = {"motion_source": "none (stereo only)"}
+    elif args.traj:
         M = pair_motion_from_trajectory(args.traj, int(ts[i]), int(ts[i + 1]))
         motion = {"motion_source": str(args.traj)}
     else:
@@ -187,13 +201,14 @@ def cmd_depth(args: argparse.Namespace) -> int:
     else:
         from .scales import depth_scale_selected
 
-        dm, sel = depth_scale_selected(g0, g1, grid, M, per=mode, W0=W0, noise_var=noise_var)
+        eqs = ("stereo_x", "stereo_y") if stereo else ("stereo_x", "stereo_y", "motion_pos")
+        dm, sel = depth_scale_selected(g0, g1, grid, M, per=mode, W0=W0, noise_var=noise_var, equations=eqs)
         scale_info = {"face_scales": [s.name for s in sel.face_scales()]}
     mask = confident_mask(dm, keep=args.keep, W=W0, max_rel_std=args.max_std)
     views = view_mask(grid, 1 if args.views == "central" else None)
     L0a = np.asarray(L0, np.float32)
-    meta = {"source": str(src), "frame": i, "frame_next": i + 1, "timestamp_ns": int(ts[i]),
-            "timestamp_next_ns": int(ts[i + 1]), "T_prev_next": np.asarray(M, float).tolist(),
+    meta = {"source": str(src), "frame": i, "frame_next": j, "timestamp_ns": int(ts[i]),
+            "timestamp_next_ns": int(ts[j]), "T_prev_next": np.asarray(np.eye(4) if M is None else M, float).tolist(),
             **({"keep": float(args.keep)} if args.max_std is None else {"max_rel_std": float(args.max_std)}),
             "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)),
             **motion, **scale_info}
@@ -210,7 +225,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
           f"{out / 'points.ply'}; {100 * summary['confident_fraction']:.0f}% of the written views' rays "
           f"{kept} (motion: {motion['motion_source']})")
     truth = store.groundtruth() if hasattr(store, "groundtruth") else None
-    if truth is not None and not args.traj:
+    if truth is not None and not args.traj and not stereo:
         from .evaluate import pair_errors
         from .trajectory import Trajectory
 

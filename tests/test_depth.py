@@ -477,6 +477,31 @@ def test_depth_verb_writes_maps_and_a_ply(tmp_path, repo):
     assert {"red", "green", "blue", "confidence"} <= set(ply)
 
 
+def test_depth_verb_stereo_only_on_one_frame(tmp_path, capsys):
+    """A light field of one frame: the depth verb refuses it without --stereo-only (one line naming
+    the option), and with it writes the depth of that frame from its two stereo estimates alone
+    (no motion: T_prev_next the identity, frame_next the frame itself), the plane's depth within
+    DEPTH_PLANE_MEDIAN_REL; --stereo-only with --traj is bad usage."""
+    from polycam.cli import main
+
+    _plane_store(tmp_path / "lf.zarr", frames=1)
+    out = tmp_path / "out"
+    argv = ["depth", str(tmp_path / "lf.zarr"), "--out", str(out), "--views", "all"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "1 frame(s)" in err and "--stereo-only" in err
+    assert main(argv + ["--stereo-only"]) == 0
+    assert "motion: none (stereo only)" in capsys.readouterr().out
+    doc = tomllib.loads((out / "depth.toml").read_text())["depth"]
+    assert doc["frame"] == doc["frame_next"] == 0 and doc["motion_source"] == "none (stereo only)"
+    np.testing.assert_array_equal(doc["T_prev_next"], np.eye(4))
+    Z = read_pfm(out / "views" / "face0" / "y02_x02_depth.pfm")
+    assert np.isfinite(Z).sum() > 100 and np.nanmedian(np.abs(Z / 1.5 - 1)) < DEPTH_PLANE_MEDIAN_REL
+    with pytest.raises(SystemExit) as e:
+        main(argv + ["--stereo-only", "--traj", str(tmp_path / "t.tum")])
+    assert e.value.code == 2
+
+
 def test_depth_verb_keeps_rays_by_their_predicted_std(tmp_path, capsys):
     """--max-std REL keeps the rays with 1 / √confidence ≤ REL (recorded in depth.toml); their
     errors against the plane are within a few REL. --keep and --max-std together: bad usage."""
