@@ -170,7 +170,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if truth is not None:
         import numpy as np
 
-        from .evaluate import ate_rmse, error_over_std, pair_errors
+        from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
 
         err = pair_errors(traj, truth)
         solved = np.array([bool(r) for r in results])
@@ -180,10 +180,10 @@ def cmd_motion(args: argparse.Namespace) -> int:
         else:
             # the failed pairs (their start, e.g. the previous pair's motion) are in the ATE only
             of = f" (the {int(solved.sum())} solved pairs)" if not solved.all() else ""
-            err = err.subset(solved)
+            err, std = solved_pairs(err, np.stack([r.std for r in results]), solved)
             print(f"against {truth_name}: median per-pair error{of} translation "
                   f"{100 * np.median(err.t_rel):.2f}%, rotation {100 * np.median(err.w_rel):.2f}%; {ate}")
-            k_t, k_r = error_over_std(err, np.stack([r.std for r, ok in zip(results, solved) if ok]))
+            k_t, k_r = error_over_std(err, std)
             print(f"  errors / the reported std (median over the pairs; 1: the covariance explains them): "
                   f"translation {k_t:.1f}x, rotation {k_r:.1f}x")
     if args.report:
@@ -193,6 +193,13 @@ def cmd_motion(args: argparse.Namespace) -> int:
                                       scale_selection=scale_selection, preset=args.preset)
         print(f"report in {args.report}: {', '.join(written)}")
     return 0
+
+
+def _camera_group(cams: list[str]) -> str:
+    """``polycam info``'s name of cameras listed on one line: the camera, or "N cameras (a, b, c, ...)"."""
+    if len(cams) == 1:
+        return cams[0]
+    return f"{len(cams)} cameras ({', '.join(cams[:3])}" + (", ...)" if len(cams) > 3 else ")")
 
 
 def _info_calibration(path: Path) -> None:
@@ -213,9 +220,7 @@ def _info_calibration(path: Path) -> None:
     print(f"calibration {path}: {len(models)} cameras, centres spanning {1e3 * span[0]:.1f} x {1e3 * span[1]:.1f} x "
           f"{1e3 * span[2]:.1f} mm (x, y, z in the rig frame)")
     for what, cams in lens.items():
-        names = cams[0] if len(cams) == 1 else f"{len(cams)} cameras ({', '.join(cams[:3])}" + \
-            (", ...)" if len(cams) > 3 else ")")
-        print(f"  {names}: {what}")
+        print(f"  {_camera_group(cams)}: {what}")
     report = path / "report.toml"
     if report.is_file():
         import tomllib
@@ -277,9 +282,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         for cam in s.cameras:  # cameras with the same image count and size on one line
             groups.setdefault((len(s.image_timestamps(cam)), *s.image_size(cam)), []).append(cam)
         for (count, w, h), cams in groups.items():
-            names = cams[0] if len(cams) == 1 else f"{len(cams)} cameras ({', '.join(cams[:3])}" + \
-                (", ...)" if len(cams) > 3 else ")")
-            print(f"  {names}: {count} images of {w}x{h} each")
+            print(f"  {_camera_group(cams)}: {count} images of {w}x{h} each")
         print(f"  calibration: {'yes' if s.calibration() is not None else 'no'}; "
               f"ground truth: {'yes' if s.groundtruth() is not None else 'no'}")
     elif path.is_dir() and any(path.glob("*.cameramodel")):

@@ -167,10 +167,10 @@ def cmd_depth(args: argparse.Namespace) -> int:
     ts = np.asarray(store.timestamps_ns, np.int64)
     get_w = getattr(store, "weights", None)
     W0 = get_w(i) if get_w else None
-    W1 = (get_w(j) if get_w else None) if not stereo else W0
+    W1 = W0 if stereo else (get_w(j) if get_w else None)
     # NaNs where W is not 0 are an error (also with --traj, where no solver would see them)
     L0 = finite_frame(f"frame {i}", store.frame(i), W0, who=str(src))
-    L1 = finite_frame(f"frame {j}", store.frame(j), W1, who=str(src)) if not stereo else L0
+    L1 = L0 if stereo else finite_frame(f"frame {j}", store.frame(j), W1, who=str(src))
     if stereo:                     # Eq. 7's stereo estimates only (depth_of_pair without a motion)
         M = None
         motion = {"motion_source": "none (stereo only)"}

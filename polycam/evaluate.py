@@ -15,7 +15,7 @@ from .errors import InputError
 from .geometry import T_inverse, r_from_R
 from .trajectory import Trajectory
 
-__all__ = ["PairErrors", "pair_errors", "ate_rmse", "std_norms", "error_over_std"]
+__all__ = ["PairErrors", "pair_errors", "solved_pairs", "ate_rmse", "std_norms", "error_over_std"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,16 @@ class PairErrors:
         keep = np.asarray(keep, bool)
         return PairErrors(t_true=self.t_true[keep], w_true=self.w_true[keep], t_err=self.t_err[keep],
                           w_err=self.w_err[keep])
+
+
+def solved_pairs(err: PairErrors, std: np.ndarray, solved: np.ndarray) -> tuple[PairErrors, np.ndarray]:
+    """The errors and reported standard deviations ``std`` (P, 6) of the solved pairs (``solved``
+    (P,) bool; a failed pair's motion is the estimate it started from, not an estimate), or of
+    every pair when none was solved."""
+    keep = np.asarray(solved, bool)
+    if not keep.any():
+        keep = np.ones_like(keep)
+    return err.subset(keep), np.asarray(std)[keep]
 
 
 def _check_same_frames(est: Trajectory, true: Trajectory) -> None:

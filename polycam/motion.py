@@ -157,7 +157,7 @@ from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid, finite_frame
 from .motion_options import MotionOptions
 from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
-                             min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
+                             frame_noise_variance, min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
                              solver_filter_pairs)
 from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
@@ -1087,7 +1087,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         C = np.diag(np.full(6, np.inf))
         return PairResult(index=index, T_prev_next=M, covariance=C, covariance_noise=C.copy(), covariance_iid=C.copy(),
                           sigma=math.nan, condition=math.inf, inlier_fraction=0.0, num_rays=0, iterations=0,
-                          reason=linear, noise_sigma=math.sqrt(_noise_variance(_Level(grid, L0, L1, W0, W1))))
+                          reason=linear, noise_sigma=math.sqrt(frame_noise_variance(L0, L1, grid, W0, W1)))
     # the coarse levels' frames borrow the idle tails of the finest level's work arrays
     # (kept from the previous estimate; a session's peak memory is then one estimate's)
     _return_tails()

@@ -263,7 +263,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
                                 "the cameras do not cover the grid")
 
     # 5. motion
-    from .evaluate import ate_rmse, error_over_std, pair_errors
+    from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
     from .lfstore import open_lightfield
     from .motion import MotionOptions, estimate_trajectory
     from .motion_report import write_motion_report
@@ -284,9 +284,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     write_tum(out / "trajectory.tum", traj)
     failed = [r for r in results if not r]
     ok = [r for r in results if r]
-    # the per-pair errors of the solved pairs (a failed pair keeps the motion it started from)
-    counted = ok if ok else results
-    err = pair_errors(traj, truth).subset(np.array([bool(r) or not ok for r in results]))
+    err, std = solved_pairs(pair_errors(traj, truth), np.stack([r.std for r in results]),
+                            np.array([bool(r) for r in results]))
     # the median: the first pair of a first run also compiles numba's kernels (about a minute)
     m = {"pairs": len(results), "failed": len(failed), "seconds_per_pair": float(np.median(per_pair)),
          "seconds_first_pair": float(per_pair[0]),
@@ -295,7 +294,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "ate_m": ate_rmse(traj, truth),
          "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan")}
-    m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, np.stack([r.std for r in counted]))
+    m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, std)
     summary["motion"] = m
     first = (f" (median; the first took {m['seconds_first_pair']:.0f} s, compiling the kernels)"
              if m["seconds_first_pair"] > 3 * m["seconds_per_pair"] + 1 else "")
