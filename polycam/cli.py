@@ -3,7 +3,9 @@
 Arguments are parsed before any heavy import so ``--help`` is instant. Known
 user errors (:class:`polycam.errors.PolycamError`, and OS errors on a named
 file) print one line on stderr and exit 1; bad usage exits 2 (argparse); any
-other exception is a bug and keeps its traceback.
+other exception is a bug and keeps its traceback. Output into a pipe whose reader has gone
+(``polycam info X | head -1``) ends quietly with 141, the status a shell gives a process that
+SIGPIPE stopped (SPEC.md's 0 / 1 / 2 are for runs that read their output to the end).
 """
 
 from __future__ import annotations
