@@ -590,7 +590,7 @@ def _pass_kernel(Lx, Ly, Lu, Lv, Lt, dsc, base, has_base, xs, ys, us, vs, zs, fs
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode, py, dy, px, dx, pv, dv, pu, du,
                     sx, sy, su, sv, Lx, Ly, Lu, Lv, Lt, dsc, base, xs, ys, us, vs, zs, fs, P, tile, box, vo, h,
-                    var, final, acc, st, chunks, rho, rho_sc, has_rho, sums):
+                    var, final, acc, st, chunks, rho, rho_sc, has_rho, sums, drop_rho=False):
     """Per valid view image, in cache: the base weight = confidence ``conf`` (in units of
     ``conf_unit``: 1 / 65535 for uint16) minimised over the filter support (``need_min``)
     × valid × the discontinuity weight (``smooth_mode`` 0: none,
@@ -600,7 +600,8 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
     float32: :func:`~polycam.derivatives.xy_view`) as scaled views (int16 Lx .. Lt and their scales ``dsc``, module
     docstring), with ``has_rho`` the Eq. 6 regressors L_x, L_y ← ρ̂ L_u, ρ̂ L_v where ``rho``
     (same dims, int16 in units of ``rho_sc`` per view image: :func:`depth_rho`) is given and
-    the base weight > 0, and with ``sums``
+    the base weight > 0 (with ``drop_rho``, a linear array's, a ray without ρ̂ is left out:
+    :func:`_rho_times`), and with ``sums``
     the unit-IRLS-weight normal sums (:func:`_accumulate_view`; else acc and st are left as
     they are). box as in :func:`_pass_kernel` (the filter radii). L0, L1, conf: every view;
     Lx .. Lt, dsc, base, ``smooth`` (mode 1) and ``rho`` (with ``has_rho``): view
@@ -695,7 +696,7 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
                 _filt_u(tmp, pu, sx if k == 0 else sy, o)
                 if has_rho:
                     _rho_times(o, rho[fc, ja, ia], rho_sc[fc, ja, ia], b, gu if k == 0 else gv, sc[2 + k], rv, Nv - rv,
-                               ru, Nu - ru)
+                               ru, Nu - ru, drop_rho)
                 sc[k] = _quantise_plane(o, gx if k == 0 else gy, rv, Nv - rv, ru, Nu - ru, b, True)
             _filt_v(buf[3], pv, tmp)
             _filt_u(tmp, pu, np.float32(1.0), o)
@@ -711,10 +712,13 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
-def _rho_times(o, q, qs, b, g, s, v_lo, v_hi, u_lo, u_hi):
+def _rho_times(o, q, qs, b, g, s, v_lo, v_hi, u_lo, u_hi, drop):
     """o[v, u] ← ρ̂ × g[v, u] s (a scaled view's value: module docstring) where ρ̂ = q[v, u] qs
     (int16 ρ̂ in units of qs: :func:`depth_rho`) is given (q ≠ ``_RHO_NONE``) and the base
-    weight b > 0, on the samples v_lo:v_hi x u_lo:u_hi; all (Nv, Nu)."""
+    weight b > 0, on the samples v_lo:v_hi x u_lo:u_hi; all (Nv, Nu). With ``drop`` (a linear
+    array: the measured regressor is not there to keep) a ray without ρ̂ is left out instead:
+    its base weight's sign turns negative (b <= 0 counts as weight 0; |b| stays, as smooth
+    mode 2 keeps the discontinuity weight there)."""
     s32 = np.float32(s)
     qs32 = np.float32(qs)
     none = np.int16(_RHO_NONE)
@@ -723,6 +727,9 @@ def _rho_times(o, q, qs, b, g, s, v_lo, v_hi, u_lo, u_hi):
         br = b[v]
         gr = g[v]
         orow = o[v]
+        if drop:
+            for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
+                br[u] = -abs(br[u]) if qr[u] == none else br[u]
         for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
             ok = (br[u] > np.float32(0.0)) & (qr[u] != none)
             orow[u] = (np.float32(qr[u]) * qs32) * (np.float32(gr[u]) * s32) if ok else orow[u]
@@ -973,6 +980,15 @@ _DEPTH_KEEP = 3.0
 """Depth-regularised regressors: keep the measured L_x, L_y where the window's residual energy
 exceeds this many times their expected noise variance (one depth does not explain it)."""
 
+_LINEAR_MISFIT = 0.5
+"""A linear array's ρ̂ (:func:`depth_rho`'s ``linear``): a ray without it has no L_x (or L_y) and
+is left out, so a window is also used where its misfit is at most this fraction of the measured
+regressor's energy (one depth explains half of it), not only where it is within the noise.
+Measured (docs/motion_log.md, session 40): 0.1, 0.5 and 1 equal on the sphere scene with
+occluding spheres (six faces, noise-free and σ = 0.01); on sharp frames of ``polycam synth
+lightfield`` (aliased across the views) 0.1 left too few rays at the coarsest level and the
+pairs failed, 0.5 gave 23 / 14 % (t / ω), 1 (every window) 28 / 17 %."""
+
 _DEPTH_GATE_MISFIT = 1000.0
 """Default of :attr:`MotionOptions.depth_gate_misfit`: the disparity gate (:attr:`MotionOptions.depth_gate`) replaces a ray whose window one depth
 does not explain only where the misfit is at least this many times the expected noise of L_x,
@@ -1108,18 +1124,19 @@ def _pooled_mix(pooled, Lu: np.ndarray, Lv: np.ndarray) -> tuple[float, float]:
 
 
 @numba.njit(cache=True, inline="always")
-def _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, j, i, w, out):
+def _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, j, i, w, axes, out):
     """out[c] += w × the masked Eq. 6 products of view image (fc, j, i) (indices already
     clamped; arrays with view origin ``vo``, derivatives with scales ``dsc``): c = 0 Σ-terms
     L_u² + L_v², 1 L_x L_u + L_y L_v, 2 L_x² + L_y², 3 the mask, all 0 outside the valid box,
     where base <= 0 and (with ``has_near``) where ``near`` is nonzero (a view outside the box
-    adds nothing)."""
+    adds nothing). ``axes`` (2,) float32: 1 or 0 per view axis (x, y), 0 leaving that axis's
+    terms out (a linear array's single-view axis, whose L_x or L_y is not measured)."""
     if j < box[0] or j >= box[1] or i < box[2] or i >= box[3] or w == 0.0:
         return
     ja = j - vo[0]
     ia = i - vo[1]
     sc = dsc[fc, ja, ia]
-    qx, qy, qu, qv = sc[0], sc[1], sc[2], sc[3]
+    qx, qy, qu, qv = sc[0] * axes[0], sc[1] * axes[1], sc[2] * axes[0], sc[3] * axes[1]
     for v in range(box[4], box[5]):
         gx = Lx[fc, ja, ia, v]
         gy = Ly[fc, ja, ia, v]
@@ -1184,7 +1201,7 @@ def _window_uv_row(A, Brow, Crow, t9, box, v):
 
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                    var_uv, rho, rho_sc, rv, kv, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
+                    var_uv, axes, linear, rho, rho_sc, rv, kv, st, fc, i, ja, jb, px, A, Brow, Crow, vb):
     """One run of :func:`_depth_rho_kernel`: view rows ja:jb of column (fc, i); adds its
     statistics to st (4,). Scratch (float32): px (3, 4, Nv, Nu) the products of three view
     rows, A (4, Nv + 8, Nu + 8) and Brow (4, Nu + 8) zero outside the box's (v, u) range
@@ -1198,7 +1215,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
         rc = min(max(r, 0), Ny - 1)
         for dx in range(3):
             ic = min(max(i + dx - 1, 0), Nx - 1)
-            _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, rc, ic, t3[dx], s)
+            _depth_products(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, fc, rc, ic, t3[dx], axes, s)
         if r < ja + 1:
             continue
         j = r - 1                                   # rows j-1, j, j+1 are ready
@@ -1247,7 +1264,10 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
                 res = np.float64(sxx[u] - q * sxu[u])
                 nw = np.float64(sn[u])
                 quiet = q * q * np.float32(na) + e <= np.float32(1.0)
-                use = ok and quiet and (res <= thr * nw or (abs(q) <= rho_max and res >= thr_gate * nw))
+                if linear:               # no measured regressor to keep: one depth explains the window
+                    use = ok and has and (res <= thr * nw or res <= _LINEAR_MISFIT * np.float64(sxx[u]))
+                else:
+                    use = ok and quiet and (res <= thr * nw or (abs(q) <= rho_max and res >= thr_gate * nw))
                 o[u] = q if use else np.float32(np.nan)
                 if kv > 0.0:
                     rvr[u] = np.float32(kv) * inv if use else np.float32(np.nan)
@@ -1264,7 +1284,7 @@ def _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb, rho_max,
-                      var_uv, rho, rho_sc, rv, kv, stats, scratch):
+                      var_uv, axes, linear, rho, rho_sc, rv, kv, stats, scratch):
     """ρ̂ of the Eq. 6 regressors per ray (:func:`depth_rho`): rho int16 in units of rho_sc
     per view image (all arrays with view origin ``vo``, derivatives with scales ``dsc``, module
     docstring), ``_RHO_NONE`` where the measured L_x, L_y are kept (inside the box: base <= 0,
@@ -1309,7 +1329,8 @@ def _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3
             jb = min(r_end - col * ny, ny)
             fc = col // nx
             _depth_rho_unit(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, thr, thr_gate, na, nb,
-                            rho_max, var_uv, rho, rho_sc, rv, kv, st, fc, box[2] + col - fc * nx, box[0] + r - col * ny,
+                            rho_max, var_uv, axes, linear, rho, rho_sc, rv, kv, st, fc, box[2] + col - fc * nx,
+                            box[0] + r - col * ny,
                             box[0] + jb, px, A, Brow, Crow, vb)
             r = col * ny + jb
 
@@ -1320,12 +1341,13 @@ def _depth_rho_scratch(Nv: int, Nu: int) -> int:
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
-def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, rho_sc, box, vo, chunks):
+def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, rho_sc, box, vo, chunks, drop=False):
     """L_x, L_y ← ρ̂ L_u, ρ̂ L_v in place where ρ̂ is given and base > 0 (inside box (8,), as
     :func:`depth_rho`: rho int16 in units of rho_sc per view image, ``_RHO_NONE`` where the
     measured regressors are kept; arrays with view origin ``vo``): scaled views
     (int16 with scales ``dsc``, module docstring), each view image re-quantised with the
-    scale of its new values (``chunks``: :func:`~polycam.derivatives.parallel_chunks`)."""
+    scale of its new values (``chunks``: :func:`~polycam.derivatives.parallel_chunks`). With
+    ``drop`` (a linear array) a ray without ρ̂ is left out (:func:`_rho_times`)."""
     ny = box[1] - box[0]
     nx = box[3] - box[2]
     F, Nv, Nu = Lx.shape[0], Lx.shape[3], Lx.shape[4]
@@ -1341,6 +1363,12 @@ def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, rho_sc, box, vo, chunks):
             b = base[fc, ja, ia]
             q = rho[fc, ja, ia]
             qs = np.float32(rho_sc[fc, ja, ia])
+            if drop:
+                for v in range(box[4], box[5]):
+                    br = b[v]
+                    qr = q[v]
+                    for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
+                        br[u] = -abs(br[u]) if qr[u] == np.int16(_RHO_NONE) else br[u]
             for k in range(2):
                 g = Lx[fc, ja, ia] if k == 0 else Ly[fc, ja, ia]
                 d = Lu[fc, ja, ia] if k == 0 else Lv[fc, ja, ia]
@@ -1518,7 +1546,8 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
               rho_max: float = 0.0, gate_misfit: float = _DEPTH_GATE_MISFIT,
               near: np.ndarray | None = None, vo: np.ndarray | None = None,
               dsc: np.ndarray | None = None, scratch: np.ndarray | None = None,
-              out_scale: np.ndarray | None = None, return_mix: bool = False, pool_views: bool = False):
+              out_scale: np.ndarray | None = None, return_mix: bool = False, pool_views: bool = False,
+              linear: str = ""):
     """ρ̂ of :func:`depth_regularise` per ray, as a kernel: ``out`` (F, Ny, Nx, Nv, Nu) float32
     gets ρ̂ where the regressors are replaced, NaN where the measured ones are kept (rays
     outside ``box`` (8,) [y0, y1, x0, x1, v0, v1, u0, u1] or with base <= 0 are not valid).
@@ -1536,7 +1565,11 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     Returns (4,) the variances for the replaced regressors, as depth_regularise; with
     ``return_mix`` also their make-up, a :class:`RegressorMix` (None: no ray replaced).
     ``pool_views``: then ρ̂ pooled over the views (:func:`polycam.rho_pool.pool_over_views`,
-    as depth_regularise; needs noise: var_x + var_y > 0)."""
+    as depth_regularise; needs noise: var_x + var_y > 0).
+    ``linear`` ("x" or "y"; "": both measured): a linear array's single-view axis, whose
+    regressor is not measured: ρ̂ from the other axis alone (S_uu, S_xu, S_xx and the noise
+    without the single axis's terms), every ray whose window one depth explains (misfit within
+    the noise or at most ``_LINEAR_MISFIT`` of its energy) gets it, whatever the noise test."""
     Lx, Ly, Lu, Lv = der[:4]
     t5 = FILTERS["fs5"].prefilter
     t9 = np.convolve(t5, t5).astype(np.float32)
@@ -1554,29 +1587,31 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     if out.dtype != np.int16:
         rho, rho_sc = np.empty(out.shape, np.int16), np.empty(out.shape[:3], np.float32)
         res = depth_rho(der, base, box, var, rho, rho_max, gate_misfit, near, vo, dsc, scratch, rho_sc, return_mix,
-                        pool_views)
+                        pool_views, linear)
         out[...] = rho_values(rho, rho_sc)
         return res
-    kv = 0.5 * _DEPTH_RHO_KAPPA * float(var[0] + var[1]) if pool_views else 0.0     # var(ρ̂) = kv / S_uu
+    axes = np.array([linear != "x", linear != "y"], np.float32)      # 0: the single-view axis
+    var_pos = float(axes[0] * var[0] + axes[1] * var[1]) / float(axes.sum())   # per measured axis
+    kv = _DEPTH_RHO_KAPPA * var_pos if pool_views else 0.0     # var(ρ̂) = kv / S_uu
     rv = np.full(out.shape, np.nan, np.float32) if kv > 0.0 else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.float32)
     if F * int(box[3] - box[2]) * int(box[1] - box[0]) > 0 and box[5] > box[4] and box[7] > box[6]:
         y0, y1, x0, x1 = box[0] - vo[0], box[1] - vo[0], box[2] - vo[1], box[3] - vo[1]
         for sl in (np.s_[:, :y0], np.s_[:, y1:], np.s_[:, :, :x0], np.s_[:, :, x1:]):
             out[sl] = _RHO_NONE                         # views outside the box (the kernel does the rest)
             out_scale[sl[:3]] = 0.0
-        vxy = float(var[0] + var[1])
+        vxy = float(axes[0] * var[0] + axes[1] * var[1])
         na, nb = _depth_rho_noise(var)
         has_near = near is not None
         near = near if has_near else np.zeros((1, 1, 1, 1, Lx.shape[4]), np.uint8)
         _depth_rho_kernel(Lx, Ly, Lu, Lv, dsc, base, near, has_near, box, vo, t9, t3, _DEPTH_KEEP * vxy,
-                          float(gate_misfit) * vxy, na, nb, float(rho_max), float(var[2] + var[3]), out, out_scale,
-                          rv, kv, stats, scratch)
+                          float(gate_misfit) * vxy, na, nb, float(rho_max), float(axes[0] * var[2] + axes[1] * var[3]),
+                          axes, bool(linear), out, out_scale, rv, kv, stats, scratch)
     else:
         out[...] = _RHO_NONE
         out_scale[...] = 0.0
     n_valid, n_use, r2, er = stats.sum(axis=0) if stats.size else (0.0, 0.0, 0.0, 0.0)
     rho2 = r2 / n_use if n_use else 0.0
-    rho_noise = 0.5 * er / n_use * float(var[0] + var[1]) if n_use else 0.0
+    rho_noise = er / n_use * var_pos if n_use else 0.0
     if kv > 0.0 and n_use:
         rho2, rho_noise = _pool_rho(out, out_scale, rv, Lu, Lv, dsc, box, vo)
     mix = RegressorMix(frac=n_use / n_valid, rho2=rho2, rho_noise=rho_noise) if n_valid and n_use else None

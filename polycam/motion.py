@@ -53,6 +53,20 @@ Where the views are too far apart for the scene (disparity per view step above
 at the fine (u, v) scales, and the finest level used is the first coarse enough
 (:func:`_aliasing_start`; docs/motion.md, "Camera arrays").
 
+Linear arrays
+-------------
+A linear array (one viewpoint along x or y, several along the other: a row of cameras, a
+stereo pair resampled onto views between its cameras) measures no positional derivative along
+its single-view axis. There Eq. 6 stands in at every level: that regressor is ρ̂ L_u (or ρ̂ L_v),
+ρ̂ from the other axis alone (:func:`polycam.eq5.depth_rho`'s ``linear``), and a ray whose window
+no single depth explains is left out (it has no regressor to keep); the warp extrapolates every
+ray the motion moves off the axis from the views by Eq. 6 with the views' mean ρ̄ per direction
+(its gaps filled from their neighbours, :func:`polycam.warp._filled_view_mean`), however far (the
+first warp of the coarsest level, before any ρ̂, keeps the rays on the axis). The symmetric warp
+does not extrapolate so: with it such a pair fails with that reason. Measured (docs/motion.md,
+"Linear arrays"): on six faces of the sphere scene as accurate as a 2-D array within a few times;
+on one face t and ω couple more than with a 2-D array.
+
 Robust weighting
 ----------------
 Per ray weight = confidence ``W`` (minimum over the filter support; 0 outside
@@ -162,7 +176,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
 from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min, _warped_confidence_kernel,
-                   _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
+                   _filled_view_mean, _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
                    warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
@@ -486,6 +500,9 @@ class _Solver:
         self.opts = opts
         self.filters = filters
         self.pairs, self.taps = filter_taps(g, {k: fp.name for k, fp in filters.items()})
+        # a linear array's single-view axis ("x" or "y"; "": none): its regressor is always ρ̂ L_u
+        # (or ρ̂ L_v), at every level (_single_view_axis)
+        self.linear = _single_view_axis(g)
         self.radius = {k: (fp.radius if self.pairs[k] is not None else 0) for k, fp in filters.items()}
         self.vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (g.x, g.y, g.u, g.v)]
         self.zs = np.array([face.z_pi for face in g.faces], float)
@@ -625,7 +642,7 @@ class _Solver:
         # Eq. 6 regressors (finest _DR_LEVELS levels): ρ̂ from the measured regressors, then the
         # sums again; reused (the fused kernel replaces L_x, L_y) only while the warp has not
         # moved since (ρ̂ of a warp a step before the converged one costs accuracy)
-        dr = opts.depth_regressors and self.level < _DR_LEVELS
+        dr = bool(self.linear) or (opts.depth_regressors and self.level < _DR_LEVELS)
         moved = self.warp_change(self.M_rho, M) if dr and self.M_rho is not None else math.inf
         rho_bar = self.rho_bar if not opts.symmetric else None     # the extrapolation's (None: none)
         extrapolate = rho_bar is not None
@@ -641,7 +658,8 @@ class _Solver:
         if first_dr:
             self.M_rho = np.array(M, float)
             self.rho_extrapolated = extrapolate and not self.rho_bar_handed
-        marks = self._marks() if extrapolate and first_dr else None    # a fresh ρ̂ needs them
+        # a fresh ρ̂ needs them (not on a linear array, whose moved rays are all extrapolated)
+        marks = self._marks() if extrapolate and first_dr and not self.linear else None
         L0 = self._warp(M, H, H1, rho_bar, marks)
         # ρ̂ from the captured samples only: a window holding extrapolated samples (made with an
         # earlier ρ̂) would pull the new ρ̂ back towards it. Taken now: the marks lie in the
@@ -656,11 +674,14 @@ class _Solver:
         if has_rho:
             self.var = self._regressor_noise()
         g = self.lev.grid
-        rho_max = opts.depth_gate * abs(g.u.step) / max(abs(g.x.step), 1e-300)
+        a, b = (g.v, g.y) if self.linear == "x" else (g.u, g.x)      # the axis with views
+        rho_max = opts.depth_gate * abs(a.step) / max(abs(b.step), 1e-300)
         # the gate's misfit floor, decided at the level's first ρ̂: none unless the gate costs
         # conditioning (then opts.depth_gate_misfit)
         if self.gate_misfit is not None:
             floors = (self.gate_misfit,)
+        elif self.linear:                         # no measured regressors to fall back to
+            floors = (opts.depth_gate_misfit,)
         elif rho_max > 0 and opts.depth_gate_misfit > 0:
             floors = (0.0, opts.depth_gate_misfit)
         else:
@@ -672,7 +693,7 @@ class _Solver:
                        np.zeros((self.shape[0], 6)), tile, self.box, self.vo, self.h)
         _prepare_kernel(*derivatives, self.var, final, self.acc, self.st, parallel_chunks(),
                         self.rho if has_rho else _NO_RHO, self.rho_sc if has_rho else _NO_RHO_SC, has_rho,
-                        not first_dr or check)
+                        not first_dr or check, bool(self.linear))
         if first_dr:
             var = self.var if self.var is not None else self.derivative_noise()
             if check:
@@ -687,7 +708,7 @@ class _Solver:
                 self.var_dr = self._depth_rho(var, rho_max, floor, near)
                 self.var = self._regressor_noise()
                 _apply_rho(Lx, Ly, Lu, Lv, self.dsc, self.base, self.rho, self.rho_sc, self.box, self.vo,
-                           parallel_chunks())
+                           parallel_chunks(), bool(self.linear))
                 _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
                              np.zeros((self.shape[0], 6)), 0, 0.0, tile if n + 1 < len(floors) else self._tile(final),
                              self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
@@ -702,8 +723,12 @@ class _Solver:
                     # no bias the gate would remove (the two agree within the noise): fall back
                     if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
-        if first_dr and opts.extrapolate_views > 0 and not extrapolate:
+        # (a linear array's from each fresh ρ̂: its warp extrapolates every ray moved off the axis)
+        if first_dr and (self.linear or (opts.extrapolate_views > 0 and not extrapolate)):
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
+            if self.linear:
+                self.rho_bar = _filled_view_mean(self.rho_bar)
+            self.rho_bar_handed = False
         sums = self._sums()
         self.n_base = int(sums[1][..., 1].sum())
         return sums
@@ -751,7 +776,8 @@ class _Solver:
         extrapolated copies' noise). Returns the regressors' noise variances (4,)."""
         var_dr, self.mix = depth_rho(self.der, self.base, self.box, self._var_measured(var), self.rho, rho_max, floor,
                                      near, self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc,
-                                     return_mix=True, pool_views=self.opts.depth_pool_views)   # out1: read by now
+                                     return_mix=True, pool_views=self.opts.depth_pool_views,   # out1: read by now
+                                     linear=self.linear)
         if near is not None:
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
             self.rho_bar_handed = False
@@ -1081,7 +1107,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         raise InputError(f"motion: unknown derivative filter {e.args[0]!r}; expected one of "
                          f"{sorted(FILTERS)}") from None
     M = np.eye(4) if T_init is None else np.asarray(T_init, float).copy()
-    linear = _linear_array(grid)
+    linear = _linear_unsupported(grid, opts)
     if linear:
         log.warning("pair %d: %s", index, linear)
         C = np.diag(np.full(6, np.inf))
@@ -1247,20 +1273,25 @@ def _few_views(grid: LightFieldGrid, filters: dict) -> str:
             "between the cameras)")
 
 
-def _linear_array(grid: LightFieldGrid) -> str:
-    """The reason a grid is a linear array (one viewpoint along x or y, several along the
-    other), which the solver does not support; '' otherwise. Its warp keeps each ray on the
-    single-view axis while the Eq. 5 and 6 regressors see motion along it: measured on the
-    sphere scene (1 x 5 and 5 x 1 views), the solve then diverges or returns a wrong motion
-    as if it had succeeded."""
-    counts = {"x": grid.x.count, "y": grid.y.count}
-    if min(counts.values()) != 1 or max(counts.values()) == 1:
+def _single_view_axis(grid: LightFieldGrid) -> str:
+    """The single-view axis of a linear array ("x" or "y": one viewpoint along it, several along
+    the other); "" otherwise (a 2-D array, or a single camera)."""
+    if (grid.x.count == 1) == (grid.y.count == 1):
         return ""
-    k = "x" if counts["x"] == 1 else "y"
+    return "x" if grid.x.count == 1 else "y"
+
+
+def _linear_unsupported(grid: LightFieldGrid, opts: MotionOptions) -> str:
+    """Why the solver cannot take a linear array with these options ('' when it can). A linear
+    array's warp extrapolates every ray moved off its single-view axis by Eq. 6 (the views' ρ̄),
+    which the symmetric warp (both frames half-way) does not do."""
+    k = _single_view_axis(grid)
+    if not k or not opts.symmetric:
+        return ""
     other = "y" if k == "x" else "x"
-    return (f"one viewpoint along {k} and {counts[other]} along {other} (a linear array), which the motion "
-            "solver does not support: it needs several viewpoints along both axes, or one along both (a single "
-            "camera: rotation only)")
+    n = grid.y.count if k == "x" else grid.x.count
+    return (f"one viewpoint along {k} and {n} along {other} (a linear array) needs the one-sided warp: "
+            "the symmetric warp (MotionOptions.symmetric) does not extrapolate along the single-view axis")
 
 
 _COARSE_SETTLED = 0.5

@@ -117,7 +117,10 @@ class MotionOptions:
     extrapolation ~11, the regressors ~6 ms), less with the solve it saves. On by
     default since session 5 (at least as accurate as the measured regressors in every
     benchmark and test, 4x less translation error on the paper's Fig. 5c scene at 8-16 m);
-    ``False``: Eq. 5 with the measured L_x, L_y everywhere."""
+    ``False``: Eq. 5 with the measured L_x, L_y everywhere. A linear array (one viewpoint along
+    x or y) has no measured regressor along that axis: there ρ̂ (from the other axis alone)
+    replaces it at every level whatever this option, and rays without ρ̂ are left out
+    (docs/motion.md, "Linear arrays")."""
     depth_pool_views: bool = False
     """``depth_regressors``: pool each ray's ρ̂ with the other views' at its direction (they see
     nearly the same scene point): shrink it towards their mean by as much as its own noise
@@ -166,7 +169,8 @@ class MotionOptions:
     ρ̂ (the finest: its first, with the ρ̄ of the level above); not with ``symmetric``) instead
     of being dropped; ρ̂ is then computed from the rays whose filter
     support holds no extrapolated sample, and the others get the view average. 0: dropped
-    (also without ``depth_regressors``)."""
+    (also without ``depth_regressors``). A linear array's rays moved off its single-view axis
+    are always extrapolated, with no limit along that axis (this limit applies to the other)."""
     whiten: str = "off"
     """Generalised least squares at the finest level: ``on`` whitens the Eq. 5 rows by the
     inverse of the prefilters' noise covariance ⊗ₐ K_a K_aᵀ (banded Cholesky per axis) once
@@ -183,7 +187,9 @@ class MotionOptions:
     whitened noise variance 2 σ², at which the whitened re-solve is taken."""
     symmetric: bool = False
     """Warp both frames half-way (else frame 2 by the whole estimate; measured equally
-    accurate with cubic interpolation, and half the warping cost)."""
+    accurate with cubic interpolation, and half the warping cost). Not on a linear array (its
+    warp extrapolates off the single-view axis, which the symmetric warp does not): its pairs
+    fail with that reason."""
     warp_confidence: bool = False
     """With confidences W0, W1: warp frame 2's W1 along with the frame (True), or, when W1 has
     no zeros, weight each ray by W0 W1 at its own sample (False; ``polycam.motion._Solver._warp``).

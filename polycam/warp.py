@@ -731,9 +731,9 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
-                           e_max, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND, lag):
+                           e_max_x, e_max_y, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND, lag):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
-    lies outside the viewpoints' range, by at most ``e_max`` view steps along x and y, from
+    lies outside the viewpoints' range, by at most ``e_max_x``, ``e_max_y`` view steps along x and y, from
     the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
     ``x_e + d`` along u is the ray from ``x_e`` along ``u + ρ d`` (ρ = f / Z, u per unit x),
     so the value is the edge view's (u, v)-warped image read at the direction shifted by
@@ -789,7 +789,7 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                     cy = min(max(fy, 0.0), Ny - 1.0)
                     ex = fx - cx
                     ey = fy - cy
-                    if abs(ex) > e_max or abs(ey) > e_max or (ex == 0.0 and ey == 0.0):
+                    if abs(ex) > e_max_x or abs(ey) > e_max_y or (ex == 0.0 and ey == 0.0):
                         continue
                     # 4-point Lagrange along an axis that extrapolates (linear interpolation of a
                     # sub-sample shift errs by a large fraction of it on sharp images), nodes
@@ -955,6 +955,32 @@ def _view_mean(rho: np.ndarray, scales: np.ndarray) -> np.ndarray:
     F, Ny, Nx, Nv, Nu = rho.shape
     out = np.empty((F, Nv, Nu))
     _view_mean_kernel(rho, scales, out)
+    return out
+
+
+def _filled_view_mean(rho_bar: np.ndarray, steps: int = 8) -> np.ndarray:
+    """``rho_bar`` (F, Nv, Nu) (:func:`_view_mean`) with its NaN directions filled from their
+    neighbours: up to ``steps`` rounds of the mean of the known values among the 3 x 3 around
+    each unknown one, then the face's median (a face without any stays NaN). A linear array's
+    warp extrapolates every ray moved off its single-view axis with it, so a direction without
+    ρ̄ (no view's window explained by one depth, or the (u, v) border the filters leave out)
+    would lose its rays and, through the filters' support, their neighbours'."""
+    out = np.array(rho_bar, np.float64)
+    for _ in range(steps):
+        known = np.isfinite(out)
+        if known.all():
+            break
+        val = np.pad(np.where(known, out, 0.0), ((0, 0), (1, 1), (1, 1)))
+        cnt = np.pad(known.astype(np.float64), ((0, 0), (1, 1), (1, 1)))
+        Nv, Nu = out.shape[1:]
+        sv = sum(val[:, a:a + Nv, b:b + Nu] for a in range(3) for b in range(3))
+        sc = sum(cnt[:, a:a + Nv, b:b + Nu] for a in range(3) for b in range(3))
+        grow = ~known & (sc > 0)
+        out[grow] = sv[grow] / sc[grow]
+    for f in range(out.shape[0]):
+        known = np.isfinite(out[f])
+        if known.any() and not known.all():
+            out[f][~known] = np.median(out[f][known])
     return out
 
 
@@ -1145,7 +1171,10 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     With ``rho`` (F, Nv, Nu) (the disparity ρ = f / Z per direction, u per unit x; NaN
     unknown) and ``extrapolate_views`` > 0, rays up to that many view steps outside the
     viewpoints are filled by Eq. 6 (:func:`_extrapolate_xy_kernel`); ``marks`` (F, Ny, Nx,
-    Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller zeroes it).
+    Nv, Nu) uint8, if given, gets 1 at the filled samples (the caller zeroes it). On a linear
+    array (one viewpoint along x or y, several along the other) ``rho`` alone extrapolates every
+    ray that the motion moves off the single-view axis, however far (without ``rho`` that axis
+    keeps each ray's position).
     ``scratch``: float32 C memory that is free during the call (the solver passes its
     derivatives', which each warp precedes): the extrapolation's copy of the edge views
     (K P Nv Nu floats, P the edge views) goes there when it fits.
@@ -1176,10 +1205,17 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     xs, ys = grid.x.values, grid.y.values
     us = np.ascontiguousarray(grid.u.values, dtype=np.float64)
     vs = np.ascontiguousarray(grid.v.values, dtype=np.float64)
+    # a linear array (one viewpoint along one axis) moves its rays off that axis with any motion
+    # along it: with rho they are all extrapolated from the views (no limit along that axis), in
+    # grid units of the other axis's view step; without, that axis keeps each ray's position
+    single = (Nx == 1) != (Ny == 1)
+    extrapolate = rho is not None and (Nx > 1 or Ny > 1) and (extrapolate_views > 0 or single)
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
+    if single and extrapolate:
+        hx, hy = (hy, hy) if Nx == 1 else (hx, hx)
+    e_max = [math.inf if n == 1 else float(extrapolate_views) for n in (Nx, Ny)]
     y, x = np.meshgrid(ys, xs, indexing="ij")
-    extrapolate = rho is not None and extrapolate_views > 0 and (Nx > 1 or Ny > 1)
     lag = (2 if extrapolate else 1) if lag_confidence else 0     # (_xy_row)
     slot = _perimeter(Ny, Nx)
     e_shape = (Nv, K, int(slot.max()) + 1, Nu) if extrapolate else (1, 1, 1, 1)
@@ -1205,17 +1241,17 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         o = np.stack([x, y, np.full_like(x, face.z_pi)], axis=-1) @ R.T + G[:3, 3]     # moved origins
         sz = face.z_pi - o[..., 2]
         # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis
-        cx = (np.ascontiguousarray((o[..., 0] - xs[0]) / hx), np.ascontiguousarray(sz / hx)) if Nx > 1 \
-            else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
-        cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) if Ny > 1 \
-            else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
+        cx = (np.ascontiguousarray((o[..., 0] - xs[0]) / hx), np.ascontiguousarray(sz / hx)) \
+            if Nx > 1 or (single and extrapolate) else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
+        cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) \
+            if Ny > 1 or (single and extrapolate) else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         _warp_rows_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
                           ratio[k], out, ok, slot, E, extrapolate, fold, W0, has_w0, cq, crnd, ND, S, lag)
         if extrapolate:
             ku = abs(hx / grid.u.step) if Nu > 1 else 0.0
             kv = abs(hy / grid.v.step) if Nv > 1 else 0.0
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
-                                   float(extrapolate_views), ratio[k], out, ok,
+                                   *e_max, ratio[k], out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd,
                                    ND, lag)
 

@@ -310,18 +310,27 @@ def test_atomic_write_names_the_file_asked_for(tmp_path):
     assert "does not exist" in e.value.strerror
 
 
-def test_motion_on_a_linear_array_says_no_pair_solved(tmp_path):
-    """A store whose grid is a linear array (one viewpoint along x): every pair fails with the
-    reason, and the comparison with the ground truth says no pair was solved (no error medians of
-    the failed pairs' start estimates, no NaN ratios)."""
+def _linear_store(tmp_path) -> Path:
+    """A 3-frame synthetic store whose grid is a linear array (one viewpoint along x, 9 along y)."""
     grid = tmp_path / "grid.toml"
-    grid.write_text('[grid]\nf = 60\nz_pi = 0.02\nfaces = ["+z"]\nx = [0, 0, 1]\ny = [-0.02, 0.02, 5]\n'
-                    'u = [-45, 45, 32]\nv = [-45, 45, 32]\n')
+    grid.write_text('[grid]\nf = 60\nz_pi = 0.04\nfaces = ["+z"]\nx = [0, 0, 1]\ny = [-0.04, 0.04, 9]\n'
+                    'u = [-59.0625, 59.0625, 64]\nv = [-59.0625, 59.0625, 64]\n')
     lf = tmp_path / "lf.zarr"
     assert polycam("synth", "lightfield", "--grid", str(grid), "--frames", "3", "--out", str(lf)).returncode == 0
+    return lf
+
+
+def test_motion_on_a_linear_array(tmp_path):
+    """A linear array's store is solved (every pair) and compared with its ground truth; with the
+    symmetric warp, which cannot take it, every pair fails with the reason and the comparison says
+    no pair was solved (no error medians of the failed pairs' start estimates, no NaN ratios)."""
+    lf = _linear_store(tmp_path)
     res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"))
     assert res.returncode == 0, res.stderr
-    assert "2 failed" in res.stdout and "(a linear array)" in res.stdout
+    assert "failed" not in res.stdout and "median per-pair error translation" in res.stdout, res.stdout
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--option", "symmetric=true")
+    assert res.returncode == 0, res.stderr
+    assert "2 failed" in res.stdout and "(a linear array)" in res.stdout and "symmetric" in res.stdout
     assert "no pair solved" in res.stdout and "nan" not in res.stdout
 
 

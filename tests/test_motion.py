@@ -249,19 +249,98 @@ def test_three_viewpoints_fail_with_the_reason(scene):
     assert estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
 
 
-def test_linear_array_fails_with_the_reason_and_keeps_its_start(scene):
-    """One viewpoint along x and five along y (a linear array): the solver does not support it (it
-    diverged, or returned a wrong motion as a success), so the pair fails at once with the reason
-    and keeps the estimate it started from (here T_init)."""
-    g5 = make_grid(("+z",), views=5, directions=32)
-    grid = LightFieldGrid.cube(["+z"], f=g5.faces[0].f, z_pi=g5.faces[0].z_pi, x=Axis(0.0, 0.0, 1), y=g5.y,
-                               u=g5.u, v=g5.v)
+def linear_grid(faces, single: str, views: int = 5, directions: int = 32) -> LightFieldGrid:
+    """make_grid's grid with one viewpoint along ``single`` ("x" or "y"): a linear array."""
+    g = make_grid(faces, views=views, directions=directions)
+    one = Axis(0.0, 0.0, 1)
+    return LightFieldGrid.cube(list(faces), f=g.faces[0].f, z_pi=g.faces[0].z_pi, x=one if single == "x" else g.x,
+                               y=one if single == "y" else g.y, u=g.u, v=g.v)
+
+
+@pytest.mark.parametrize("single", ["x", "y"])
+def test_linear_array_recovers_the_motion(scene, single):
+    """One viewpoint along x (or y), five along the other (a linear array): the unmeasured L_x (L_y)
+    is ρ̂ L_u (ρ̂ L_v) with ρ̂ from the other axis, and the warp extrapolates the rays moved off the
+    single-view axis by Eq. 6, so a combined motion is recovered on six faces; under noise the
+    reported covariance matches the errors (z-scores of 4 seeded draws)."""
+    grid = linear_grid(ALL, single)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    res = estimate_motion(L0, L1, grid)
+    assert res and not res.unobservable
+    assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL)
+    z = []
+    for seed in range(4):
+        noise = np.random.default_rng(seed)
+        r = estimate_motion(L0 + noise.normal(0.0, 0.01, L0.shape).astype(np.float32),
+                            L1 + noise.normal(0.0, 0.01, L1.shape).astype(np.float32), grid)
+        e = rt_from_T(r.T_prev_next)
+        z.append(np.r_[e[3:] - rt[3:], e[:3] - rt[:3]] / r.std)
+    ratio = float(np.sqrt(np.mean(np.square(z))))
+    assert MOTION_COV_RATIO_MIN < ratio < MOTION_COV_RATIO_MAX, ratio
+
+
+def test_linear_array_with_the_symmetric_warp_fails_with_the_reason(scene):
+    """The symmetric warp does not extrapolate along the single-view axis: the pair fails at once
+    saying so, and keeps the estimate it started from (here T_init)."""
+    grid = linear_grid(("+z",), "x")
     T = T_from_rt(np.array([0.0, 0.0, R_STEP, T_STEP, 0.0, T_STEP]))
     T_init = T_from_rt(np.array([0.0, 0.0, 0.0, 0.001, 0.0, 0.0]))
-    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid, T_init=T_init)
-    assert not res and res.num_rays < MotionOptions().min_rays
-    assert "one viewpoint along x and 5 along y (a linear array)" in res.reason
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid, T_init=T_init,
+                          options=MotionOptions(symmetric=True))
+    assert not res and res.num_rays == 0
+    assert "one viewpoint along x and 5 along y (a linear array)" in res.reason and "symmetric" in res.reason
     np.testing.assert_array_equal(res.T_prev_next, T_init)
+
+
+@pytest.mark.parametrize("single", ["x", "y"])
+def test_warp_extrapolates_a_linear_array_off_its_axis(single):
+    """A linear array's rays moved off its single-view axis are all extrapolated by Eq. 6 from
+    the views (however far: the limit extrapolate_views applies to the other axis); without ρ
+    that axis keeps each ray's position."""
+    g = make_grid(("+z",), views=5, directions=32, spacing=0.015)
+    one = Axis(0.0, 0.0, 1)
+    grid = LightFieldGrid.cube(["+z"], f=g.faces[0].f, z_pi=g.faces[0].z_pi, x=one if single == "x" else g.x,
+                               y=one if single == "y" else g.y, u=g.u, v=g.v)
+    Z, d = 2.0, 0.05                                     # 3.3 view steps off the axis
+    shift = {"shift_x": d} if single == "x" else {"shift_y": d}
+    L = _plane_lightfield(grid, Z)
+    truth = _plane_lightfield(grid, Z, **shift)
+    M = T_from_rt(np.array([0.0, 0.0, 0.0, d if single == "x" else 0.0, d if single == "y" else 0.0, 0.0]))
+    rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / Z)
+    ext, ok = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=0.5)
+    inner = ok[..., 2:-2, 2:-2]
+    assert inner.all()
+    assert np.max(np.abs(ext[0] - truth)[ok]) < MOTION_EXTRAPOLATION_ATOL
+    plain, ok_plain = warp_lightfield(L[None], grid, M)
+    assert ok_plain.all() and np.allclose(plain[0], L, atol=1e-6)
+
+
+def test_depth_rho_of_a_linear_array_uses_the_measured_axis_only():
+    """``depth_rho(linear=...)``: ρ̂ from the other axis's L_y / L_v alone (the single axis's L_x,
+    L_u do not enter, whatever they hold), and every ray whose window one depth explains gets it
+    — also where the noise test would keep a measured regressor (there is none to keep)."""
+    from polycam.eq5 import _scaled_views, depth_rho
+
+    rng = np.random.default_rng(5)
+    shape = (1, 3, 1, 24, 24)
+    box = np.array([1, 2, 0, 1, 2, 22, 2, 22], np.int64)
+    Lu, Lv = (rng.normal(size=shape).astype(np.float32) for _ in range(2))
+    rho = 2.0
+    der = [rng.normal(size=shape).astype(np.float32), rho * Lv, Lu, Lv, np.zeros(shape, np.float32)]
+    q, dsc = _scaled_views(der, box)
+    base = np.ones(shape, np.float32)
+    out, both = np.empty(shape, np.float32), np.empty(shape, np.float32)
+    exact = np.array([1e-2, 1e-2, 0.0, 0.0])                  # noise-free L_u, L_v: no denoising term
+    depth_rho(q, base, box, exact, out, dsc=dsc, linear="x")
+    inside = out[0, 1, 0, 2:22, 2:22]
+    assert np.isfinite(inside).all() and np.allclose(inside, rho, rtol=MOTION_DEPTH_RHO_RTOL)
+    depth_rho(q, base, box, exact, both, dsc=dsc)          # with the unrelated L_x: no ray near ρ
+    assert not np.isclose(both, rho, rtol=0.1).any()
+    noisy = np.array([1e-2, 1e-2, 5e-3, 5e-3])                 # the noise test keeps every measured L_x
+    depth_rho(q, base, box, noisy, out, dsc=dsc, linear="x")
+    depth_rho(q, base, box, noisy, both, dsc=dsc)
+    assert np.isfinite(out[0, 1, 0, 2:22, 2:22]).all() and not np.isfinite(both).any()
 
 
 def test_pair_without_usable_rays_keeps_its_start(scene, monkeypatch):

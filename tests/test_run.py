@@ -86,3 +86,23 @@ def test_run_single_camera_stops_at_motion_naming_the_unobservable(tmp_path, cap
     assert len(motion) == 1 and "no pair solved" in motion[0] and "nan" not in motion[0], cap.out
     assert cap.err.strip().splitlines()[-1].startswith("polycam: error: run: motion: ")
     assert "unobservable: t_x, t_y, t_z" in cap.err
+
+
+def test_run_linear_rig_end_to_end(tmp_path, capsys):
+    """A row of three cameras (a linear array: one viewpoint along y) runs the whole chain: the
+    motion solver takes the unmeasured L_y from ρ̂ L_v and extrapolates off the row by Eq. 6."""
+    import tomllib
+
+    (tmp_path / "rig.toml").write_text(mock_grid_rig_text("row", 160, 120, rows=1, cols=3))
+    out = tmp_path / "run"
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "3"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    summary = tomllib.loads((out / "report" / "summary.toml").read_text())
+    assert sorted(summary["resample"]["views"]) == [1, 9]
+    assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
+    from polycam.evaluate import pair_errors
+
+    err = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
+    assert np.median(err.t_rel) < E2E_RUN_MOTION_REL and np.median(err.w_rel) < E2E_RUN_MOTION_REL
+    assert summary["depth"]["points"] > 1000
