@@ -788,7 +788,8 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     rng: for the one noise draw that sets the data-dependent weights (seeded default);
     depth0: (n_src, Nv, Nu) [m] distances along the grid rays at frame 0 — needed for
     the depth model of one-viewpoint rigs (else their translation is only reported
-    unobservable).
+    unobservable), and for a linear array's single-view axis, whose regressor the solver takes
+    from depth (else that translation is reported unobservable).
     """
     opts = options or MotionOptions()
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -823,6 +824,13 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     scale = max(robust_scale(Lt_noisy, base), _SCALE_FLOOR)
     w = base * robust_weight(Lt_noisy, scale, opts)
 
+    single = g.single_view_axis
+    if single and depth0 is not None:
+        # a linear array: the solver's regressor along the single-view axis is ρ̂ L_u (or ρ̂ L_v),
+        # ρ̂ = f / Z from the other axis's parallax (polycam.motion, "Linear arrays"): here the
+        # true one (its noise left out, as the derivatives' own)
+        rho_f = np.stack([g.faces[k].f * r for k, r in enumerate(_inverse_depth(sampling, depth0))]).astype(np.float32)
+        der = dataclasses.replace(der, **({"Lx": rho_f * der.Lu} if single == "x" else {"Ly": rho_f * der.Lv}))
     A_faces = [ray_motion_coefficients(der, g, k) for k in range(F)]
     Jm = ray_to_rig_jacobian(M)
     N = _normal(A_faces, w)
@@ -865,16 +873,7 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     if t_dead and depth0 is not None:
         # one viewpoint per face: translation only through depth (paper Eq. 6)
         model = "depth"
-        rho = np.zeros(g.shape)
-        for k, sl in enumerate(sampling.face_slices):
-            if sl.stop == sl.start:
-                continue
-            face = g.faces[k]
-            vv, uu = np.meshgrid(g.v.values, g.u.values, indexing="ij")
-            cosz = face.f / np.sqrt(uu * uu + vv * vv + face.f ** 2)
-            dist = depth0[sl]
-            r_src = np.where(np.isfinite(dist) & (dist > 0), 1.0 / np.maximum(dist * cosz, 1e-9), 0.0)
-            rho[k] = (sampling.P[k] @ r_src.reshape(sl.stop - sl.start, -1)).reshape(Ny, Nx, Nv, Nu)
+        rho = _inverse_depth(sampling, depth0)
         p_ray = np.r_[T_ray[:3, 3], r_from_R(T_ray[:3, :3])]
         # no robust weights: the solver's residual holds the parallax it cannot model, the
         # depth model's does not
@@ -911,6 +910,25 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     return DesignPrediction(model=model, covariance=C, std_t=std_t, std_w=std_w, std_t_dir=std_t_dir,
                             unobservable=tuple(names), solver_unobservable=solver_unobs, directions=dirs,
                             condition=cond, ambiguity=amb, bias=bias, misfit=float(misfit), num_rays=num)
+
+
+def _inverse_depth(sampling: RigSampling, depth0: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) [1/m] 1 / Z per grid ray (Z along its face's z axis) from ``depth0``
+    (n_src, Nv, Nu) [m], the distances along the sources' rays, through the viewpoint
+    interpolation ``P`` (0 where the distance is unknown)."""
+    g = sampling.grid
+    F, Ny, Nx, Nv, Nu = g.shape
+    rho = np.zeros(g.shape)
+    vv, uu = np.meshgrid(g.v.values, g.u.values, indexing="ij")
+    for k, sl in enumerate(sampling.face_slices):
+        if sl.stop == sl.start:
+            continue
+        face = g.faces[k]
+        cosz = face.f / np.sqrt(uu * uu + vv * vv + face.f ** 2)
+        dist = depth0[sl]
+        r_src = np.where(np.isfinite(dist) & (dist > 0), 1.0 / np.maximum(dist * cosz, 1e-9), 0.0)
+        rho[k] = (sampling.P[k] @ r_src.reshape(sl.stop - sl.start, -1)).reshape(Ny, Nx, Nv, Nu)
+    return rho
 
 
 # ============================================================================ the measurement
@@ -1035,7 +1053,9 @@ def evaluate_rig(rig: Rig, options: DesignOptions | None = None, *, renderer: So
     src0 = renderer.render(sampling, I4)
     src1s = [renderer.render(sampling, motions[i]) for i in range(opts.pairs if opts.measure else 1)]
     one_view = not sampling.has_positional
-    depth0 = renderer.distance(sampling, I4) if one_view else None
+    # depth for the one-viewpoint model, and for a linear array's regressor along its single-view axis
+    with_depth = one_view or bool(sampling.grid.single_view_axis)
+    depth0 = renderer.distance(sampling, I4) if with_depth else None
     rng = np.random.default_rng([opts.seed, 909])
     pred = predict_pair(sampling, src0, src1s[0], motions[0], sigma, options=opts.solver,
                         rng=rng, depth0=depth0, depth_patch=opts.depth_patch)
@@ -1056,7 +1076,7 @@ def evaluate_rig(rig: Rig, options: DesignOptions | None = None, *, renderer: So
             sweep_renderers[D] = rend
         s0 = rend.render(sampling, I4)
         s1 = rend.render(sampling, motions[0])
-        dd = rend.distance(sampling, I4) if one_view else None
+        dd = rend.distance(sampling, I4) if with_depth else None
         p = predict_pair(sampling, s0, s1, motions[0], sigma, options=opts.solver,
                          rng=np.random.default_rng([opts.seed, 909]), depth0=dd, depth_patch=opts.depth_patch)
         sweep.append((float(D), p.std_t, p.std_w))

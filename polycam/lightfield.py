@@ -137,6 +137,14 @@ class LightFieldGrid:
         return (len(self.faces), self.y.count, self.x.count, self.v.count, self.u.count)
 
     @property
+    def single_view_axis(self) -> str:
+        """"x" or "y" for a linear array (one viewpoint along that axis, several along the
+        other: a row or column of cameras), else "" (a 2-D array, or one viewpoint)."""
+        if (self.x.count == 1) == (self.y.count == 1):
+            return ""
+        return "x" if self.x.count == 1 else "y"
+
+    @property
     def num_rays(self) -> int:
         return int(np.prod(self.shape))
 

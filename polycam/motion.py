@@ -64,8 +64,10 @@ ray the motion moves off the axis from the views by Eq. 6 with the views' mean �
 (its gaps filled from their neighbours, :func:`polycam.warp._filled_view_mean`), however far (the
 first warp of the coarsest level, before any ρ̂, keeps the rays on the axis). The symmetric warp
 does not extrapolate so: with it such a pair fails with that reason. Measured (docs/motion.md,
-"Linear arrays"): on six faces of the sphere scene as accurate as a 2-D array within a few times;
-on one face t and ω couple more than with a 2-D array.
+"Linear arrays"): a line of five views errs 3–6x as much as a 5 x 5 array on six faces of the
+sphere scene without noise, 0.9–1.4x (t) and ~2x (ω) with it; a row of five mock cameras about as
+much as the 5 x 5 rig (2.8 / 0.9 % against 2.7 / 0.8 %). The disparity per view step of camera
+arrays (:func:`_aliasing_start`) is measured along the other axis.
 
 Robust weighting
 ----------------
@@ -176,8 +178,8 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
 from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min, _warped_confidence_kernel,
-                   _filled_view_mean, _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into, warp_lightfield,
-                   warp_lightfield_reference)
+                   _filled_view_mean, _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into,
+                   warp_lightfield, warp_lightfield_reference)
 from .whitening import _whitened_noise_gain, _whitened_sums, _whitening_factors
 
 __all__ = [
@@ -501,8 +503,8 @@ class _Solver:
         self.filters = filters
         self.pairs, self.taps = filter_taps(g, {k: fp.name for k, fp in filters.items()})
         # a linear array's single-view axis ("x" or "y"; "": none): its regressor is always ρ̂ L_u
-        # (or ρ̂ L_v), at every level (_single_view_axis)
-        self.linear = _single_view_axis(g)
+        # (or ρ̂ L_v), at every level (LightFieldGrid.single_view_axis)
+        self.linear = g.single_view_axis
         self.radius = {k: (fp.radius if self.pairs[k] is not None else 0) for k, fp in filters.items()}
         self.vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (g.x, g.y, g.u, g.v)]
         self.zs = np.array([face.z_pi for face in g.faces], float)
@@ -1145,24 +1147,31 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     against that level's sensor noise (``noise_var``: rays without texture left out, rays whose
     views differ by no more than the noise counted as disparity 0) and counted only where the
     two stereo equations agree (``agree``: :data:`~polycam.scales.VIEW_DISPARITY_AGREE`). Needs
-    3 views along x and y. A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
+    3 views along x and y, or along one of them on a linear array (one viewpoint along the other).
+    A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
     view step: the search stops before it."""
     thr = opts.max_view_disparity
     g0 = levels[0].grid
-    if not math.isfinite(thr) or g0.x.count < 3 or g0.y.count < 3:
+    single = g0.single_view_axis
+    counts = [g0.x.count, g0.y.count]
+    if not math.isfinite(thr) or any(n < 3 and not (single and n == 1) for n in counts):
         return 0, math.nan
     from .scales import VIEW_DISPARITY_AGREE, view_disparity
 
     def per_view(g: LightFieldGrid) -> float:
         """Samples of level grid g per sample of the finest, per view step of g per the finest's."""
+        if single == "x":
+            return (g.y.step / g0.y.step) / (g.v.step / g0.v.step)
         return (g.x.step / g0.x.step) / (g.u.step / g0.u.step)
 
     m = min(2, len(levels) - 1)
     lev = levels[m]
     g = lev.grid
     cy, cx = g.y.count // 2, g.x.count // 2
-    sub = replace(g, y=Axis.from_values(g.y.values[cy - 1:cy + 2]), x=Axis.from_values(g.x.values[cx - 1:cx + 2]))
-    views = (slice(None), slice(cy - 1, cy + 2), slice(cx - 1, cx + 2))
+    ys = slice(cy - 1, cy + 2) if g.y.count > 1 else slice(0, 1)
+    xs = slice(cx - 1, cx + 2) if g.x.count > 1 else slice(0, 1)
+    sub = replace(g, y=Axis.from_values(g.y.values[ys]), x=Axis.from_values(g.x.values[xs]))
+    views = (slice(None), ys, xs)
     L = lev.L0[views]
     W = None if lev.W0 is None else lev.W0[views]
     # (one frame as both: their mean carries its whole noise, twice that of two frames' mean)
@@ -1273,19 +1282,11 @@ def _few_views(grid: LightFieldGrid, filters: dict) -> str:
             "between the cameras)")
 
 
-def _single_view_axis(grid: LightFieldGrid) -> str:
-    """The single-view axis of a linear array ("x" or "y": one viewpoint along it, several along
-    the other); "" otherwise (a 2-D array, or a single camera)."""
-    if (grid.x.count == 1) == (grid.y.count == 1):
-        return ""
-    return "x" if grid.x.count == 1 else "y"
-
-
 def _linear_unsupported(grid: LightFieldGrid, opts: MotionOptions) -> str:
     """Why the solver cannot take a linear array with these options ('' when it can). A linear
     array's warp extrapolates every ray moved off its single-view axis by Eq. 6 (the views' ρ̄),
     which the symmetric warp (both frames half-way) does not do."""
-    k = _single_view_axis(grid)
+    k = grid.single_view_axis
     if not k or not opts.symmetric:
         return ""
     other = "y" if k == "x" else "x"

@@ -502,7 +502,8 @@ def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: 
     each other, or both still (disparity 0) — and then with its |disparity| (either sign: a
     light field's disparities may have both about its focal plane); one with a single equation
     measured counts as without ``agree``. Noise alone rarely passes (its λ are independent), a
-    Lambertian point does (one Z for both).
+    Lambertian point does (one Z for both). An axis with one viewpoint (a linear array's) has
+    no stereo equation.
     """
     L0 = grey_frame(L0)
     L1 = grey_frame(L1)
@@ -516,6 +517,9 @@ def view_disparity(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *, W0: 
         lams = _gated_stereo_lambda(est, der, grid, window, noise_var)
     else:
         lams = {name: np.where(np.isfinite(est.lam[name]), est.lam[name], np.nan) for name in steps}
+    for name, axis in (("stereo_x", grid.x), ("stereo_y", grid.y)):
+        if axis.count == 1:                  # a linear array's single-view axis: not measured
+            lams[name] = np.full_like(lams[name], np.nan)
     if agree > 0.0:
         lams = _agreeing_lambdas(lams["stereo_x"], lams["stereo_y"], agree)
     for k in range(grid.shape[0]):

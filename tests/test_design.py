@@ -21,7 +21,7 @@ from polycam.rig import CameraSpec, Rig, load_rig
 from tolerances import (DESIGN_AMBIGUITY_MIN_CORR, DESIGN_LINEAR_SIGMA_REL, DESIGN_RENDER_ATOL,
                         DESIGN_SCATTER_REL)
 
-EXAMPLE_RIGS = {"webcam3x3": 9, "webcam5x5": 25, "oak_array": 9, "cube6x3x3": 54, "single": 1}
+EXAMPLE_RIGS = {"webcam3x3": 9, "webcam5x5": 25, "oak_array": 9, "cube6x3x3": 54, "single": 1, "mock1x5": 5, "oak_d_lite": 3}
 
 CAM = CameraSpec(id="c", driver="mock", device=None, width=160, height=120, fps=30.0, pixel_format="GREY",
                  position=np.zeros(3), rotation=np.zeros(3), fov_deg=90.0)
@@ -198,8 +198,12 @@ SCATTER_CASES = {
     # ill-conditioned: one face of a 3x3 array of 70 deg cameras 4 cm apart (the webcam3x3 layout),
     # t_x~w_y correlation -0.89, condition ~20, model error above the noise (misfit > 1)
     "one face 3x3, t~w ambiguity": (lambda: dz.planar_array_rig(3, 3, 0.04, _camera(70.0)), 2.5, 2),
+    # a linear array: one row of five cameras, the vertical regressor from depth (ρ L_v; the
+    # solver's ρ̂ from the horizontal parallax). Its directions at 2.5 deg: at 5 deg (19 x 25) the
+    # extrapolation's and windows' (u, v) borders leave the solver too few rays (docs/motion.md)
+    "one face 1x5 row (a linear array)": (lambda: dz.planar_array_rig(1, 5, 0.01, _camera(90.0)), 2.5, 1),
 }
-WHITENED_CASES = ("one face 5x5", "six faces 3x3, interpolated viewpoints")
+WHITENED_CASES = ("one face 5x5", "six faces 3x3, interpolated viewpoints", "one face 1x5 row (a linear array)")
 """Designs whose whole covariance (not only std_t, std_w) is checked: on the ill-conditioned
 face the whitened statistic is ~1.2 (docs/design.md)."""
 

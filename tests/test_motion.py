@@ -249,9 +249,9 @@ def test_three_viewpoints_fail_with_the_reason(scene):
     assert estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T), grid)
 
 
-def linear_grid(faces, single: str, views: int = 5, directions: int = 32) -> LightFieldGrid:
+def linear_grid(faces, single: str, views: int = 5, directions: int = 32, spacing: float = 0.015) -> LightFieldGrid:
     """make_grid's grid with one viewpoint along ``single`` ("x" or "y"): a linear array."""
-    g = make_grid(faces, views=views, directions=directions)
+    g = make_grid(faces, views=views, directions=directions, spacing=spacing)
     one = Axis(0.0, 0.0, 1)
     return LightFieldGrid.cube(list(faces), f=g.faces[0].f, z_pi=g.faces[0].z_pi, x=one if single == "x" else g.x,
                                y=one if single == "y" else g.y, u=g.u, v=g.v)
@@ -264,6 +264,7 @@ def test_linear_array_recovers_the_motion(scene, single):
     single-view axis by Eq. 6, so a combined motion is recovered on six faces; under noise the
     reported covariance matches the errors (z-scores of 4 seeded draws)."""
     grid = linear_grid(ALL, single)
+    assert grid.single_view_axis == single and make_grid(ALL).single_view_axis == ""
     rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
     res = estimate_motion(L0, L1, grid)
@@ -1071,6 +1072,20 @@ def _centre_view_disparity(grid: LightFieldGrid) -> float:
     s = -b + np.sqrt(b * b - (o @ o - ROOM_RADIUS**2))
     Z = s * d[..., 2] + face.z_pi
     return float(np.median(face.f * grid.x.step / (Z * grid.u.step)))
+
+
+@pytest.mark.parametrize("single", ["x", "y"])
+def test_linear_array_views_far_apart_stop_at_a_coarser_level(single):
+    """A linear array's disparity per view step is measured along its other axis (its single-view
+    axis has no stereo equation), so views far apart for the scene start at a coarser level too."""
+    room = Scene(seed=3)
+    grid = linear_grid(("+z",), single, views=5, directions=96, spacing=0.2)
+    rt = np.array([0.002, -0.003, 0.001, 0.03, -0.02, 0.01])
+    res = estimate_motion(room.render(grid, np.eye(4)), room.render(grid, T_from_rt(rt)), grid)
+    assert res
+    expected = _centre_view_disparity(make_grid(("+z",), views=5, directions=96, spacing=0.2))
+    assert res.view_disparity == pytest.approx(expected, rel=MOTION_VIEW_DISPARITY_RTOL)
+    assert res.uv_level == 2
 
 
 def test_views_far_apart_stop_at_a_coarser_level(scene):
