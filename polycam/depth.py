@@ -254,10 +254,15 @@ def depth_from_derivatives(der: Derivatives, grid: LightFieldGrid, *,
     positional derivatives biases the depth towards the rig (at σ = 4 grey levels by ~16 %
     on the paper's spheres at 4 m; docs/depth.md), and its share of var(λ) joins the
     confidence's. None: no correction, and the confidence counts only the window's misfit.
+    On a linear array (``grid.single_view_axis``) the positional motion equation reads the
+    unmeasured L_x (or L_y) as 0, so the directional one (no positional derivative) takes its
+    place.
     """
     unknown = [e for e in equations if e not in EQUATIONS]
     if unknown:
         raise ValueError(f"unknown depth equation(s) {unknown}; expected some of {EQUATIONS}")
+    if grid.single_view_axis and "motion_pos" in equations:
+        equations = tuple(dict.fromkeys("motion_dir" if e == "motion_pos" else e for e in equations))
     eqs = depth_equations(der, grid, T_prev_next if any(e.startswith("motion") for e in equations) else None)
     sums = []
     for name in equations:

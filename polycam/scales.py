@@ -234,11 +234,14 @@ def depth_estimates(der, grid: LightFieldGrid, T_prev_next: np.ndarray | None, *
                     window: int = 4) -> DepthEstimates:
     """Windowed least-squares λ of each depth equation separately (``window`` as in
     :func:`~polycam.depth.depth_from_derivatives`); without ``T_prev_next`` only the two
-    stereo equations."""
+    stereo equations; on a linear array not the positional motion equation (it reads the
+    unmeasured L_x or L_y as 0: :func:`~polycam.depth.depth_from_derivatives`)."""
     m = np.broadcast_to(der.valid, der.Lx.shape) if ok is None else ok
     valid = m.astype(np.float32)
     lam, info = {}, {}
     for name, (a, b) in depth_equations(der, grid, T_prev_next).items():
+        if name == "motion_pos" and grid.single_view_axis:
+            continue
         Saa = window_sum(a * a * valid, window)
         Sab = window_sum(a * b * valid, window)
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -16,8 +16,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from polycam.depth import (EQUATIONS, confident_mask, depth_from_derivatives, depth_of_pair, depth_points,
-                           view_mask)
+from polycam.depth import (EQUATIONS, confident_mask, depth_equations, depth_from_derivatives, depth_of_pair,
+                           depth_points, view_mask, window_sum)
 from polycam.depth_io import read_pfm, read_ply, read_png16, write_pfm, write_ply, write_png16
 from polycam.geometry import T_from_rt
 from polycam.lightfield import Axis, LightFieldGrid
@@ -26,8 +26,9 @@ from polycam import scales as scales_mod
 from polycam.scales import (MOTION_UV_SCALES, Scale, ScaleTracker, depth_estimates, depth_scale_selected,
                             estimate_motion_scale_selected, scale_derivatives, select_scales, view_disparity)
 
-from tolerances import (DEPTH_BOUNDARY_BLED_MAX, DEPTH_CONFIDENCE_SPREAD_MAX, DEPTH_NEAR_SELECTED_REL,
-                        DEPTH_PLANE_MEDIAN_REL, DEPTH_PNG_ATOL_M, DEPTH_PLY_ATOL, DEPTH_SPHERES_MEDIAN_REL,
+from tolerances import (DEPTH_BOUNDARY_BLED_MAX, DEPTH_CONFIDENCE_SPREAD_MAX, DEPTH_LINEAR_PLANE_MEDIAN_REL,
+                        DEPTH_NEAR_SELECTED_REL, DEPTH_PLANE_MEDIAN_REL, DEPTH_PNG_ATOL_M, DEPTH_PLY_ATOL,
+                        DEPTH_SPHERES_MEDIAN_REL,
                         VIEW_DISPARITY_NOISY_REL, VIEW_DISPARITY_REL)
 
 MOTION = T_from_rt(np.array([0.0017, 0.0012, 0.0012, 0.002, -0.0015, 0.001]))   # T_rig0_rig1 from rt = (r [rad], t [m])
@@ -112,6 +113,36 @@ def test_noisy_depth_is_not_drawn_towards_the_rig(rng):
     assert median_ratio(0.0) < 1.0 - 2 * DEPTH_PLANE_MEDIAN_REL          # uncorrected: too near
     assert abs(median_ratio(None) - 1.0) < DEPTH_PLANE_MEDIAN_REL          # noise estimated from the frames
     assert abs(median_ratio(sigma ** 2) - 1.0) < DEPTH_PLANE_MEDIAN_REL
+
+
+@pytest.mark.parametrize("single", ["x", "y"])
+def test_plane_depth_on_a_linear_array(rng, single):
+    """A linear array measures no L_x (or L_y): its positional motion equation reads it as 0
+    (biased by the motion across the row), so the directional one takes its place in the fused
+    depth, which gives the plane."""
+    g2 = plane_grid(dx=0.002)                            # views close: the motion equations weigh in
+    one = Axis(0.0, 0.0, 1)
+    g = replace(g2, x=one) if single == "x" else replace(g2, y=one)
+    assert g.single_view_axis == single
+    Z = 2.0
+    W = waves(rng, [8.0, 13.0, 20.0])
+    L0, L1 = render_plane(g, Z, W), render_plane(g, Z, W, MOTION)
+    dm = depth_of_pair(L0, L1, g, MOTION)
+    rel = rel_depth_error(dm, Z)
+    assert rel.size > 0.2 * dm.Z[0].size and np.median(rel) < DEPTH_LINEAR_PLANE_MEDIAN_REL
+    # each equation alone (the scale selection's estimates): the measured axis's stereo one and
+    # the directional motion one give the plane; the positional one, left out, is far off
+    der, ok = scale_derivatives(L0, L1, g, Scale())
+    est = depth_estimates(der, g, MOTION, ok=ok)
+    err = {k: np.median(np.abs(lam[np.isfinite(lam)] * g.faces[0].f / Z - 1)) for k, lam in est.lam.items()
+           if np.isfinite(lam).any()}
+    assert set(err) == {"stereo_y" if single == "x" else "stereo_x", "motion_dir"}
+    assert max(err.values()) < DEPTH_PLANE_MEDIAN_REL
+    a, b = depth_equations(der, g, MOTION)["motion_pos"]
+    Saa = window_sum(a * a * ok, 4)
+    use = ok & (Saa > 0)
+    lam_pos = window_sum(a * b * ok, 4)[use] / Saa[use]
+    assert np.median(np.abs(lam_pos * g.faces[0].f / Z - 1)) > 0.2
 
 
 def test_depth_points_lie_on_the_plane(rng):

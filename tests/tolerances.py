@@ -76,6 +76,7 @@ HCI_SHIFT_T_ABS = 0.01            # [view spacings] |t − (1, 0, 0)| of the one
 HCI_SHIFT_R_MAX_RAD = 1e-4        # [rad] |r| of the same (true rotation 0; measured ~4e-9)
 # depth and scale selection (tests/test_depth.py)
 DEPTH_PLANE_MEDIAN_REL = 0.01     # median relative depth error on a textured fronto-parallel plane (kept rays)
+DEPTH_LINEAR_PLANE_MEDIAN_REL = 0.003  # the same on a linear array (views 2 mm apart, the motion equations weigh in): measured 0.0008-0.0019 with the directional motion equation, 0.0037-0.0056 had the positional one (L_x read as 0) stayed
 DEPTH_SPHERES_MEDIAN_REL = 0.2    # median |range / traced - 1| of the confident half, unit spheres at 4 m, one face 5x5x48x48, single scale (measured 0.089: aliased directions; selected per face 0.066)
 DEPTH_NEAR_SELECTED_REL = 0.03    # near plane with viewpoint-aliased texture: error at the selected scale (single scale ~12%)
 DEPTH_BOUNDARY_BLED_MAX = 0.005   # fraction of the kept central-view rays > 25 % off, a textured half-plane before a textured plane (measured 0; 4.4 % ranked by Σa² x consistency)
