@@ -99,7 +99,10 @@ class RunOptions:
     ``resample.viewfill``), or 4 when 2 gives fewer than ``MIN_VIEWS`` views along x or y.
     On three 5x5 sessions (seeds 1-3, docs/end_to_end.md) 2 gave a median per-pair error of
     2.9% / 0.9% against 7.1% / 1.7% with 1 (one view per camera: the (x, y) derivatives
-    across views 2 cm apart are aliased in a room), at ~3x the solve time."""
+    across views 2 cm apart are aliased in a room), at ~3x the solve time. A linear array's
+    single-view axis counts too, so a row of cameras always gets 4 (session 40, one session each:
+    rigs/mock1x5.toml 1.5% / 0.8% with 4 against 2.8% / 0.9% with 2, rigs/oak_d_lite.toml 3.0% /
+    0.8% against 3.7% / 1.5%)."""
     scale_selection: bool = True
     """Pre-smooth the light field in (u, v) at the scale of paper Sect. 4.1 before the motion
     solve (``estimate_trajectory(scale_selection=True)``, :class:`polycam.scales.ScaleTracker`).
