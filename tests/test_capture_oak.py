@@ -180,3 +180,25 @@ def test_timedelta_conversion_is_exact():
     from capture.oak import _ns
 
     assert _ns(dt.timedelta(days=2, seconds=3, microseconds=7)) == (2 * 86400 + 3) * 10**9 + 7000
+
+
+def test_the_oak_d_lite_rig_file_records_from_one_device():
+    """rigs/oak_d_lite.toml (one OAK-D Lite: a linear array of its three sensors) opens one device
+    by the name in its camera entries and delivers its three sensors in hardware sync."""
+    from pathlib import Path
+
+    from polycam.rig import load_rig
+
+    rig = load_rig(Path(__file__).resolve().parents[1] / "rigs" / "oak_d_lite.toml")
+    cams = list(rig.cameras)
+    assert [c.device for c in cams] == ["oak/CAM_B", "oak/CAM_A", "oak/CAM_C"]
+    src, dai = source(cams, [FakeOak("18443010D1E4A71200", name="oak")])
+    src.start()
+    frames = [f for f in frames_of(src) if isinstance(f, Frame)]
+    src.stop()
+    assert {f.cam_id for f in frames} == {"left", "rgb", "right"}
+    by_seq: dict[int, set] = {}
+    for f in frames:
+        by_seq.setdefault(f.sequence, set()).add(f.timestamp_ns)
+    assert all(len(ts) == 1 for ts in by_seq.values())
+    assert next(f for f in frames if f.cam_id == "rgb").image.shape == (480, 640, 3)
