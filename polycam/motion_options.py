@@ -79,8 +79,10 @@ class MotionOptions:
     from 3.65 / 2.39 to 1.79 / 1.90 and the rotation's from 1.95 / 1.50 to 1.44 / 1.31; at 8 m
     the translation's from 11.1 / 5.68 to 5.69 / 4.21; from 4 grey levels on it changes
     nothing (to ±0.02: where noise dominates the weights stay near 1; docs/motion.md,
-    "Noise"). With the default options it does not help (their discontinuity weight already
-    discards the model error). ~+35 % time per estimate
+    "Noise"). With the default options it does not help on Fig. 5c (their discontinuity weight
+    already discards most model error; at 12 m the translation error doubles), nor on the camera-array
+    sessions (better on one seed, worse on another), but on one face of sharp (aliased) synthetic
+    frames it cut the errors 3-7x (docs/motion_log.md, session 40). ~+35 % time per estimate
     and two float32 work arrays of the finest level's rays (about one frame more memory).
     It needs the IRLS passes (``robust`` not ``none``, ``irls_steps`` ≥ 1): it acts in the
     first and takes their robust scale s; without them it does nothing."""
