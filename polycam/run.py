@@ -329,7 +329,11 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          f"{100 * dsum['median_rel_error']:.1f}% ({dsum['truth_rays']} rays); {dsum['points']} points in "
          f"{report / 'points.ply'} ({s:.1f} s)")
     if dsum["points"] < UNUSABLE["depth_min_points"]:
-        raise _fail("depth", f"only {dsum['points']} confident depth rays (need {UNUSABLE['depth_min_points']})")
+        why = ("" if dsum["data_fraction"] > 0 else ": the central views hold no captured data (light-field "
+               "confidence W > 0.5), only views filled between cameras (a stereo pair's cameras are its end "
+               "views, outside the depth filters' support)")
+        raise _fail("depth", f"only {dsum['points']} confident depth rays (need {UNUSABLE['depth_min_points']})"
+                    + why)
     _plot_mosaic(report / "mosaic.png", lf.grid, L0)
     _plot_epi(report / "epi.png", lf.grid, L0)
     written += ["calibration_residuals.png", "mosaic.png", "epi.png", "depth.png", "points.ply"]
@@ -559,7 +563,10 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
     P = o[m] + d[m] * rng_ray[0, js, is_][m][:, None]
     write_ply(report / "points.ply", P, g0[0, js, is_][m])
     out = {"points": int(len(P)), "confident_fraction": float(np.mean(good[0, jc, ic])),
-           "with_motion": T_prev_next is not None, "views": f"{o.shape[0]}x{o.shape[1]}"}
+           "with_motion": T_prev_next is not None, "views": f"{o.shape[0]}x{o.shape[1]}",
+           # the central views' rays with captured data (W > 0.5; 0 for a stereo pair, whose
+           # cameras are its end views: those between are filled)
+           "data_fraction": 1.0 if W0 is None else float(np.mean(W0[0, js, is_] > 0.5))}
     Z_true = None
     if truth is not None:
         from .rays import RayBundle

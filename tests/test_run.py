@@ -106,3 +106,23 @@ def test_run_linear_rig_end_to_end(tmp_path, capsys):
     err = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
     assert np.median(err.t_rel) < E2E_RUN_MOTION_REL and np.median(err.w_rel) < E2E_RUN_MOTION_REL
     assert summary["depth"]["points"] > 1000
+
+
+def test_run_stereo_pair_solves_motion_and_says_why_depth_has_none(tmp_path, capsys):
+    """Two cameras (a stereo pair, resampled onto views between them): the motion is solved, but
+    the views with captured data are the two end views, outside the depth filters' support, and the
+    depth stage (and `polycam depth`) say so instead of blaming the rays' confidence."""
+    (tmp_path / "rig.toml").write_text(mock_grid_rig_text("pair", 160, 120, rows=1, cols=2, pitch=0.05))
+    out = tmp_path / "run"
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "3"])
+    cap = capsys.readouterr()
+    assert code == 1
+    motion = [line for line in cap.out.splitlines() if line.startswith("motion")]
+    assert len(motion) == 1 and "0 failed" in motion[0], cap.out
+    last = cap.err.strip().splitlines()[-1]
+    assert last.startswith("polycam: error: run: depth: only 0 confident depth rays") and "no captured data" in last
+    assert (out / "trajectory.tum").exists()
+    code = main(["depth", str(out / "lightfield.zarr"), "--traj", str(out / "trajectory.tum"),
+                 "--out", str(tmp_path / "depth")])
+    cap = capsys.readouterr()
+    assert code == 0 and "0 points" in cap.out and "no captured data" in cap.out, cap.out
