@@ -733,8 +733,9 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
                            e_max_x, e_max_y, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND, lag):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
-    lies outside the viewpoints' range, by at most ``e_max_x``, ``e_max_y`` view steps along x and y, from
-    the nearest edge viewpoint(s) by paper Eq. 6: on a Lambertian surface the ray from
+    lies outside the viewpoints' range, by at most ``e_max_x``, ``e_max_y`` view steps along x and y
+    (inf: the single-view axis of a linear array), from the nearest edge viewpoint(s) by paper Eq. 6:
+    on a Lambertian surface the ray from
     ``x_e + d`` along u is the ray from ``x_e`` along ``u + ρ d`` (ρ = f / Z, u per unit x),
     so the value is the edge view's (u, v)-warped image read at the direction shifted by
     ``(e_x kx ρ, e_y ky ρ)`` samples (e in view steps beyond the edge, kx = step_x / step_u,
@@ -1208,7 +1209,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     # a linear array (one viewpoint along one axis) moves its rays off that axis with any motion
     # along it: with rho they are all extrapolated from the views (no limit along that axis), in
     # grid units of the other axis's view step; without, that axis keeps each ray's position
-    single = (Nx == 1) != (Ny == 1)
+    single = bool(grid.single_view_axis)
     extrapolate = rho is not None and (Nx > 1 or Ny > 1) and (extrapolate_views > 0 or single)
     hx = (xs[-1] - xs[0]) / (Nx - 1) if Nx > 1 else 1.0
     hy = (ys[-1] - ys[0]) / (Ny - 1) if Ny > 1 else 1.0
@@ -1240,7 +1241,8 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
         _, _, _, _, ok_uv, slope_x, slope_y = _uv_stencils(grid, face, R, int(uv_taps), weights=False)
         o = np.stack([x, y, np.full_like(x, face.z_pi)], axis=-1) @ R.T + G[:3, 3]     # moved origins
         sz = face.z_pi - o[..., 2]
-        # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis
+        # grid units (x' = o_x + sz slope_x): zero coefficients on a single-sample axis (unless a
+        # linear array extrapolates along it)
         cx = (np.ascontiguousarray((o[..., 0] - xs[0]) / hx), np.ascontiguousarray(sz / hx)) \
             if Nx > 1 or (single and extrapolate) else (np.zeros((Ny, Nx)), np.zeros((Ny, Nx)))
         cy = (np.ascontiguousarray((o[..., 1] - ys[0]) / hy), np.ascontiguousarray(sz / hy)) \
