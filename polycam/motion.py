@@ -64,7 +64,7 @@ ray the motion moves off the axis from the views by Eq. 6 with the views' mean �
 (its gaps filled from their neighbours, :func:`polycam.warp._filled_view_mean`), however far (the
 first warp of the coarsest level, before any ρ̂, keeps the rays on the axis). The symmetric warp
 does not extrapolate so: with it such a pair fails with that reason. Measured (docs/motion.md,
-"Linear arrays"): the middle row or column of the paper set-up's 9 x 9 array errs 2–34x as much
+"Linear arrays"): the middle row or column of the paper set-up's 9 x 9 array errs 1.7–34x as much
 as the whole array without noise (t 0.4–1.1 %), 1.3–7x with 2 grey levels (benchmarks/bench_linear.py);
 a row of five mock cameras about as much as the 5 x 5 rig (2.8 / 0.9 % against 2.7 / 0.8 %). The disparity per view step of camera
 arrays (:func:`_aliasing_start`) is measured along the other axis.
