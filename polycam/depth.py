@@ -40,7 +40,8 @@ from .derivatives import FILTERS, Derivatives, correlate_axis
 from .geometry import T_inverse, rt_from_T
 from .lightfield import LightFieldGrid
 
-__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "CONFIDENCE_FLOOR", "depth_equations", "equation_noise",
+__all__ = ["DepthMap", "EQUATIONS", "DEPTH_FILTERS", "CONFIDENCE_FLOOR", "MIN_W", "NO_CAPTURED_DATA",
+           "depth_equations", "equation_noise",
            "window_sum", "window_weight_energy", "depth_from_derivatives", "depth_of_pair", "grey_frame",
            "confident_mask", "view_mask", "depth_points"]
 
@@ -49,6 +50,14 @@ DEPTH_FILTERS = {"x": "fs3", "y": "fs3", "u": "fs5", "v": "fs5"}
 
 EQUATIONS = ("stereo_x", "stereo_y", "motion_dir", "motion_pos")
 """Names of the four depth equations of Eq. 6–7, in the order of :func:`depth_equations`."""
+
+MIN_W = 0.5
+"""Light-field confidence W above which a ray holds captured data (below: a view filled between
+cameras, or no data): :func:`confident_mask` keeps only such rays."""
+
+NO_CAPTURED_DATA = ("hold no captured data (light-field confidence W > 0.5), only views filled between cameras "
+                    "(a stereo pair's cameras are its end views, outside the depth filters' support)")
+"""Why views without a ray above :data:`MIN_W` give no depth (the CLIs' explanation)."""
 
 CONFIDENCE_FLOOR = 1e-6
 """The smallest relative variance of λ the confidence grants (float32 sums resolve no
@@ -306,7 +315,7 @@ def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
 
 
 def confident_mask(dm: DepthMap, *, keep: float = 0.5, W: np.ndarray | None = None,
-                   min_W: float = 0.5, max_rel_std: float | None = None) -> np.ndarray:
+                   min_W: float = MIN_W, max_rel_std: float | None = None) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) bool: rays with a finite positive depth whose confidence is in
     the best ``keep`` fraction of the rays with any confidence (and, with the light
     field's confidence ``W`` of the same dims, ``W > min_W``). ``max_rel_std``: instead of

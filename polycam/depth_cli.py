@@ -140,7 +140,7 @@ def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int):
 def cmd_depth(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from .depth import confident_mask, depth_of_pair, grey_frame, view_mask
+    from .depth import MIN_W, NO_CAPTURED_DATA, confident_mask, depth_of_pair, grey_frame, view_mask
     from .depth_io import write_depth_folder
     from .errors import InputError
     from .lightfield import finite_frame
@@ -219,11 +219,9 @@ def cmd_depth(args: argparse.Namespace) -> int:
         kept = f"kept, median depth {summary['median_depth_m']:.2f} m"
     else:                                  # say why, and what would keep some
         best = float(np.max(dm.confidence[views], initial=0.0))
-        no_data = W0 is not None and not np.any(np.asarray(W0)[views] > 0.5)
+        no_data = W0 is not None and not np.any(np.asarray(W0)[views] > MIN_W)
         kept = ("kept: no ray with a depth" if best <= 0 else
-                "kept: the written views hold no captured data (light-field confidence W > 0.5), only views "
-                "filled between cameras (a stereo pair's cameras are its end views, outside the depth filters' "
-                "support)" if no_data else
+                f"kept: the written views {NO_CAPTURED_DATA}" if no_data else
                 f"kept: the best ray's predicted relative std is {100 / np.sqrt(best):.2g} %")
     print(f"wrote {out}: {summary['views']} view depth maps, {summary['points']} points in "
           f"{out / 'points.ply'}; {100 * summary['confident_fraction']:.0f}% of the written views' rays "

@@ -711,25 +711,36 @@ def _prepare_kernel(L0, L1, l0g, conf, conf_unit, need_min, smooth, smooth_mode,
                              rv, Nv - rv, ru, Nu - ru, h, var, final, a, s, poly, S)
 
 
+@numba.njit(cache=True, inline="always")
+def _drop_without_rho(b, q, v_lo, v_hi, u_lo, u_hi):
+    """A linear array's rays without ρ̂ (q == ``_RHO_NONE``; (Nv, Nu) int16) left out on the samples
+    v_lo:v_hi x u_lo:u_hi: their base weight b's sign turns negative (b <= 0 counts as weight 0;
+    |b| stays, as smooth mode 2 keeps the discontinuity weight there)."""
+    none = np.int16(_RHO_NONE)
+    for v in range(v_lo, v_hi):
+        br = b[v]
+        qr = q[v]
+        for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
+            br[u] = -abs(br[u]) if qr[u] == none else br[u]
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH)
 def _rho_times(o, q, qs, b, g, s, v_lo, v_hi, u_lo, u_hi, drop):
     """o[v, u] ← ρ̂ × g[v, u] s (a scaled view's value: module docstring) where ρ̂ = q[v, u] qs
     (int16 ρ̂ in units of qs: :func:`depth_rho`) is given (q ≠ ``_RHO_NONE``) and the base
     weight b > 0, on the samples v_lo:v_hi x u_lo:u_hi; all (Nv, Nu). With ``drop`` (a linear
-    array: the measured regressor is not there to keep) a ray without ρ̂ is left out instead:
-    its base weight's sign turns negative (b <= 0 counts as weight 0; |b| stays, as smooth
-    mode 2 keeps the discontinuity weight there)."""
+    array: the measured regressor is not there to keep) a ray without ρ̂ is left out instead
+    (:func:`_drop_without_rho`)."""
     s32 = np.float32(s)
     qs32 = np.float32(qs)
     none = np.int16(_RHO_NONE)
+    if drop:
+        _drop_without_rho(b, q, v_lo, v_hi, u_lo, u_hi)
     for v in range(v_lo, v_hi):
         qr = q[v]
         br = b[v]
         gr = g[v]
         orow = o[v]
-        if drop:
-            for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
-                br[u] = -abs(br[u]) if qr[u] == none else br[u]
         for u in range(numba.uint64(u_lo), numba.uint64(u_hi)):
             ok = (br[u] > np.float32(0.0)) & (qr[u] != none)
             orow[u] = (np.float32(qr[u]) * qs32) * (np.float32(gr[u]) * s32) if ok else orow[u]
@@ -1364,11 +1375,7 @@ def _apply_rho(Lx, Ly, Lu, Lv, dsc, base, rho, rho_sc, box, vo, chunks, drop=Fal
             q = rho[fc, ja, ia]
             qs = np.float32(rho_sc[fc, ja, ia])
             if drop:
-                for v in range(box[4], box[5]):
-                    br = b[v]
-                    qr = q[v]
-                    for u in range(numba.uint64(box[6]), numba.uint64(box[7])):
-                        br[u] = -abs(br[u]) if qr[u] == np.int16(_RHO_NONE) else br[u]
+                _drop_without_rho(b, q, box[4], box[5], box[6], box[7])
             for k in range(2):
                 g = Lx[fc, ja, ia] if k == 0 else Ly[fc, ja, ia]
                 d = Lu[fc, ja, ia] if k == 0 else Lv[fc, ja, ia]

@@ -329,9 +329,9 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          f"{100 * dsum['median_rel_error']:.1f}% ({dsum['truth_rays']} rays); {dsum['points']} points in "
          f"{report / 'points.ply'} ({s:.1f} s)")
     if dsum["points"] < UNUSABLE["depth_min_points"]:
-        why = ("" if dsum["data_fraction"] > 0 else ": the central views hold no captured data (light-field "
-               "confidence W > 0.5), only views filled between cameras (a stereo pair's cameras are its end "
-               "views, outside the depth filters' support)")
+        from .depth import NO_CAPTURED_DATA
+
+        why = "" if dsum["data_fraction"] > 0 else f": the central views {NO_CAPTURED_DATA}"
         raise _fail("depth", f"only {dsum['points']} confident depth rays (need {UNUSABLE['depth_min_points']})"
                     + why)
     _plot_mosaic(report / "mosaic.png", lf.grid, L0)
@@ -537,7 +537,7 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
     depth, and the confident rays' relative depth error is reported."""
     import numpy as np
 
-    from .depth import DEPTH_FILTERS, depth_from_derivatives, grey_frame
+    from .depth import DEPTH_FILTERS, MIN_W, depth_from_derivatives, grey_frame
     from .derivatives import derivative_noise, plenoptic_derivatives
     from .motion_weights import frame_noise_variance
 
@@ -547,7 +547,7 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
     dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next, noise=noise)
     conf = dm.confidence
     if W0 is not None:
-        conf = conf * (W0 > 0.5)
+        conf = conf * (W0 > MIN_W)
     pos = conf[conf > 0]
     thr = float(np.percentile(pos, 50)) if pos.size else np.inf    # keep the better half
     good = (conf >= thr) & np.isfinite(dm.Z) & (dm.Z > 0)
@@ -564,9 +564,9 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
     write_ply(report / "points.ply", P, g0[0, js, is_][m])
     out = {"points": int(len(P)), "confident_fraction": float(np.mean(good[0, jc, ic])),
            "with_motion": T_prev_next is not None, "views": f"{o.shape[0]}x{o.shape[1]}",
-           # the central views' rays with captured data (W > 0.5; 0 for a stereo pair, whose
-           # cameras are its end views: those between are filled)
-           "data_fraction": 1.0 if W0 is None else float(np.mean(W0[0, js, is_] > 0.5))}
+           # the central views' rays with captured data (0 for a stereo pair, whose cameras are its
+           # end views: those between are filled)
+           "data_fraction": 1.0 if W0 is None else float(np.mean(W0[0, js, is_] > MIN_W))}
     Z_true = None
     if truth is not None:
         from .rays import RayBundle
