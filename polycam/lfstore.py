@@ -14,6 +14,10 @@ Contents:
   (regular increasing sample coordinates shared by all faces) and
   ``timestamps_ns`` (T ints, strictly increasing). Other attributes and arrays
   are allowed and ignored (room for provenance).
+* attribute ``camera_positions`` (optional; written by ``polycam resample`` for cameras on
+  the focal plane): ``[[face, iy, ix], ...]``, one per camera, its centre's position in
+  fractional grid indices; the camera's data are at the view ``(round(iy), round(ix))``
+  (:func:`camera_positions_attr`, :attr:`LightFieldStore.camera_positions`).
 * file ``groundtruth.tum`` (optional): ``T_world_rig`` per frame.
 
 Both arrays are chunked one chunk per (frame, face): a frame is written or read
@@ -46,6 +50,7 @@ __all__ = [
     "write_lightfield",
     "LightFieldStore",
     "open_lightfield",
+    "camera_positions_attr",
 ]
 
 log = logging.getLogger(__name__)
@@ -255,6 +260,39 @@ def _chain(first, rest: Iterator) -> Iterator:
     yield from rest
 
 
+def camera_positions_attr(positions: np.ndarray) -> list[list[float]]:
+    """The ``camera_positions`` attribute of (F, Ny, Nx, 2) positions (iy, ix) in fractional grid
+    indices, NaN at views without a camera (``resample.viewfill.camera_positions``)."""
+    pos = np.asarray(positions, float)
+    return [[int(k), float(pos[k, j, i, 0]), float(pos[k, j, i, 1])]
+            for k, j, i in np.argwhere(np.isfinite(pos[..., 0]))]
+
+
+def _parse_camera_positions(p: Path, value: Any, grid: LightFieldGrid) -> np.ndarray | None:
+    """(F, Ny, Nx, 2) from the ``camera_positions`` attribute (None when absent); FormatError
+    naming the entry for anything else than ``[face, iy, ix]`` on the grid."""
+    if value is None:
+        return None
+    field = "attrs.camera_positions"
+    if not isinstance(value, list):
+        raise FormatError(p, "expected a list of [face, iy, ix]", field)
+    F, Ny, Nx = grid.shape[:3]
+    out = np.full((F, Ny, Nx, 2), np.nan)
+    for n, e in enumerate(value):
+        if (not isinstance(e, list) or len(e) != 3 or not _is_int(e[0])
+                or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and np.isfinite(a) for a in e[1:])):
+            raise FormatError(p, f"entry {n}: expected [face, iy, ix] (an integer and two numbers), got {e!r}", field)
+        k, fy, fx = int(e[0]), float(e[1]), float(e[2])
+        j, i = int(np.floor(fy + 0.5)), int(np.floor(fx + 0.5))
+        if not (0 <= k < F and 0 <= j < Ny and 0 <= i < Nx):
+            raise FormatError(p, f"entry {n}: [{k}, {fy}, {fx}] is off the grid's {F} face(s) x {Ny}x{Nx} views",
+                              field)
+        if np.isfinite(out[k, j, i, 0]):
+            raise FormatError(p, f"entry {n}: a second camera at view ({j}, {i}) of face {k}", field)
+        out[k, j, i] = (fy, fx)
+    return out
+
+
 def _array_member(group, name: str):
     """The zarr array ``name`` of ``group``, or None if there is none (or it is a group)."""
     zarr = _zarr()
@@ -343,6 +381,9 @@ class LightFieldStore:
                                      f"{tuple(L.shape[:6])}", "W")
         self.W = W
         """The zarr array ``W`` (lazy) or None."""
+        self.camera_positions: np.ndarray | None = _parse_camera_positions(p, attrs.get("camera_positions"), self.grid)
+        """(F, Ny, Nx, 2) float64: the camera centres (iy, ix) in fractional grid indices at the views
+        holding their data, NaN elsewhere; None when the store does not record them (module docstring)."""
 
     @property
     def num_frames(self) -> int:

@@ -34,6 +34,7 @@ import numpy as np
 
 from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
+from polycam.lfstore import camera_positions_attr
 
 __all__ = ["ResampleSummary", "resample_session", "open_calibration"]
 
@@ -207,6 +208,9 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                                          "linear": options.kernel.linear},
                               "schedule": options.schedule, "attenuation": options.attenuation,
                               "full_weight": options.full_weight, "view_fill": options.view_fill}}
+        positions = resampler.camera_positions()
+        if positions is not None:          # the depth refinement's sources (polycam.depth_refine)
+            attrs["camera_positions"] = camera_positions_attr(positions)
         store = FrameStore(out, grid, sess.timestamps_ns, channels=channels if channels > 1 else None,
                            overwrite=overwrite, extra_attrs=attrs)
         t1 = time.perf_counter()

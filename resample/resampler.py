@@ -189,11 +189,8 @@ class Resampler:
             if len(self._plans) > self.options.geometry_cache + 1:
                 self._plans.clear()
             if self.cameras_on_focal_plane():
-                from polycam.cameras import T_rig_cam_of
-
-                T = np.stack([T_rig_cam_of(self.models[c]) for c in geo.layout.ids])
                 plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill,
-                                      camera_positions=camera_positions(self.grid, T[:, :3, 3], T[:, :3, 2]))
+                                      camera_positions=self.camera_positions(geo.layout.ids))
             else:
                 log.warning("resample: the cameras are not on the focal plane z_pi (a grid view is then a "
                             "patchwork of several cameras): the views between them are filled by the "
@@ -201,6 +198,19 @@ class Resampler:
                 plan = plan_view_fill(self.grid, np.zeros(self.grid.shape, np.float32), self.options.fill)
             self._plans[key] = plan
         return plan
+
+    def camera_positions(self, ids=None) -> np.ndarray | None:
+        """(F, Ny, Nx, 2) float64: the centres (iy, ix) of cameras ``ids`` (default: all) in
+        fractional grid indices at the views that hold their data, NaN elsewhere
+        (:func:`resample.viewfill.camera_positions`); None when the cameras are not on the focal
+        plane (:meth:`cameras_on_focal_plane`: a grid view is then no one camera's view). Written
+        to the store as its ``camera_positions`` attribute (docs/formats.md)."""
+        if not self.cameras_on_focal_plane():
+            return None
+        from polycam.cameras import T_rig_cam_of
+
+        T = np.stack([T_rig_cam_of(self.models[c]) for c in (ids or self.cameras)])
+        return camera_positions(self.grid, T[:, :3, 3], T[:, :3, 2])
 
     def cameras_on_focal_plane(self, tolerance: float = 0.25) -> bool:
         """Whether the camera centres lie on the focal plane of the face their optical axis

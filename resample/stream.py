@@ -129,6 +129,12 @@ class SessionLightField:
         return gt
 
     @property
+    def camera_positions(self) -> np.ndarray | None:
+        """As a store's :attr:`~polycam.lfstore.LightFieldStore.camera_positions`: the camera centres
+        (iy, ix) in fractional grid indices at their views, (F, Ny, Nx, 2), or None."""
+        return self.resampler.camera_positions()
+
+    @property
     def mean_W(self) -> float:
         """Mean confidence over the frames resampled so far (NaN before any)."""
         return float(np.mean(list(self.w_sums.values()))) if self.w_sums else float("nan")

@@ -45,6 +45,8 @@ def test_session_lightfield_equals_resampled_store(session, tmp_path):
         np.testing.assert_allclose(lf.weights(t), store.weights(t), atol=E2E_STREAM_VS_STORE_ATOL)
     assert lf.frames_resampled == 3          # frame(t) then weights(t): one resampling
     assert lf.groundtruth() is not None
+    np.testing.assert_array_equal(lf.camera_positions, store.camera_positions)   # the depth refinement's sources
+    assert np.isfinite(store.camera_positions[..., 0]).sum() == len(lf.models)
 
 
 def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys):

@@ -240,6 +240,31 @@ def test_attr_errors(store, key, value, substrings):
     _expect(store, *substrings)
 
 
+def test_camera_positions_attribute(store, grid):
+    """Optional; read into (F, Ny, Nx, 2) fractional grid indices at the cameras' views."""
+    assert open_lightfield(store).camera_positions is None
+    _set_attr(store, "camera_positions", [[0, 0.1, 1.0], [1, 1.0, 0.8]])
+    pos = open_lightfield(store).camera_positions
+    assert pos.shape == (*grid.shape[:3], 2)
+    np.testing.assert_array_equal(pos[0, 0, 1], [0.1, 1.0])
+    np.testing.assert_array_equal(pos[1, 1, 1], [1.0, 0.8])
+    assert np.isfinite(pos[..., 0]).sum() == 2
+
+
+@pytest.mark.parametrize("value, substrings", [
+    ({"cam0": [0, 1, 1]}, ["attrs.camera_positions", "list of [face, iy, ix]"]),
+    ([[0, 1]], ["attrs.camera_positions", "entry 0", "expected [face, iy, ix]"]),
+    ([[0, 1, 1], [0.5, 1, 1]], ["entry 1", "an integer and two numbers"]),
+    ([[0, "1", 1]], ["entry 0"]),
+    ([[0, 1, float("nan")]], ["entry 0"]),
+    ([[7, 1, 1]], ["entry 0", "off the grid"]),
+    ([[0, 1, 1.2], [0, 0.9, 0.7]], ["entry 1", "a second camera at view (1, 1)"]),
+])
+def test_camera_positions_errors(store, value, substrings):
+    _set_attr(store, "camera_positions", value)
+    _expect(store, *substrings)
+
+
 def test_faces_count_mismatch(store):
     meta = json.loads((store / "zarr.json").read_text())
     meta["attributes"]["faces"] = meta["attributes"]["faces"][:1]

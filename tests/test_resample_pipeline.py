@@ -117,6 +117,13 @@ def test_session_to_store_in_process(session, tmp_path):
         np.testing.assert_array_equal(lf.frame(t), r.L)
         np.testing.assert_array_equal(lf.weights(t), r.W)
     assert not (tmp_path / "lf.zarr.partial").exists()
+    # the camera centres, for the depth refinement: one per camera, at its view, ~on it
+    pos = lf.camera_positions
+    np.testing.assert_array_equal(pos, rs.camera_positions())
+    at = np.isfinite(pos[..., 0])
+    assert at.sum() == 9 and at[0, ::2, ::2].all()
+    iy, ix = np.nonzero(at[0])
+    assert np.max(np.abs(pos[0, iy, ix] - np.stack([iy, ix], -1))) < 0.5
     with pytest.raises(InputError, match="already exists"):
         resample_session(path, out, scheduler="sync")
 
