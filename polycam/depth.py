@@ -25,7 +25,9 @@ confidence is ``λ² / var(λ)``, var(λ) from what one depth leaves unexplained
 the foreground's edge lends its depth ("Occlusion boundaries"). :func:`depth_from_derivatives`
 fuses the two stereo equations and the positional motion equation (the directional one has the noisy
 ``L_t`` on its left side); :mod:`polycam.scales` compares all four to choose the
-derivative scales (paper Sect. 4.1). :func:`confident_mask` and
+derivative scales (paper Sect. 4.1); :mod:`polycam.depth_refine` refines the fused depth by
+matching the views that hold captured data (Eq. 6's linearisation is biased where the cameras are
+samples of disparity apart). :func:`confident_mask` and
 :func:`depth_points` turn a depth map into a point cloud (file writing is in
 :mod:`polycam.depth_io`; this module does no I/O).
 """

@@ -82,6 +82,11 @@ def add_parsers(sub) -> None:
                         "estimates agree (Sect. 4.1): about 2x lower depth error at 4-16 m, but smoothing across "
                         "viewpoints leaves only the inner views with depth; auto (default) = face with "
                         "--views central, off with --views all (docs/depth.md)")
+    p.add_argument("--refine", choices=("auto", "on", "off"), default="auto",
+                   help="refine the depth by matching the views that hold captured data (iterated multi-view "
+                        "stereo; polycam.depth_refine): auto (default) = on where the source records its cameras "
+                        "(a resampled session: the camera views; also gives a stereo pair depth), on = also on "
+                        "other stores (every view is then a source), off = Eq. 7 alone (docs/depth.md)")
     keep = p.add_mutually_exclusive_group()
     keep.add_argument("--keep", type=_positive_float, default=0.5, metavar="FRAC",
                       help="keep the most confident FRAC of the rays (default 0.5)")
@@ -204,13 +209,24 @@ def cmd_depth(args: argparse.Namespace) -> int:
         eqs = ("stereo_x", "stereo_y") if stereo else ("stereo_x", "stereo_y", "motion_pos")
         dm, sel = depth_scale_selected(g0, g1, grid, M, per=mode, W0=W0, noise_var=noise_var, equations=eqs)
         scale_info = {"face_scales": [s.name for s in sel.face_scales()]}
-    mask = confident_mask(dm, keep=args.keep, W=W0, max_rel_std=args.max_std)
     views = view_mask(grid, 1 if args.views == "central" else None)
+    positions = getattr(store, "camera_positions", None)
+    refine = args.refine == "on" or (args.refine == "auto" and positions is not None)
+    sources = 0
+    if refine:
+        from .depth_refine import grid_positions, refine_depth
+
+        if positions is None:                      # every view holds data (e.g. a rendered light field)
+            positions = grid_positions(grid, np.ones(grid.shape[:3], bool))
+        dm = refine_depth(g0, grid, dm.Z, sources=positions, targets=views, W=W0, noise_var=noise_var)
+        sources = int(np.isfinite(positions[..., 0]).sum())
+    # refined depth comes from the sources' data: the written views' own W does not matter
+    mask = confident_mask(dm, keep=args.keep, W=None if refine else W0, max_rel_std=args.max_std)
     L0a = np.asarray(L0, np.float32)
     meta = {"source": str(src), "frame": i, "frame_next": j, "timestamp_ns": int(ts[i]),
             "timestamp_next_ns": int(ts[j]), "T_prev_next": np.asarray(np.eye(4) if M is None else M, float).tolist(),
             **({"keep": float(args.keep)} if args.max_std is None else {"max_rel_std": float(args.max_std)}),
-            "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)),
+            "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)), "refined_on_views": sources,
             **motion, **scale_info}
     summary = write_depth_folder(args.out, grid, dm, intensity=L0a, mask=mask, views=views, meta=meta,
                                  binary_ply=not args.ascii_ply)
@@ -219,7 +235,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
         kept = f"kept, median depth {summary['median_depth_m']:.2f} m"
     else:                                  # say why, and what would keep some
         best = float(np.max(dm.confidence[views], initial=0.0))
-        no_data = W0 is not None and not np.any(np.asarray(W0)[views] > MIN_W)
+        no_data = not refine and W0 is not None and not np.any(np.asarray(W0)[views] > MIN_W)
         kept = ("kept: no ray with a depth" if best <= 0 else
                 f"kept: the written views {NO_CAPTURED_DATA}" if no_data else
                 f"kept: the best ray's predicted relative std is {100 / np.sqrt(best):.2g} %")

@@ -318,9 +318,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     L0, L1, W0f = lf.frame(0), lf.frame(1), lf.weights(0)
     from .synth import scene_for_rig
 
-    grid_c, (L0c, L1c, W0c) = _views_at_cameras(lf.grid, xy_oversample, L0, L1, W0f)
-    dsum = _depth(report, grid_c, L0c, L1c, W0c, results[0].T_prev_next if results[0] else None, opts,
-                  truth=(scene_for_rig(rig), truth.T_world_rig[0]))
+    dsum = _depth(report, lf.grid, xy_oversample, L0, L1, W0f, results[0].T_prev_next if results[0] else None,
+                  opts, positions=lf.camera_positions, truth=(scene_for_rig(rig), truth.T_world_rig[0]))
     s = time.perf_counter() - t0
     dsum["seconds"] = s
     summary["depth"] = dsum
@@ -512,6 +511,17 @@ def write_ply(path: str | os.PathLike, points, values=None) -> None:
     atomic_write_text(path, buf.getvalue())
 
 
+def _camera_indices(n: int, every: int, h: int | None = None) -> list[int]:
+    """Every ``every``-th of ``n`` view indices through the central one (the middle ``2 h + 1``
+    of them with ``h``)."""
+    every = max(int(every), 1)
+    idx = list(range((n // 2) % every, n, every))
+    if h is None:
+        return idx
+    c = len(idx) // 2
+    return idx[max(0, c - h):c + h + 1]
+
+
 def _views_at_cameras(grid, every: int, *arrays):
     """The sub-grid of every ``every``-th viewpoint through the central one (the views at the
     cameras of a grid with ``every`` views per camera spacing) and the arrays (F, Ny, Nx, ...)
@@ -522,31 +532,53 @@ def _views_at_cameras(grid, every: int, *arrays):
     if every <= 1:
         return grid, arrays
     F, Ny, Nx = grid.shape[:3]
-    js, is_ = range((Ny // 2) % every, Ny, every), range((Nx // 2) % every, Nx, every)
-    yv, xv = grid.y.values[list(js)], grid.x.values[list(is_)]
+    js, is_ = _camera_indices(Ny, every), _camera_indices(Nx, every)
+    yv, xv = grid.y.values[js], grid.x.values[is_]
     sub = dataclasses.replace(grid, x=Axis(float(xv[0]), float(xv[-1]), len(xv)),
                               y=Axis(float(yv[0]), float(yv[-1]), len(yv)))
-    pick = (slice(None), slice(js.start, None, every), slice(is_.start, None, every))
+    pick = (slice(None), slice(js[0], None, every), slice(is_[0], None, every))
     return sub, tuple(None if a is None else a[pick] for a in arrays)
 
 
-def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=None) -> dict:
-    """Depth of the first frame pair: depth.png (central view, and against the truth) and
-    points.ply. ``truth``: (scene, T_world_rig (4, 4) of frame 0) of the ray tracer the
-    session was rendered with; the central views' rays are traced in it for their true
-    depth, and the confident rays' relative depth error is reported."""
+def _depth(report: Path, grid, every: int, L0, L1, W0, T_prev_next, opts: RunOptions, positions=None,
+           truth=None) -> dict:
+    """Depth of the first frame pair at the views through the central one every ``every``-th
+    (the cameras of a grid with ``every`` views per camera spacing): depth.png (central view,
+    and against the truth) and points.ply. ``positions``: the store's camera centres
+    (:attr:`polycam.lfstore.LightFieldStore.camera_positions`): Eq. 7's depth is then refined on
+    the cameras' data (:func:`polycam.depth_refine.refine_depth`), also at views no camera holds
+    (a stereo pair's middle view); None: Eq. 7 on the camera views alone. ``truth``: (scene,
+    T_world_rig (4, 4) of frame 0) of the ray tracer the session was rendered with; the central
+    views' rays are traced in it for their true depth, and the confident rays' relative depth
+    error is reported."""
     import numpy as np
 
-    from .depth import DEPTH_FILTERS, MIN_W, depth_from_derivatives, grey_frame
+    from .depth import DEPTH_FILTERS, MIN_W, DepthMap, depth_from_derivatives, grey_frame
     from .derivatives import derivative_noise, plenoptic_derivatives
     from .motion_weights import frame_noise_variance
 
     g0, g1 = grey_frame(L0), grey_frame(L1)
+    sources = 0
+    if positions is None:
+        grid, (g0, g1, W0) = _views_at_cameras(grid, every, g0, g1, W0)
+    noise_var = frame_noise_variance(g0, g1, grid, W0)
     der = plenoptic_derivatives(g0, g1, grid, filters=DEPTH_FILTERS)
-    noise = derivative_noise(frame_noise_variance(g0, g1, grid, W0), grid, DEPTH_FILTERS)
-    dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next, noise=noise)
+    dm = depth_from_derivatives(der, grid, T_prev_next=T_prev_next,
+                                noise=derivative_noise(noise_var, grid, DEPTH_FILTERS))
     conf = dm.confidence
-    if W0 is not None:
+    if positions is not None:
+        from .depth_refine import refine_depth
+
+        F, Ny, Nx = grid.shape[:3]
+        h = opts.depth_views // 2
+        targets = np.zeros((F, Ny, Nx), bool)
+        targets[np.ix_(range(F), _camera_indices(Ny, every, h), _camera_indices(Nx, every, h))] = True
+        dm = refine_depth(g0, grid, dm.Z, sources=positions, targets=targets, W=W0, noise_var=noise_var)
+        sources = int(np.isfinite(positions[..., 0]).sum())
+        grid, (g0, W0, Z, C, K) = _views_at_cameras(grid, every, g0, W0, dm.Z, dm.confidence, dm.consistency)
+        dm = DepthMap(Z=Z, confidence=C, consistency=K)
+        conf = dm.confidence               # from the cameras' data: the views' own W does not matter
+    elif W0 is not None:
         conf = conf * (W0 > MIN_W)
     pos = conf[conf > 0]
     thr = float(np.percentile(pos, 50)) if pos.size else np.inf    # keep the better half
@@ -566,7 +598,9 @@ def _depth(report: Path, grid, L0, L1, W0, T_prev_next, opts: RunOptions, truth=
            "with_motion": T_prev_next is not None, "views": f"{o.shape[0]}x{o.shape[1]}",
            # the central views' rays with captured data (0 for a stereo pair, whose cameras are its
            # end views: those between are filled)
-           "data_fraction": 1.0 if W0 is None else float(np.mean(W0[0, js, is_] > MIN_W))}
+           "data_fraction": 1.0 if W0 is None else float(np.mean(W0[0, js, is_] > MIN_W)),
+           # views whose data the refinement matched (0: Eq. 7 alone)
+           "refined_on_views": sources}
     Z_true = None
     if truth is not None:
         from .rays import RayBundle

@@ -643,6 +643,23 @@ def test_depth_verb_stereo_only_on_one_frame(tmp_path, capsys):
     assert e.value.code == 2
 
 
+def test_depth_verb_refines_on_every_view_of_a_rendered_store(tmp_path, capsys):
+    """A store without camera centres (rendered: every view holds data): --refine auto leaves
+    Eq. 7's depth, --refine on matches all 25 views at the central one."""
+    from polycam.cli import main
+
+    _plane_store(tmp_path / "lf.zarr", frames=1)
+    argv = ["depth", str(tmp_path / "lf.zarr"), "--stereo-only"]
+    for refine, sources in (("auto", 0), ("on", 25)):
+        out = tmp_path / refine
+        assert main(argv + ["--out", str(out), "--refine", refine]) == 0
+        assert "points" in capsys.readouterr().out
+        doc = tomllib.loads((out / "depth.toml").read_text())
+        assert doc["depth"]["refined_on_views"] == sources and len(doc["views"]) == 1
+        Z = read_pfm(out / "views" / "face0" / "y02_x02_depth.pfm")
+        assert np.isfinite(Z).sum() > 100 and np.nanmedian(np.abs(Z / 1.5 - 1)) < DEPTH_PLANE_MEDIAN_REL
+
+
 def test_depth_verb_keeps_rays_by_their_predicted_std(tmp_path, capsys):
     """--max-std REL keeps the rays with 1 / √confidence ≤ REL (recorded in depth.toml); their
     errors against the plane are within a few REL. --keep and --max-std together: bad usage."""

@@ -21,7 +21,8 @@ from polycam.rig import CameraSpec, Rig, load_rig
 from tolerances import (DESIGN_AMBIGUITY_MIN_CORR, DESIGN_LINEAR_SIGMA_REL, DESIGN_RENDER_ATOL,
                         DESIGN_SCATTER_REL)
 
-EXAMPLE_RIGS = {"webcam3x3": 9, "webcam5x5": 25, "oak_array": 9, "cube6x3x3": 54, "single": 1, "mock1x5": 5, "oak_d_lite": 3}
+EXAMPLE_RIGS = {"webcam3x3": 9, "webcam5x5": 25, "oak_array": 9, "cube6x3x3": 54, "single": 1, "mock1x5": 5, "oak_d_lite": 3,
+                "mock1x2": 2}
 
 CAM = CameraSpec(id="c", driver="mock", device=None, width=160, height=120, fps=30.0, pixel_format="GREY",
                  position=np.zeros(3), rotation=np.zeros(3), fov_deg=90.0)
