@@ -55,6 +55,20 @@ def solve(session: Path, threshold: float, uv_step: float) -> dict:
             "failed": sum(1 for r in results if not r), "seconds": seconds / max(1, len(results))}
 
 
+def add_keep_option(ap: argparse.ArgumentParser) -> None:
+    """``--keep DIR``: the sessions' folder, kept and reused (see :func:`sessions_root`)."""
+    ap.add_argument("--keep", type=Path, help="render the sessions into this folder and keep them (reused "
+                                               "when already there)")
+
+
+def sessions_root(keep: Path | None, prefix: str):
+    """(root, tmp): ``keep``, or a temporary folder named ``prefix...`` and its handle to clean up."""
+    if keep is not None:
+        return keep, None
+    tmp = tempfile.TemporaryDirectory(prefix=prefix)
+    return Path(tmp.name), tmp
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rigs", nargs="+", default=["webcam3x3", "mock5x5"], help="rig names under rigs/")
@@ -63,15 +77,9 @@ def main() -> None:
     ap.add_argument("--thresholds", nargs="+", type=float, default=[0.75, math.inf],
                     help="max_view_disparity values to compare (the last one is the ratios' baseline)")
     ap.add_argument("--uv-step", type=float, default=1.0, help="direction spacing of the grid in camera pixels")
-    ap.add_argument("--keep", type=Path, help="render the sessions into this folder and keep them (reused "
-                                               "when already there)")
+    add_keep_option(ap)
     args = ap.parse_args()
-
-    tmp = None
-    root = args.keep
-    if root is None:
-        tmp = tempfile.TemporaryDirectory(prefix="bench_arrays_")
-        root = Path(tmp.name)
+    root, tmp = sessions_root(args.keep, "bench_arrays_")
     rows = []
     print("| rig | seed | max_view_disparity | disparity [samples / view step] | level | translation | rotation "
           "| ATE [mm] | solve s / pair | failed |")
