@@ -207,6 +207,20 @@ def test_confidence_keeps_the_foregrounds_depth_off_the_background():
     assert np.mean(rel[keep] > 0.25) <= DEPTH_BOUNDARY_BLED_MAX
 
 
+def _errors_in_stds(dm, where, Z: float) -> np.ndarray:
+    """The relative depth errors of ``dm`` at ``where`` in units of their predicted std (× √confidence)."""
+    conf, rel = dm.confidence[where], dm.Z[where] / Z - 1
+    ok = (conf > 0) & np.isfinite(rel)
+    return rel[ok] * np.sqrt(conf[ok])
+
+
+def _assert_unit_spread(chunks) -> None:
+    """The robust spread of the errors in predicted stds is within DEPTH_CONFIDENCE_SPREAD_MAX of 1."""
+    z = np.concatenate(chunks)
+    spread = 1.4826 * np.median(np.abs(z - np.median(z)))
+    assert 1 / DEPTH_CONFIDENCE_SPREAD_MAX < spread < DEPTH_CONFIDENCE_SPREAD_MAX
+
+
 def test_confidence_predicts_the_depths_scatter_under_noise():
     """The confidence is λ² / var(λ): on a noisy plane the relative depth errors times
     √confidence spread as a unit normal (measured robust spread 1.18 at σ = 0.02)."""
@@ -220,12 +234,8 @@ def test_confidence_predicts_the_depths_scatter_under_noise():
         noisy = [(L + rng.normal(0.0, sigma, L.shape)).astype(np.float32) for L in (L0, L1)]
         dm = depth_of_pair(*noisy, g, MOTION, noise_var=sigma ** 2)
         inner = (0, slice(2, -2), slice(2, -2), slice(6, -6), slice(6, -6))     # off the filters' borders
-        conf, rel = dm.confidence[inner], dm.Z[inner] / Z - 1
-        ok = (conf > 0) & np.isfinite(rel)
-        z.append(rel[ok] * np.sqrt(conf[ok]))
-    z = np.concatenate(z)
-    spread = 1.4826 * np.median(np.abs(z - np.median(z)))
-    assert 1 / DEPTH_CONFIDENCE_SPREAD_MAX < spread < DEPTH_CONFIDENCE_SPREAD_MAX
+        z.append(_errors_in_stds(dm, inner, Z))
+    _assert_unit_spread(z)
 
 
 def test_window_weight_energy_is_the_windows_noise_gain():
@@ -352,12 +362,8 @@ def test_refined_confidence_predicts_the_scatter_under_noise():
         dm = depth_of_pair(noisy, noisy, g, None, noise_var=sigma ** 2)
         r = _refine_central(noisy, g, dm.Z, noise_var=sigma ** 2)
         inner = (0, 1, 1, slice(6, -6), slice(6, -6))
-        conf, rel = r.confidence[inner], r.Z[inner] / Z - 1
-        ok = (conf > 0) & np.isfinite(rel)
-        z.append(rel[ok] * np.sqrt(conf[ok]))
-    z = np.concatenate(z)
-    spread = 1.4826 * np.median(np.abs(z - np.median(z)))
-    assert 1 / DEPTH_CONFIDENCE_SPREAD_MAX < spread < DEPTH_CONFIDENCE_SPREAD_MAX
+        z.append(_errors_in_stds(r, inner, Z))
+    _assert_unit_spread(z)
 
 
 def test_refinement_bad_arguments(rng):
