@@ -218,7 +218,11 @@ def cmd_depth(args: argparse.Namespace) -> int:
 
         if positions is None:                      # every view holds data (e.g. a rendered light field)
             positions = grid_positions(grid, np.ones(grid.shape[:3], bool))
-        dm = refine_depth(g0, grid, dm.Z, sources=positions, targets=views, W=W0, noise_var=noise_var)
+        from .cli import _progress
+
+        with _progress(f"refining the depth of {int(views.sum())} view(s)", int(views.sum())) as advance:
+            dm = refine_depth(g0, grid, dm.Z, sources=positions, targets=views, W=W0, noise_var=noise_var,
+                              progress=advance)
         sources = int(np.isfinite(positions[..., 0]).sum())
     # refined depth comes from the sources' data: the written views' own W does not matter
     mask = confident_mask(dm, keep=args.keep, W=None if refine else W0, max_rel_std=args.max_std)

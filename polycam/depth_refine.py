@@ -32,6 +32,7 @@ Measured in docs/depth.md, "Refinement on the captured views". This module does 
 from __future__ import annotations
 
 import logging
+from typing import Callable
 
 import numba
 import numpy as np
@@ -138,9 +139,50 @@ def _window(a: np.ndarray, window: int) -> np.ndarray:
     return window_sum(a[None, None, None], window)[0, 0, 0]
 
 
+def _refine_view(img, gu, gv, w, has_w: bool, su: np.ndarray, sv: np.ndarray, rho: np.ndarray, window: int,
+                 iterations: int, noise_s: float, noise_rho: float) -> tuple[np.ndarray, ...]:
+    """Gauss–Newton on one target view's ρ (Nv, Nu) from its start: (ρ, confidence, consistency,
+    valid mask, iterations run). ``su``, ``sv``: (S,) the sources' shifts per unit ρ [samples]."""
+    smax = float(np.max(np.hypot(su, sv)))
+    out = np.empty((5, *rho.shape), np.float32)
+    it = 0
+    for it in range(iterations + 1):
+        _terms_kernel(img, gu, gv, w, has_w, MIN_W, su, sv, rho, out)
+        Sjj, Sjr = _window(out[0], window), _window(out[1], window)
+        if it == iterations:
+            break
+        ok = Sjj > 0
+        step = np.clip(np.where(ok, -Sjr / np.where(ok, Sjj, 1.0), 0.0),
+                       -MAX_STEP_SAMPLES / smax, MAX_STEP_SAMPLES / smax)
+        rho = np.maximum(rho + step, 0.0)
+        if float(np.max(np.abs(step[ok]), initial=0.0)) * smax < CONVERGED_SAMPLES:
+            _terms_kernel(img, gu, gv, w, has_w, MIN_W, su, sv, rho, out)
+            Sjj = _window(out[0], window)
+            break
+    Srr = _window(out[2], window)
+    # the residual's expected noise energy: Σ w (n − n̄)² = σ² (Σ w − Σ w² / Σ w)
+    Nr = noise_s * _window(np.maximum(out[3] - out[4], 0.0), window)
+    explained = rho * rho * Sjj
+    unexplained = np.maximum(Srr - Nr, 0.0) + noise_rho
+    valid = (Sjj > 0) & (rho > 0) & (_window((out[3] > 0).astype(np.float32), window) > 0.5)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        conf = np.where(valid & (explained > 0), explained / np.maximum(unexplained, CONFIDENCE_FLOOR * explained), 0.0)
+        cons = np.where(valid, explained / np.maximum(explained + Srr, 1e-30), 0.0)
+    return rho, np.nan_to_num(conf), cons, valid, it
+
+
+def _start(rho: np.ndarray, fallback: float) -> np.ndarray:
+    """A target view's starting ρ: NaN → the view's median (``fallback`` without any), and at most
+    its 99th percentile (a stray depth near 0 could not come back half a sample per step)."""
+    if not np.any(np.isfinite(rho)):
+        return np.full(rho.shape, fallback)
+    start, top = np.nanpercentile(rho, [50, 99])
+    return np.where(np.isfinite(rho), np.minimum(rho, top), start)
+
+
 def refine_depth(g: np.ndarray, grid: LightFieldGrid, Z0: np.ndarray, *, sources: np.ndarray,
                  targets: np.ndarray, W: np.ndarray | None = None, window: int = 4, iterations: int = 8,
-                 noise_var: float = 0.0) -> DepthMap:
+                 noise_var: float = 0.0, progress: Callable[[int, int], None] | None = None) -> DepthMap:
     """Refine the depth ``Z0`` of the ``targets`` views by matching the ``sources`` views' samples.
 
     ``g``: (F, Ny, Nx, Nv, Nu) one frame's grey light field. ``Z0``: (F, Ny, Nx, Nv, Nu) [m]
@@ -153,7 +195,8 @@ def refine_depth(g: np.ndarray, grid: LightFieldGrid, Z0: np.ndarray, *, sources
     field's confidence, dims of ``g`` (None: every sample has data); a source's sample counts with
     weight W where ``W > MIN_W``. ``window``: the (u, v) neighbourhood, as the depth fusion's.
     ``noise_var``: the sensor noise's variance per sample (0: the confidence counts the misfit
-    only). Returns a DepthMap of ``g``'s dims, its values at the targets (NaN / 0 elsewhere).
+    only). ``progress``: called ``progress(done, total)`` after each target view. Returns a
+    DepthMap of ``g``'s dims, its values at the targets (NaN / 0 elsewhere).
     """
     g = np.asarray(g, np.float32)
     F, Ny, Nx, Nv, Nu = g.shape
@@ -168,67 +211,39 @@ def refine_depth(g: np.ndarray, grid: LightFieldGrid, Z0: np.ndarray, *, sources
     # the noise variance of one smoothed sample (the 2-D prefilter), and that of ρ times Σ J²: the
     # window's weights convolved with the prefilter (the window over smoothed noise), σ² ‖w ∗ p‖²
     noise_s = float(noise_var) * float(np.sum(np.square(pair.prefilter))) ** 2
-    noise_rho = np.float32(float(noise_var) * window_weight_energy(window + 2))
+    noise_rho = float(noise_var) * window_weight_energy(window + 2)
     Z0 = np.asarray(Z0, float)
+    total, done = int(targets.sum()), 0
     for k, face in enumerate(grid.faces):
         src = np.argwhere(np.isfinite(sources[k, :, :, 0]))               # (S, 2) views holding the data
         tgt = np.argwhere(targets[k])
-        if len(src) < 2 or len(tgt) == 0:
-            continue
-        img, gu, gv = _smoothed(g[k, src[:, 0], src[:, 1]])
-        has_w = W is not None
-        w = (np.ascontiguousarray(np.asarray(W, np.float32)[k, src[:, 0], src[:, 1]]) if has_w
-             else np.ones((1, 1, 1), np.float32))
-        pos = sources[k, src[:, 0], src[:, 1]]                              # (S, 2) (iy, ix)
         rho_all = _rho_of(face.f, Z0[k, tgt[:, 0], tgt[:, 1]])               # (T, Nv, Nu)
-        fallback = np.nanmedian(rho_all) if np.any(np.isfinite(rho_all)) else np.nan
-        if not np.isfinite(fallback):
-            continue
-        for t, (jy, ix) in enumerate(tgt):
-            # the source's shift per unit ρ [samples]: its viewpoint's offset over the (u, v) steps
-            su = (pos[:, 1] - ix) * (grid.x.step if Nx > 1 else 0.0) / grid.u.step
-            sv = (pos[:, 0] - jy) * (grid.y.step if Ny > 1 else 0.0) / grid.v.step
-            smax = float(np.max(np.hypot(su, sv)))
-            if smax <= 0:
-                continue
-            rho = rho_all[t]
-            if np.any(np.isfinite(rho)):
-                # a start beyond the view's 99th percentile (a stray depth near 0) cannot come back
-                # half a sample per step: it starts there instead
-                start, top = np.nanpercentile(rho, [50, 99])
-                rho = np.minimum(rho, top)
-            else:
-                start = fallback
-            rho = np.where(np.isfinite(rho), rho, start)
-            out = np.empty((5, Nv, Nu), np.float32)
-            for it in range(iterations + 1):
-                _terms_kernel(img, gu, gv, w, has_w, MIN_W, su, sv, rho, out)
-                Sjj, Sjr = _window(out[0], window), _window(out[1], window)
-                if it == iterations:
-                    break
-                ok = Sjj > 0
-                step = np.where(ok, -Sjr / np.where(ok, Sjj, 1.0), 0.0)
-                step = np.clip(step, -MAX_STEP_SAMPLES / smax, MAX_STEP_SAMPLES / smax)
-                rho = np.maximum(rho + step, 0.0)
-                moved = float(np.max(np.abs(step[ok]), initial=0.0)) * smax
-                if moved < CONVERGED_SAMPLES:
-                    _terms_kernel(img, gu, gv, w, has_w, MIN_W, su, sv, rho, out)
-                    Sjj, Sjr = _window(out[0], window), _window(out[1], window)
-                    break
-            Srr = _window(out[2], window)
-            # the residual's expected noise energy: Σ w (n − n̄)² = σ² (Σ w − Σ w² / Σ w)
-            Nr = noise_s * _window(np.maximum(out[3] - out[4], 0.0), window)
-            explained = rho * rho * Sjj
-            unexplained = np.maximum(Srr - Nr, 0.0) + noise_rho
-            valid = (Sjj > 0) & (rho > 0) & (_window((out[3] > 0).astype(np.float32), window) > 0.5)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                c = np.where(valid & (explained > 0),
-                             explained / np.maximum(unexplained, CONFIDENCE_FLOOR * explained), 0.0)
-                Z[k, jy, ix] = np.where(valid, face.f / rho, np.nan)
-                cons[k, jy, ix] = np.where(valid, explained / np.maximum(explained + Srr, 1e-30), 0.0)
-            conf[k, jy, ix] = np.nan_to_num(c)
-            log.debug("refine_depth: face %s view (%d, %d): %d sources, %d iterations, %.0f%% valid",
-                      face.name, jy, ix, len(src), it, 100 * float(np.mean(valid)))
+        if len(src) >= 2 and np.any(np.isfinite(rho_all)):
+            img, gu, gv = _smoothed(g[k, src[:, 0], src[:, 1]])
+            has_w = W is not None
+            w = (np.ascontiguousarray(np.asarray(W, np.float32)[k, src[:, 0], src[:, 1]]) if has_w
+                 else np.ones((1, 1, 1), np.float32))
+            pos = sources[k, src[:, 0], src[:, 1]]                          # (S, 2) (iy, ix)
+            fallback = float(np.nanmedian(rho_all))
+            for t, (jy, ix) in enumerate(tgt):
+                # the sources' shifts per unit ρ [samples]: their viewpoints' offsets over the (u, v) steps
+                su = (pos[:, 1] - ix) * (grid.x.step if Nx > 1 else 0.0) / grid.u.step
+                sv = (pos[:, 0] - jy) * (grid.y.step if Ny > 1 else 0.0) / grid.v.step
+                if np.any(np.hypot(su, sv) > 0):
+                    rho, c, q, valid, it = _refine_view(img, gu, gv, w, has_w, su, sv, _start(rho_all[t], fallback),
+                                                        window, iterations, noise_s, noise_rho)
+                    with np.errstate(divide="ignore"):
+                        Z[k, jy, ix] = np.where(valid, face.f / rho, np.nan)
+                    conf[k, jy, ix], cons[k, jy, ix] = c, q
+                    log.debug("refine_depth: face %s view (%d, %d): %d sources, %d iterations, %.0f%% valid",
+                              face.name, jy, ix, len(src), it, 100 * float(np.mean(valid)))
+                done += 1
+                if progress is not None:
+                    progress(done, total)
+        elif len(tgt):
+            done += len(tgt)
+            if progress is not None:
+                progress(done, total)
     return DepthMap(Z=Z, confidence=conf, consistency=cons)
 
 

@@ -373,8 +373,15 @@ def test_refinement_bad_arguments(rng):
         refine_depth(L0, g, L0, sources=np.zeros((1, 3, 3)), targets=np.ones((1, 3, 3), bool))
     # one source: nothing to match, no depth (not an error)
     one = grid_positions(g, np.eye(3, dtype=bool) & (np.arange(3) == 0))
-    r = refine_depth(L0, g, np.full_like(L0, 2.0), sources=one, targets=np.ones((1, 3, 3), bool))
-    assert np.all(np.isnan(r.Z)) and not np.any(r.confidence)
+    seen = []
+    r = refine_depth(L0, g, np.full_like(L0, 2.0), sources=one, targets=np.ones((1, 3, 3), bool),
+                     progress=lambda done, total: seen.append((done, total)))
+    assert np.all(np.isnan(r.Z)) and not np.any(r.confidence) and seen == [(9, 9)]
+    # with sources, progress after each target view
+    seen.clear()
+    refine_depth(L0, g, np.full_like(L0, 2.0), sources=grid_positions(g, np.ones((3, 3), bool)),
+                 targets=np.eye(3, dtype=bool)[None], progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(1, 3), (2, 3), (3, 3)]
 
 
 # ----------------------------------------------------------------------------- scale selection
