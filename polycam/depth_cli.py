@@ -241,7 +241,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
         best = float(np.max(dm.confidence[views], initial=0.0))
         no_data = not refine and W0 is not None and not np.any(np.asarray(W0)[views] > MIN_W)
         kept = ("kept: no ray with a depth" if best <= 0 else
-                f"kept: the written views {NO_CAPTURED_DATA}" if no_data else
+                f"kept: the written views {NO_CAPTURED_DATA}; --refine on matches the views that hold data" if no_data else
                 f"kept: the best ray's predicted relative std is {100 / np.sqrt(best):.2g} %")
     print(f"wrote {out}: {summary['views']} view depth maps, {summary['points']} points in "
           f"{out / 'points.ply'}; {100 * summary['confident_fraction']:.0f}% of the written views' rays "

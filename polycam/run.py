@@ -330,7 +330,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     if dsum["points"] < UNUSABLE["depth_min_points"]:
         from .depth import NO_CAPTURED_DATA
 
-        why = "" if dsum["data_fraction"] > 0 else f": the central views {NO_CAPTURED_DATA}"
+        why = "" if dsum["data_fraction"] > 0 or dsum["refined_on_views"] else f": the central views {NO_CAPTURED_DATA}"
         raise _fail("depth", f"only {dsum['points']} confident depth rays (need {UNUSABLE['depth_min_points']})"
                     + why)
     _plot_mosaic(report / "mosaic.png", lf.grid, L0)

@@ -133,4 +133,4 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     code = main(["depth", str(out / "lightfield.zarr"), "--traj", str(out / "trajectory.tum"),
                  "--out", str(tmp_path / "depth_off"), "--refine", "off"])
     cap = capsys.readouterr()
-    assert code == 0 and "0 points" in cap.out and "no captured data" in cap.out, cap.out
+    assert code == 0 and "0 points" in cap.out and "no captured data" in cap.out and "--refine on" in cap.out, cap.out
