@@ -25,8 +25,9 @@ between its two cameras.
 
 The confidence keeps :class:`~polycam.depth.DepthMap`'s meaning, ``λ² / var(λ) = ρ² / var(ρ)``:
 the energy ρ explains (``ρ² Σ J²``, J the centred ``dI/dρ``) over what it leaves, the residual's
-misfit beyond the sensor noise plus the noise's share ``κ`` (:func:`polycam.depth.window_weight_energy`).
-Measured in docs/depth.md, "Refinement on the captured views". This module does no I/O.
+misfit beyond the sensor noise plus the noise of ρ itself, ``σ² ‖w ∗ p‖²`` (the window's weights
+convolved with the prefilter: :func:`polycam.depth.window_weight_energy` of a window one prefilter
+wider). Measured in docs/depth.md, "Refinement on the captured views". This module does no I/O.
 """
 
 from __future__ import annotations
@@ -139,6 +140,13 @@ def _window(a: np.ndarray, window: int) -> np.ndarray:
     return window_sum(a[None, None, None], window)[0, 0, 0]
 
 
+def _rho_of(f: float, Z: np.ndarray) -> np.ndarray:
+    """ρ = f / Z where Z is finite and positive, NaN elsewhere."""
+    ok = np.isfinite(Z) & (Z > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ok, f / np.where(ok, Z, 1.0), np.nan)
+
+
 def _refine_view(img, gu, gv, w, has_w: bool, su: np.ndarray, sv: np.ndarray, rho: np.ndarray, window: int,
                  iterations: int, noise_s: float, noise_rho: float) -> tuple[np.ndarray, ...]:
     """Gauss–Newton on one target view's ρ (Nv, Nu) from its start: (ρ, confidence, consistency,
@@ -245,10 +253,3 @@ def refine_depth(g: np.ndarray, grid: LightFieldGrid, Z0: np.ndarray, *, sources
             if progress is not None:
                 progress(done, total)
     return DepthMap(Z=Z, confidence=conf, consistency=cons)
-
-
-def _rho_of(f: float, Z: np.ndarray) -> np.ndarray:
-    """ρ = f / Z where Z is finite and positive, NaN elsewhere."""
-    ok = np.isfinite(Z) & (Z > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(ok, f / np.where(ok, Z, 1.0), np.nan)

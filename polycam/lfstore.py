@@ -16,7 +16,7 @@ Contents:
   are allowed and ignored (room for provenance).
 * attribute ``camera_positions`` (optional; written by ``polycam resample`` for cameras on
   the focal plane): ``[[face, iy, ix], ...]``, one per camera, its centre's position in
-  fractional grid indices; the camera's data are at the view ``(round(iy), round(ix))``
+  fractional grid indices; the camera's data are at the view ``(round(iy), round(ix))`` (Python's round)
   (:func:`camera_positions_attr`, :attr:`LightFieldStore.camera_positions`).
 * file ``groundtruth.tum`` (optional): ``T_world_rig`` per frame.
 
@@ -283,7 +283,7 @@ def _parse_camera_positions(p: Path, value: Any, grid: LightFieldGrid) -> np.nda
                 or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and np.isfinite(a) for a in e[1:])):
             raise FormatError(p, f"entry {n}: expected [face, iy, ix] (an integer and two numbers), got {e!r}", field)
         k, fy, fx = int(e[0]), float(e[1]), float(e[2])
-        j, i = int(np.floor(fy + 0.5)), int(np.floor(fx + 0.5))
+        j, i = int(round(fy)), int(round(fx))           # as resample.viewfill.camera_positions assigns them
         if not (0 <= k < F and 0 <= j < Ny and 0 <= i < Nx):
             raise FormatError(p, f"entry {n}: [{k}, {fy}, {fx}] is off the grid's {F} face(s) x {Ny}x{Nx} views",
                               field)
