@@ -94,12 +94,10 @@ class ViewFillOptions:
     """After the sweep, try ``±disparity_step`` around it at full resolution. None (default): when
     some filled view's nearest source is about 2 or more view steps away (:func:`far_sources`: a grid
     with 4 views per camera spacing, as ``polycam run`` takes for linear arrays), where an error of
-    the disparity per view step counts that many times at the sources. Measured on ``polycam synth``
-    sessions (true models, 15-20 frame pairs per rig; docs/resample.md): with 4 views per camera
-    spacing the median translation / rotation error webcam3x3 3.86 / 1.71 % → 3.08 / 1.13 %, oak_array
-    7.93 / 3.14 → 6.12 / 2.06 %, mock5x5 2.17 / 0.86 → 1.91 / 0.68 %, mock1x5 2.93 / 0.87 → 2.53 /
-    0.97 %, oak_d_lite 4.42 / 1.99 → 4.32 / 1.74 %; with 2 per spacing (sources one step away) within
-    ±0.2 points either way, at twice the fill's time."""
+    the disparity per view step counts that many times at the sources. Measured
+    (benchmarks/bench_view_fill.py; docs/resample.md, step 5): with 4 views per camera spacing the
+    median translation error of five example rigs 2–23 % lower (webcam3x3 3.86 → 3.08 %), with 2
+    within ±0.2 points either way, at twice the fill's time."""
     holes: bool = False
     """Also re-fill the holes (``W <= 0.5``) of the measured views, from the measured views
     around them (the pull-push fills them depth-free from the neighbouring views)."""
