@@ -97,7 +97,7 @@ class ViewFillOptions:
     the disparity per view step counts that many times at the sources. Measured
     (benchmarks/bench_view_fill.py; docs/resample.md, step 5): with 4 views per camera spacing the
     median translation error of five example rigs 2–23 % lower (webcam3x3 3.86 → 3.08 %), with 2
-    within ±0.2 points either way, at twice the fill's time."""
+    within ±0.3 points either way, at twice the fill's time."""
     holes: bool = False
     """Also re-fill the holes (``W <= 0.5``) of the measured views, from the measured views
     around them (the pull-push fills them depth-free from the neighbouring views)."""
