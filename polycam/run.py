@@ -323,8 +323,10 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     s = time.perf_counter() - t0
     dsum["seconds"] = s
     summary["depth"] = dsum
+    how = (f"refined on {dsum['refined_on_views']} camera views" if dsum["refined_on_views"] else
+           "Eq. 7 alone: the calibrated cameras are off the focal plane, docs/depth.md")
     echo(f"depth     {report / 'depth.png'}: {100 * dsum['confident_fraction']:.0f}% of the central view's rays "
-         f"confident, median depth {dsum['median_depth_m']:.2f} m, median error vs truth "
+         f"confident ({how}), median depth {dsum['median_depth_m']:.2f} m, median error vs truth "
          f"{100 * dsum['median_rel_error']:.1f}% ({dsum['truth_rays']} rays); {dsum['points']} points in "
          f"{report / 'points.ply'} ({s:.1f} s)")
     if dsum["points"] < UNUSABLE["depth_min_points"]:

@@ -125,6 +125,8 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     d = tomllib.loads((out / "report" / "summary.toml").read_text())["depth"]
     assert d["refined_on_views"] == 2 and d["data_fraction"] == 0 and d["views"] == "1x1"
     assert d["points"] > 1000 and d["median_rel_error"] < E2E_RUN_PAIR_DEPTH_REL
+    depth = [line for line in cap.out.splitlines() if line.startswith("depth")]
+    assert len(depth) == 1 and "refined on 2 camera views" in depth[0], cap.out
     code = main(["depth", str(out / "lightfield.zarr"), "--traj", str(out / "trajectory.tum"),
                  "--out", str(tmp_path / "depth")])
     cap = capsys.readouterr()
