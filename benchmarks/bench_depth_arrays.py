@@ -34,8 +34,10 @@ sys.path.insert(0, str(REPO))
 
 from polycam.geometry import T_inverse  # noqa: E402
 from polycam.rig import MockSpec, load_rig  # noqa: E402
-from polycam.run import MIN_VIEWS, RunOptions, _depth  # noqa: E402
+from polycam.run import RunOptions, _depth, run_grid  # noqa: E402
+from polycam.session import open_session  # noqa: E402
 from polycam.synth import scene_for_rig, synth_session  # noqa: E402
+from resample.pipeline import open_calibration  # noqa: E402
 from resample.stream import SessionLightField  # noqa: E402
 
 from bench_arrays import add_keep_option, sessions_root  # noqa: E402  (this folder)
@@ -44,11 +46,8 @@ from bench_arrays import add_keep_option, sessions_root  # noqa: E402  (this fol
 def depth_both(session: Path, rig, report: Path) -> dict:
     """``polycam run``'s depth stage on the session's first pair, without and with the refinement."""
     opts = RunOptions()
-    lf = SessionLightField(session, uv_step_px=opts.uv_step_px, xy_oversample=2)
-    every = 2
-    if min(lf.grid.x.count, lf.grid.y.count) < MIN_VIEWS:
-        every = 4
-        lf = SessionLightField(session, uv_step_px=opts.uv_step_px, xy_oversample=every)
+    grid, every = run_grid(open_calibration(open_session(session), None), opts)
+    lf = SessionLightField(session, grid=grid)
     truth = lf.groundtruth()
     T = T_inverse(truth.T_world_rig[0]) @ truth.T_world_rig[1]
     L0, L1, W0 = lf.frame(0), lf.frame(1), lf.weights(0)

@@ -243,16 +243,11 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          f"{math.degrees(step_r):.2f} deg per frame; truth: {', '.join(rec['truth'])} ({s:.1f} s)")
 
     # 4. resampling with the calibrated models
-    from resample.grid import auto_grid
     from resample.pipeline import resample_session
 
     t0 = time.perf_counter()
     with bar("4/6 resample", None) as adv, _stage("resample"):
-        xy_oversample = opts.xy_oversample or 2
-        grid = auto_grid(cal.models, uv_step_px=opts.uv_step_px, xy_oversample=xy_oversample)
-        if opts.xy_oversample is None and min(grid.x.count, grid.y.count) < MIN_VIEWS:
-            xy_oversample = 4
-            grid = auto_grid(cal.models, uv_step_px=opts.uv_step_px, xy_oversample=xy_oversample)
+        grid, xy_oversample = run_grid(cal.models, opts)
         rs = resample_session(out / "session", out / "lightfield.zarr", calib_dir=out / "calib", grid=grid,
                               scheduler="sync", overwrite=True, progress=adv)
     s = time.perf_counter() - t0
@@ -511,6 +506,20 @@ def write_ply(path: str | os.PathLike, points, values=None) -> None:
         g = np.clip(np.round(np.asarray(values, float).reshape(-1) * 255), 0, 255).astype(int)
         np.savetxt(buf, np.column_stack([P, g, g, g]), fmt=["%.5f"] * 3 + ["%d"] * 3)
     atomic_write_text(path, buf.getvalue())
+
+
+def run_grid(models: dict, opts: RunOptions):
+    """(grid, views per camera spacing) of ``polycam run``'s light field for cameras ``models``:
+    ``resample.auto_grid`` with ``opts.uv_step_px`` and ``opts.xy_oversample`` (None: 2, or 4 when
+    2 gives fewer than :data:`MIN_VIEWS` views along x or y)."""
+    from resample.grid import auto_grid
+
+    every = opts.xy_oversample or 2
+    grid = auto_grid(models, uv_step_px=opts.uv_step_px, xy_oversample=every)
+    if opts.xy_oversample is None and min(grid.x.count, grid.y.count) < MIN_VIEWS:
+        every = 4
+        grid = auto_grid(models, uv_step_px=opts.uv_step_px, xy_oversample=every)
+    return grid, every
 
 
 def _camera_indices(n: int, every: int, h: int | None = None) -> list[int]:
