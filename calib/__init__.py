@@ -6,9 +6,9 @@ Heavy dependencies (mrcal, OpenCV, pycolmap) are imported inside the functions.
 """
 
 from .align import RigFit, fit_rig_frame, fit_similarity, rotation_angle
-from .board_solve import (LENSMODEL_CHOICES, BoardCalibration, CameraStats, board_distance, calibrate_board,
-                          camera_graph, extrinsics_uncertainty, lens_rotation, lensmodel_name, observation_residuals, uncertainty_grid,
-                          valid_region_contour)
+from .board_solve import (LENSMODEL_CHOICES, BoardCalibration, CameraStats, board_distance, board_rms_px,
+                          calibrate_board, camera_graph, extrinsics_uncertainty, lens_rotation, lensmodel_name,
+                          observation_residuals, state_covariance, uncertainty_grid, valid_region_contour)
 from .colmap import ColmapCalibration, calibrate_colmap, reconstruct_images, write_colmap_report
 from .colmap_text import (ColmapCamera, ColmapImage, colmap_to_mrcal, import_colmap_text, mrcal_to_colmap,
                           read_colmap_text, rig_config, write_colmap_text, write_rig_config)
@@ -24,7 +24,7 @@ __all__ = [
     "SKIP_REASONS", "Detection", "BoardObservations", "detect_board", "detect_session", "sharpness",
     # mrcal board solve
     "LENSMODEL_CHOICES", "lensmodel_name", "camera_graph", "BoardCalibration", "CameraStats", "calibrate_board",
-    "observation_residuals", "board_distance", "extrinsics_uncertainty", "lens_rotation", "uncertainty_grid", "valid_region_contour",
+    "observation_residuals", "board_distance", "extrinsics_uncertainty", "state_covariance", "board_rms_px", "lens_rotation", "uncertainty_grid", "valid_region_contour",
     # rig frame
     "RigFit", "fit_rig_frame", "fit_similarity", "rotation_angle",
     # COLMAP target-free calibration

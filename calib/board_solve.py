@@ -53,6 +53,8 @@ __all__ = [
     "observation_residuals",
     "board_distance",
     "extrinsics_uncertainty",
+    "state_covariance",
+    "board_rms_px",
     "lens_rotation",
     "uncertainty_grid",
     "valid_region_contour",
@@ -241,7 +243,7 @@ def _stats(inputs: dict, obs: BoardObservations, initial_weight: np.ndarray) -> 
         sel = idx[:, 1] == ci
         ei, mi = e[sel], inl[sel]
         vals = ei[mi]
-        rms = float(np.sqrt(np.mean(vals**2) / 2.0)) if vals.size else float("nan")
+        rms = _rms_per_coordinate(vals)
         if vals.size:
             k = int(np.argmax(np.where(mi, ei, -1).reshape(len(ei), -1).max(axis=1)))
             worst = float(vals.max())
@@ -251,8 +253,7 @@ def _stats(inputs: dict, obs: BoardObservations, initial_weight: np.ndarray) -> 
         outl = int(np.count_nonzero((initial_weight[sel] > 0) & ~mi))
         out[cam] = CameraStats(views=int(sel.sum()), corners=int(mi.sum()), outliers=outl, rms_px=rms,
                                worst_px=worst, worst_path=worst_path)
-    allv = e[inl]
-    return float(np.sqrt(np.mean(allv**2) / 2.0)), out
+    return _rms_per_coordinate(e[inl]), out
 
 
 def _focal_estimates(obs: BoardObservations, rig: Rig | None) -> np.ndarray:
@@ -268,41 +269,59 @@ def board_distance(inputs: dict) -> float:
     return float(np.median(np.linalg.norm(inputs["rt_ref_frame"][:, 3:], axis=1)))
 
 
-def extrinsics_uncertainty(inputs: dict, noise_px: float) -> np.ndarray:
-    """(C, 2) predicted 1-sigma errors of each camera's pose relative to camera 0 (the solve's
-    reference): column 0 the rotation [rad], column 1 the position [m], each the square root of
-    the trace of its 3x3 covariance block (so a 3-D error magnitude); row 0 (camera 0) is 0.
+def state_covariance(inputs: dict, noise_px: float, columns: np.ndarray) -> np.ndarray:
+    """(n, n) covariance of the solve's state entries ``columns`` ((n,) int indices into mrcal's
+    state vector, e.g. from ``mrcal.state_index_intrinsics``), in their own (unpacked) units.
 
-    The covariance is mrcal's own first-order propagation of independent Gaussian corner
-    noise of ``noise_px`` per coordinate (for weight-1 corners; a corner of weight w has
-    ``noise_px / w``) through the final solve: ``Var(b) = σ² (JᵀJ)⁻¹ J_obsᵀ J_obs (JᵀJ)⁻¹``
-    with J the Jacobian at the optimum (regularisation included in JᵀJ, as
-    ``mrcal.projection_uncertainty`` does). inputs: the solve's ``optimization_inputs``.
+    mrcal's first-order propagation of independent Gaussian corner noise of ``noise_px`` per
+    coordinate (for weight-1 corners; a corner of weight w has ``noise_px / w``) through the final
+    solve: ``Var(b) = σ² (JᵀJ)⁻¹ J_obsᵀ J_obs (JᵀJ)⁻¹`` with J the Jacobian at the optimum
+    (regularisation included in JᵀJ, as ``mrcal.projection_uncertainty`` does). Only the n
+    requested columns of the inverse are solved for (a sparse factorisation), so large problems
+    (thousands of board poses) stay cheap. inputs: the solve's ``optimization_inputs``.
     """
     from scipy.sparse.linalg import splu
 
     mrcal = _mrcal()
+    columns = np.asarray(columns, dtype=np.int64)
     _, _, J, _ = mrcal.optimizer_callback(**inputs, no_factorization=True)
     J = J.tocsr()
-    n_obs = mrcal.num_measurements_boards(**inputs)
-    Jo = J[:n_obs]
+    Jo = J[:mrcal.num_measurements_boards(**inputs)]
+    n = J.shape[1]
+    E = np.zeros((n, len(columns)))
+    E[columns, np.arange(len(columns))] = 1.0
+    X = splu((J.T @ J).tocsc()).solve(E)                      # the requested columns of (JᵀJ)⁻¹
+    A = X.T @ (Jo.T @ (Jo @ X))                               # packed covariance
+    scale = np.ones(n)
+    mrcal.unpack_state(scale, **inputs)
+    sc = scale[columns]
+    return float(noise_px) ** 2 * A * sc[:, None] * sc[None, :]
+
+
+def board_rms_px(inputs: dict) -> float:
+    """[px] RMS per coordinate of the inlier corners' reprojection errors of a solve (the noise
+    :func:`state_covariance` takes; the report's ``rms_px``)."""
+    err, w = observation_residuals(inputs)
+    return _rms_per_coordinate(np.linalg.norm(err, axis=-1)[w > 0])
+
+
+def _rms_per_coordinate(e: np.ndarray) -> float:
+    """RMS per coordinate of 2-D error norms e: √(mean e² / 2) (NaN without any)."""
+    return float(np.sqrt(np.mean(e**2) / 2.0)) if e.size else float("nan")
+
+
+def extrinsics_uncertainty(inputs: dict, noise_px: float) -> np.ndarray:
+    """(C, 2) predicted 1-sigma errors of each camera's pose relative to camera 0 (the solve's
+    reference): column 0 the rotation [rad], column 1 the position [m], each the square root of
+    the trace of its 3x3 covariance block (so a 3-D error magnitude); row 0 (camera 0) is 0.
+    The covariance is :func:`state_covariance`'s. inputs: the solve's ``optimization_inputs``.
+    """
+    mrcal = _mrcal()
     n_ext = inputs["rt_cam_ref"].shape[0]
     i0 = mrcal.state_index_extrinsics(0, **inputs)
     if i0 is None or i0 < 0 or n_ext == 0:
         return np.zeros((n_ext + 1, 2))
-    sl = slice(i0, i0 + 6 * n_ext)
-    # X = (JᵀJ)⁻¹ E (E: the extrinsics' columns of the identity), by a sparse factorisation:
-    # only 6 (C-1) columns of the inverse are needed, so large problems (thousands of board
-    # poses) stay cheap
-    n = J.shape[1]
-    E = np.zeros((n, 6 * n_ext))
-    E[np.arange(sl.start, sl.stop), np.arange(6 * n_ext)] = 1.0
-    X = splu((J.T @ J).tocsc()).solve(E)
-    A = X.T @ (Jo.T @ (Jo @ X))                               # packed covariance of the extrinsics
-    scale = np.ones(n)
-    mrcal.unpack_state(scale, **inputs)
-    sc = scale[sl]
-    cov = float(noise_px) ** 2 * A * sc[:, None] * sc[None, :]
+    cov = state_covariance(inputs, noise_px, np.arange(i0, i0 + 6 * n_ext))
     out = np.zeros((n_ext + 1, 2))
     for k in range(n_ext):
         b = cov[6 * k:6 * k + 6, 6 * k:6 * k + 6]

@@ -87,6 +87,7 @@ DEPTH_PLY_ATOL = 1e-5             # [m] PLY coordinates (ASCII %.5f, binary floa
 E2E_RUN_PAIR_DEPTH_REL = 0.3      # the same on a stereo pair of 160x120 px 5 cm apart (12 board frames), its middle view refined on the two cameras (measured 0.17: the 2-camera calibration is 1.2 deg off; 0.076 with 25 board frames)
 E2E_RUN_DEPTH_REL = 0.6           # median relative depth error vs the ray tracer, `polycam run` on the 3x3 160x120 test rig (measured 37%: its calibration is ~6 mm off)
 CALIB_UNCERTAINTY_DRAWS = 8           # noise draws comparing calib.extrinsics_uncertainty with the measured scatter
+CALIB_DRAWS_FACTOR_REL = 1e-8        # L Lᵀ against the calibration covariance it factors (calib.draws.covariance_factor)
 CALIB_UNCERTAINTY_RATIO = 1.6         # allowed factor between measured RMS pose error and mrcal's predicted sigma (8 draws x 2 cameras)
 CALIB_SPLINED_BUNDLE_DEG = 0.01       # [deg] noise-free splined solve: spread of the per-camera rig-frame ray-bundle rotations vs truth
 CALIB_SPLINED_RIG_DEG = 1.0           # [deg] the same bundles' common rotation (rig frame from the bundles' orientations; was 3.1 deg from the raw extrinsics)

@@ -1,0 +1,115 @@
+"""Camera models drawn from a board calibration's own uncertainty (calib.draws) and the
+calibration's share of the motion covariance (polycam.calib_spread; `--calib-draws` end to end is
+in tests/test_run.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from polycam.errors import InputError
+
+from test_calib import _exact_problem
+from tolerances import CALIB_DRAWS_FACTOR_REL, CALIB_UNCERTAINTY_DRAWS, CALIB_UNCERTAINTY_RATIO
+
+NOISE_PX = 0.3
+
+
+def _calibrate(rig, board, true, poses, seed: int):
+    from calib import calibrate_board
+    from calib.synthetic import synthetic_observations
+
+    obs = synthetic_observations(true, board, poses, noise_px=NOISE_PX, rng=np.random.default_rng(seed))
+    return calibrate_board(obs, rig, lensmodel="opencv4", valid_region=False, board_warp=False,
+                           outlier_rejection=False)
+
+
+def test_calibration_covariance_predicts_the_scatter_of_repeated_calibrations(tmp_path):
+    """The joint covariance read from the models: its pose blocks are extrinsics_uncertainty's, its
+    noise the solve's RMS, and its lens-parameter block predicts how the focal lengths and centres
+    of calibrations of the same board poses scatter over noise draws."""
+    from calib import extrinsics_uncertainty
+    from calib.draws import calibration_covariance
+
+    rig, board, true, poses = _exact_problem(tmp_path, "pinhole")
+    cams = list(true)
+    errors, predicted = [], []
+    for seed in range(CALIB_UNCERTAINTY_DRAWS):
+        cal = _calibrate(rig, board, true, poses, seed)
+        cc = calibration_covariance(cal.models)
+        assert cc.cameras == tuple(cal.models) and cc.dim == 3 * 8 + 2 * 6      # OPENCV4: 8 lens parameters
+        assert cc.extrinsics[0] is None and all(cc.extrinsics[1:])
+        assert 0.8 * NOISE_PX < cc.noise_px < 1.05 * NOISE_PX
+        if seed == 0:
+            sigma = extrinsics_uncertainty(cal.optimization_inputs, cc.noise_px)
+            for k in range(1, len(cams)):
+                b = cc.covariance[cc.extrinsics[k], cc.extrinsics[k]]
+                np.testing.assert_allclose([math.sqrt(np.trace(b[:3, :3])), math.sqrt(np.trace(b[3:, 3:]))],
+                                           sigma[k], rtol=1e-9)
+        for k, c in enumerate(cams):
+            p = cal.models[c].intrinsics()[1]
+            p_true = true[c].intrinsics()[1]
+            errors.append(p[:4] - p_true[:4])                                   # fx, fy, cx, cy [px]
+            predicted.append(np.sqrt(np.diag(cc.covariance)[cc.intrinsics[k]][:4]))
+    errors, predicted = np.array(errors), np.array(predicted)
+    for axis in range(4):
+        ratio = math.sqrt(np.mean(errors[:, axis] ** 2)) / math.sqrt(np.mean(predicted[:, axis] ** 2))
+        assert 1 / CALIB_UNCERTAINTY_RATIO <= ratio <= CALIB_UNCERTAINTY_RATIO, (axis, ratio)
+
+
+def test_drawn_models_move_the_solved_parameters_by_the_draw(tmp_path):
+    """A draw moves each camera's lens parameters and its pose relative to the solve's reference
+    camera by exactly its share of δ = L z (L Lᵀ the covariance); z = 0 gives the models back; the
+    reference camera keeps its rig-frame pose."""
+    import mrcal
+
+    from calib.draws import calibration_covariance, covariance_factor, drawn_models
+
+    rig, board, true, poses = _exact_problem(tmp_path, "pinhole")
+    cal = _calibrate(rig, board, true, poses, 0)
+    models = cal.models
+    cc = calibration_covariance(models)
+    L = covariance_factor(cc)
+    s = np.sqrt(np.diag(cc.covariance))                     # compared as correlations (mixed units)
+    np.testing.assert_allclose((L @ L.T) / np.outer(s, s), cc.covariance / np.outer(s, s), rtol=0,
+                               atol=CALIB_DRAWS_FACTOR_REL)
+    same = drawn_models(models, cc, np.zeros(cc.dim))
+    for c in models:
+        np.testing.assert_allclose(same[c].intrinsics()[1], models[c].intrinsics()[1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(same[c].rt_cam_ref(), models[c].rt_cam_ref(), rtol=0, atol=1e-12)
+    z = np.random.default_rng(5).standard_normal(cc.dim)
+    for sign in (1.0, -1.0):
+        d = L @ (sign * z)
+        drawn = drawn_models(models, cc, sign * z, L)
+        ref = [c for k, c in enumerate(cc.cameras) if cc.extrinsics[k] is None][0]
+        np.testing.assert_allclose(drawn[ref].rt_cam_ref(), models[ref].rt_cam_ref(), rtol=0, atol=1e-12)
+        for k, c in enumerate(cc.cameras):
+            assert drawn[c].optimization_inputs() is None
+            np.testing.assert_allclose(drawn[c].intrinsics()[1] - models[c].intrinsics()[1], d[cc.intrinsics[k]],
+                                       rtol=1e-9, atol=1e-12)
+            if cc.extrinsics[k] is not None:
+                # the drawn pose relative to the reference camera (whose rig pose did not move)
+                rt_rel = mrcal.compose_rt(drawn[c].rt_cam_ref(), mrcal.invert_rt(drawn[ref].rt_cam_ref()))
+                np.testing.assert_allclose(rt_rel, cc.rt_cam_ref[k] + d[cc.extrinsics[k]], rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="z must be"):
+        drawn_models(models, cc, np.zeros(cc.dim + 1))
+
+
+def test_models_without_a_calibration_covariance_are_refused(tmp_path):
+    """Nominal models (no optimisation record) and models of two different solves: an InputError
+    naming the camera."""
+    from calib.draws import calibration_covariance
+
+    rig, board, true, poses = _exact_problem(tmp_path, "pinhole")
+    with pytest.raises(InputError, match="no optimisation record"):
+        calibration_covariance(true)
+    a = _calibrate(rig, board, true, poses, 0).models
+    b = _calibrate(rig, board, true, poses, 1).models
+    cams = list(a)
+    mixed = {cams[0]: a[cams[0]], **{c: b[c] for c in cams[1:]}}
+    with pytest.raises(InputError, match=f"camera {cams[1]}: its model is not from the same board calibration"):
+        calibration_covariance(mixed)
+    with pytest.raises(InputError, match="no camera models"):
+        calibration_covariance({})
