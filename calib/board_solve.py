@@ -291,7 +291,7 @@ def state_covariance(inputs: dict, noise_px: float, columns: np.ndarray) -> np.n
     E = np.zeros((n, len(columns)))
     E[columns, np.arange(len(columns))] = 1.0
     X = splu((J.T @ J).tocsc()).solve(E)                      # the requested columns of (JᵀJ)⁻¹
-    A = X.T @ (Jo.T @ (Jo @ X))                               # packed covariance
+    A = X.T @ ((Jo.T @ Jo) @ X)             # packed covariance (J_oᵀJ_o first: sparse, state-sized)
     scale = np.ones(n)
     mrcal.unpack_state(scale, **inputs)
     sc = scale[columns]

@@ -68,10 +68,11 @@ def calibration_covariance(models: dict) -> CalibrationCovariance:
     cams = tuple(models)
     if not cams:
         raise InputError("calibration draws: no camera models")
-    inputs = models[cams[0]].optimization_inputs()
-    if inputs is None:
-        raise InputError(f"camera {cams[0]}: its model has no optimisation record (a board calibration's "
+    bare = [c for c in cams if models[c].icam_intrinsics() is None]     # (cheaper than decoding each
+    if bare:                                                                # model's optimization_inputs)
+        raise InputError(f"camera {bare[0]}: its model has no optimisation record (a board calibration's "
                          "optimization_inputs), so the calibration's uncertainty is unknown")
+    inputs = models[cams[0]].optimization_inputs()
     n_intr = mrcal.num_intrinsics_optimization_params(**inputs)
     n_lens = inputs["intrinsics"].shape[1]
     core, rest = inputs.get("do_optimize_intrinsics_core", True), inputs.get("do_optimize_intrinsics_distortions", True)
@@ -83,8 +84,7 @@ def calibration_covariance(models: dict) -> CalibrationCovariance:
     for c in cams:
         m = models[c]
         ic = m.icam_intrinsics()
-        if m.optimization_inputs() is None or not 0 <= ic < inputs["intrinsics"].shape[0] \
-                or m.intrinsics()[0] != inputs["lensmodel"] \
+        if not 0 <= ic < inputs["intrinsics"].shape[0] or m.intrinsics()[0] != inputs["lensmodel"] \
                 or not np.allclose(m.intrinsics()[1], inputs["intrinsics"][ic], rtol=1e-9, atol=1e-9):
             raise InputError(f"camera {c}: its model is not from the same board calibration as camera {cams[0]}'s")
         i0 = mrcal.state_index_intrinsics(ic, **inputs)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from .cliargs import check_output_file, check_output_folder
 from .cliargs import nonneg_float as _nonneg_float
+from .cliargs import nonneg_int as _nonneg_int
 from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
 
@@ -137,6 +138,17 @@ def cmd_motion(args: argparse.Namespace) -> int:
                         xy_oversample=args.xy_oversample)
     if len(store) < 2:
         raise InputError(f"{src}: has {len(store)} frame(s); motion needs a frame pair (at least 2)")
+    calib_cov = None
+    if args.calib_draws:
+        if not hasattr(store, "resampler"):
+            raise InputError(f"{src}: --calib-draws needs a session and its calibration (a light-field store "
+                             "keeps no camera models)")
+        from calib.draws import calibration_covariance   # the CLI layer may import stages
+
+        try:
+            calib_cov = calibration_covariance(store.models)          # before the solve: fail early
+        except InputError as e:
+            raise InputError(f"{args.calib or src / 'calib'}: {e}") from None
     truth_name = src / "groundtruth.tum"
     if hasattr(store, "resampler"):
         F, Ny, Nx, Nv, Nu = store.grid.shape
@@ -155,6 +167,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
                                                 scale_selection=scale_selection)
         except InputError as e:                       # e.g. a frame with NaNs: name the store
             raise InputError(f"{src}: {e}") from None
+    if calib_cov is not None:
+        results = _with_calibration_draws(store, results, args.calib_draws, opts, scale_selection, calib_cov)
     write_tum(args.out, traj)
     failed = [r for r in results if not r]
     print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"
@@ -195,6 +209,27 @@ def cmd_motion(args: argparse.Namespace) -> int:
                                       scale_selection=scale_selection, preset=args.preset)
         print(f"report in {args.report}: {', '.join(written)}")
     return 0
+
+
+def _with_calibration_draws(store, results, draws: int, opts, scale_selection: bool, cov) -> list:
+    """``polycam motion --calib-draws``: the results with the calibration's share added to their
+    covariance (:func:`polycam.calib_draws_cli.calibration_draws`), and a line saying how large it is."""
+    import time
+
+    from .calib_draws_cli import calibration_draws, calibration_line
+    from .calib_spread import with_calibration
+
+    if not any(results):
+        print("  calibration draws skipped: no pair solved")
+        return results
+    t0 = time.perf_counter()
+    with _progress(f"calibration draws {store.path.name}", 2 * draws) as advance:
+        C, counts = calibration_draws(store.path, store.models, store.grid, draws=draws,
+                                      resample_options=store.resampler.options, motion_options=opts,
+                                      scale_selection=scale_selection, progress=advance, cov=cov)
+    results = with_calibration(results, C)
+    print("  " + calibration_line(results, draws, int(counts.min(initial=draws)), time.perf_counter() - t0))
+    return results
 
 
 def _camera_group(cams: list[str]) -> str:
@@ -383,6 +418,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="pre-smooth (u, v) at the scale where the four depth estimates agree (Sect. 4.1), "
                          "capped by the disparity between views: for grids whose views are far apart for "
                          "the scene; about 1.5x the time per pair (default off; docs/end_to_end.md)")
+    pm.add_argument("--calib-draws", type=_nonneg_int, default=0, metavar="N",
+                    help="SESSION with a board calibration (mrcal): re-solve every pair with N sets of camera "
+                         "models drawn from the calibration's uncertainty, each at +δ and −δ (2N re-solves), and "
+                         "add the estimates' spread to each pair's covariance (default 0: the camera models are "
+                         "taken as exact; docs/motion.md, \"How far to trust the covariance\")")
     add_solver_options(pm)
     pm.set_defaults(func=cmd_motion)
 

@@ -239,7 +239,7 @@ class PairResult:
     """(6, 6) covariance of (t [m], r [rad]) of ``T_prev_next``: ``covariance_noise`` plus
     ``level_change level_changeᵀ`` (the model error the residuals do not show, estimated by how
     far the finest level moved the estimate of the level above it; docs/motion.md, "How far to
-    trust the covariance")."""
+    trust the covariance"), plus ``covariance_calibration`` where it was measured."""
     covariance_noise: np.ndarray
     """(6, 6) the part of ``covariance`` the residuals' scatter explains: a cluster-robust
     sandwich over tiles of rays."""
@@ -276,6 +276,10 @@ class PairResult:
     """(6,) (t [m], r [rad]) of ``T_prev_next`` minus those of the estimate the level above the
     finest (u, v) level handed down to it (NaN with one level: ``covariance`` is then
     ``covariance_noise``)."""
+    covariance_calibration: np.ndarray | None = None
+    """(6, 6) the part of ``covariance`` the camera models' calibration error explains (the spread of
+    the estimate over models drawn from the calibration's uncertainty:
+    :func:`polycam.calib_spread.with_calibration`); None when not measured (the solver alone)."""
 
     @property
     def ok(self) -> bool:

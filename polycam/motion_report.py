@@ -3,15 +3,17 @@
 One row per frame pair ``(i, i+1)``::
 
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
-    std_noise_t,std_noise_r,level_change_t,level_change_r,sigma,noise_sigma,uv_level,view_disparity,
-    condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
+    std_noise_t,std_noise_r,level_change_t,level_change_r,std_calib_t,std_calib_r,sigma,noise_sigma,
+    uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
 the square roots of the covariance diagonal; ``std_noise_t`` [m] and ``std_noise_r`` [rad] the
 norms (√Σ of the squares over the three axes) of the part of them the residuals' scatter explains
 (``PairResult.covariance_noise``), ``level_change_t`` [m] and ``level_change_r`` [rad] the norms of
 the change from the coarser (u, v) level's estimate that the covariance adds as model error
-(``PairResult.level_change``; empty with one level); ``sigma`` the robust residual scale and
+(``PairResult.level_change``; empty with one level), ``std_calib_t`` [m] and ``std_calib_r`` [rad]
+the norms of the part the calibration's error explains (``PairResult.covariance_calibration``,
+``polycam motion --calib-draws``; empty when not measured); ``sigma`` the robust residual scale and
 ``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
 :class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not
 given); ``uv_level`` the (u, v) pyramid level the estimate comes from and ``view_disparity``
@@ -30,6 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .calib_spread import calibration_std
 from .evaluate import std_norms
 from .motion import MotionOptions, PairResult
 from .tomlio import atomic_write_text
@@ -39,7 +42,7 @@ __all__ = ["PAIR_REPORT_COLUMNS", "write_pair_report", "write_motion_report"]
 PAIR_REPORT_COLUMNS = (
     "pair", "timestamp_ns", "t_x", "t_y", "t_z", "r_x", "r_y", "r_z",
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
-    "std_noise_t", "std_noise_r", "level_change_t", "level_change_r",
+    "std_noise_t", "std_noise_r", "level_change_t", "level_change_r", "std_calib_t", "std_calib_r",
     "sigma", "noise_sigma", "uv_level", "view_disparity", "condition", "inlier_fraction", "num_rays", "iterations",
     "ok", "unobservable", "reason",
 )
@@ -54,7 +57,8 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(PAIR_REPORT_COLUMNS)
-    for r in results:
+    cal_t, cal_r = std_norms(calibration_std(results))
+    for k, r in enumerate(results):
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
         noise = std_norms(np.sqrt(np.clip(np.diag(r.covariance_noise), 0.0, None)))
@@ -62,7 +66,8 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
         change = [f"{v[0]:.6g}" for v in std_norms(np.abs(d))] if np.all(np.isfinite(d)) else ["", ""]
         w.writerow([r.index, ts, *(f"{v:.9g}" for v in r.t), *(f"{v:.9g}" for v in r.r),
                     *(f"{v:.6g}" for v in std), *(f"{v[0]:.6g}" for v in noise),
-                    *change, f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
+                    *change, *(f"{v[k]:.6g}" if np.isfinite(v[k]) else "" for v in (cal_t, cal_r)),
+                    f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
                     f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason])

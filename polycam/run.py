@@ -44,6 +44,7 @@ from typing import Callable
 
 from .cliargs import check_output_folder
 from .cliargs import positive_float as _positive_float
+from .cliargs import nonneg_int as _nonneg_int
 from .cliargs import positive_int as _positive_int
 
 __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
@@ -108,6 +109,11 @@ class RunOptions:
     solve (``estimate_trajectory(scale_selection=True)``, :class:`polycam.scales.ScaleTracker`).
     With one view per camera (2 cm apart in a room) the (x, y) derivatives across views are
     aliased; docs/end_to_end.md has the measured effect."""
+    calib_draws: int = 4
+    """Sets of camera models drawn from the calibration's uncertainty (each solved at +δ and −δ) whose
+    spread of each pair's estimate is added to its covariance (:mod:`polycam.calib_draws_cli`;
+    0: the calibrated models are taken as exact). About one resampling and solve of the session
+    per re-solve (the demo: ~7 s each)."""
     smooth_c: float = 0.0
     """The motion solver's discontinuity-weight constant (:class:`polycam.motion.MotionOptions`;
     0 disables it). On the same sessions its default 0.5 gave 7.3% / 1.8% with a worst
@@ -279,6 +285,24 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         traj, results = estimate_trajectory(lf, progress=tick, options=motion_options,
                                             scale_selection=opts.scale_selection)
     per_pair = np.diff(stamps) if len(stamps) > 1 else np.array([time.perf_counter() - stamps[0]])
+    draws_line, drawn = "", 0
+    if opts.calib_draws and not any(results):
+        draws_line = "calibration draws skipped: no pair solved"
+    elif opts.calib_draws:
+        from .calib_draws_cli import calibration_draws, calibration_line
+        from .calib_spread import with_calibration
+
+        t0 = time.perf_counter()
+        try:
+            with bar("5/6 calibration draws", 2 * opts.calib_draws) as adv:
+                C, counts = calibration_draws(out / "session", cal.models, lf.grid, draws=opts.calib_draws, seed=seed,
+                                              motion_options=motion_options, scale_selection=opts.scale_selection,
+                                              progress=adv)
+        except InputError as e:                 # models without a covariance: the solver's covariance alone
+            draws_line = f"calibration draws skipped: {e}"
+        else:
+            results, drawn, draws_s = with_calibration(results, C), opts.calib_draws, time.perf_counter() - t0
+            draws_line = calibration_line(results, drawn, int(counts.min(initial=drawn)), draws_s)
     write_tum(out / "trajectory.tum", traj)
     failed = [r for r in results if not r]
     ok = [r for r in results if r]
@@ -291,7 +315,17 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "median_t_err_m": float(np.median(err.t_err)), "median_w_err_deg": math.degrees(float(np.median(err.w_err))),
          "ate_m": ate_rmse(traj, truth),
          "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
-         "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan")}
+         "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan"),
+         "calibration_draws": drawn}
+    if drawn:
+        from .calib_spread import calibration_std
+        from .evaluate import std_norms
+
+        ct, cr = std_norms(calibration_std(results))
+        have = np.isfinite(ct)
+        m["seconds_calibration_draws"] = draws_s
+        m["median_std_calib_t_m"] = float(np.median(ct[have])) if have.any() else float("nan")
+        m["median_std_calib_w_deg"] = math.degrees(float(np.median(cr[have]))) if have.any() else float("nan")
     m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, std)
     summary["motion"] = m
     first = (f" (median; the first took {m['seconds_first_pair']:.0f} s, compiling the kernels)"
@@ -302,6 +336,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     echo(f"motion    {out / 'trajectory.tum'}: {m['pairs']} frame pairs, {m['failed']} failed, "
          f"{m['seconds_per_pair']:.1f} s per pair{first}; median error translation {100 * m['median_t_rel']:.1f}%, "
          f"rotation {100 * m['median_w_rel']:.1f}%; ATE {1e3 * m['ate_m']:.2f} mm; {solved}")
+    if draws_line:
+        echo(f"          {draws_line}")
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")
@@ -742,6 +778,10 @@ def add_parsers(sub) -> None:
                         f"between cameras, or 4 when 2 gives fewer than {MIN_VIEWS} views along x or y)")
     p.add_argument("--scale-selection", choices=("on", "off"), default="on" if RunOptions.scale_selection else "off",
                    help="(u, v) scale selection of paper Sect. 4.1 before the motion solve (default %(default)s)")
+    p.add_argument("--calib-draws", type=_nonneg_int, default=RunOptions.calib_draws, metavar="N",
+                   help="re-solve the motion with N sets of camera models drawn from the calibration's uncertainty "
+                        "(2N re-solves) and add the spread to each pair's covariance (default %(default)s; 0: the "
+                        "calibrated models are taken as exact)")
     p.set_defaults(func=cmd_run)
 
 
@@ -751,6 +791,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     run_chain(args.rig, args.out, board_path=args.board,
               options=RunOptions(frames=args.frames, board_frames=args.board_frames, seed=args.seed,
                                  uv_step_px=args.uv_step, xy_oversample=args.xy_oversample,
-                                 scale_selection=args.scale_selection == "on"),
+                                 scale_selection=args.scale_selection == "on", calib_draws=args.calib_draws),
               progress_factory=_progress, echo=print)
     return 0

@@ -113,3 +113,62 @@ def test_models_without_a_calibration_covariance_are_refused(tmp_path):
         calibration_covariance(mixed)
     with pytest.raises(InputError, match="no camera models"):
         calibration_covariance({})
+
+
+def _pair(index: int):
+    from polycam.motion import PairResult
+
+    T = np.eye(4)
+    T[:3, 3] = (0.01 * (index + 1), 0.0, 0.0)
+    C = np.diag([1e-8] * 3 + [1e-8] * 3)
+    return PairResult(index=index, T_prev_next=T, covariance=C, covariance_noise=C.copy(), covariance_iid=C.copy(),
+                      sigma=1.0, condition=1.0, inlier_fraction=1.0, num_rays=100, iterations=1)
+
+
+def test_antithetic_covariance_cancels_the_second_order_and_skips_failed_draws():
+    """x(±δ) = J δ + Q(δ, δ): the half-differences are exactly J δ, so the covariance is
+    Σ (J z)(J z)ᵀ / K whatever Q; a failed re-solve (NaN) leaves that draw out of that pair only."""
+    from polycam.calib_spread import antithetic_covariance
+
+    rng = np.random.default_rng(3)
+    K, P, N = 5, 3, 4
+    J = rng.standard_normal((P, 6, N))
+    Q = rng.standard_normal((P, 6, N, N))
+    z = rng.standard_normal((K, N))
+    x = lambda d: np.einsum("pin,n->pi", J, d) + np.einsum("pimn,m,n->pi", Q, d, d)    # noqa: E731
+    plus = np.stack([x(zk) for zk in z])
+    minus = np.stack([x(-zk) for zk in z])
+    plus[1, 2] = np.nan                                        # draw 1 failed on pair 2
+    C, n = antithetic_covariance(plus, minus)
+    assert C.shape == (P, 6, 6) and list(n) == [K, K, K - 1]
+    for p in range(P):
+        keep = [k for k in range(K) if not (p == 2 and k == 1)]
+        d = np.stack([J[p] @ z[k] for k in keep])
+        np.testing.assert_allclose(C[p], d.T @ d / len(keep), rtol=1e-10, atol=1e-14)
+    plus[:, 0] = np.nan
+    C, n = antithetic_covariance(plus, minus)
+    assert n[0] == 0 and np.all(np.isnan(C[0])) and np.all(np.isfinite(C[1]))
+    with pytest.raises(ValueError, match="plus and minus"):
+        antithetic_covariance(plus, minus[:, :2])
+
+
+def test_with_calibration_adds_the_share_to_the_covariance():
+    """with_calibration: covariance + C, kept apart as covariance_calibration (calibration_std's
+    source); a pair without a finite C and a failed pair's vector (NaN) are left as they were."""
+    from dataclasses import replace
+
+    from polycam.calib_spread import calibration_std, pair_vectors, with_calibration
+
+    results = [_pair(0), _pair(1), replace(_pair(2), reason="unobservable: t_x")]
+    assert np.all(np.isnan(pair_vectors(results)[2])) and pair_vectors(results)[1, 0] == pytest.approx(0.02)
+    C = np.stack([np.diag([4e-8] * 6), np.full((6, 6), np.nan), np.diag([9e-8] * 6)])
+    out = with_calibration(results, C)
+    np.testing.assert_allclose(out[0].std, np.sqrt(5e-8))
+    np.testing.assert_allclose(out[0].covariance_noise, results[0].covariance_noise)
+    assert out[1] is results[1] and out[1].covariance_calibration is None
+    std = calibration_std(out)
+    np.testing.assert_allclose(std[0], 2e-4)
+    np.testing.assert_allclose(std[2], 3e-4)
+    assert np.all(np.isnan(std[1]))
+    with pytest.raises(ValueError, match="C must be"):
+        with_calibration(results, C[:2])

@@ -51,6 +51,42 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
 
     err = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
     assert np.median(err.t_rel) < E2E_RUN_MOTION_REL and np.median(err.w_rel) < E2E_RUN_MOTION_REL
+    _check_calibration_draws(tmp_path, out, summary, cap.out, capsys)
+
+
+def _check_calibration_draws(tmp_path, out, summary: dict, printed: str, capsys) -> None:
+    """The calibration's share of the covariance: `polycam run`'s default draws (summary, its line,
+    pairs.csv, inside the reported std), `polycam motion SESSION --calib-draws`, and its user errors."""
+    import csv
+
+    from polycam.run import RunOptions
+
+    m = summary["motion"]
+    assert m["calibration_draws"] == RunOptions.calib_draws and m["median_std_calib_t_m"] > 0
+    assert m["median_std_calib_w_deg"] > 0 and m["seconds_calibration_draws"] > 0
+    lines = printed.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("motion"))
+    assert lines[k + 1].strip().startswith(f"calibration: {RunOptions.calib_draws} draws from its uncertainty"), printed
+    rows = list(csv.DictReader((out / "report" / "pairs.csv").read_text().splitlines()))
+    for row in rows:
+        std_t = np.sqrt(sum(float(row[f"std_t_{a}"]) ** 2 for a in "xyz"))
+        assert 0 < float(row["std_calib_t"]) <= std_t and 0 < float(row["std_calib_r"])
+    # the motion verb on the recorded session with the run's calibration, one draw
+    code = main(["motion", str(out / "session"), "--calib", str(out / "calib"), "--uv-step", "2",
+                 "--xy-oversample", "2", "--calib-draws", "1", "--out", str(tmp_path / "m.tum"),
+                 "--report", str(tmp_path / "mrep")])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    assert "calibration: 1 draws from its uncertainty (2 re-solves" in cap.out, cap.out
+    rows = list(csv.DictReader((tmp_path / "mrep" / "pairs.csv").read_text().splitlines()))
+    assert len(rows) == 2 and all(float(r["std_calib_t"]) > 0 for r in rows)
+    # a store keeps no models; the true models (a rig file's nominal ones) have no covariance
+    code = main(["motion", str(out / "lightfield.zarr"), "--calib-draws", "1", "--out", str(tmp_path / "s.tum")])
+    _one_line_error(capsys, code, "lightfield.zarr: --calib-draws needs a session and its calibration")
+    code = main(["motion", str(out / "session"), "--calib", str(out / "session" / "calib"), "--calib-draws", "1",
+                 "--out", str(tmp_path / "t.tum")])
+    _one_line_error(capsys, code, f"{out / 'session' / 'calib'}: camera ", "no optimisation record")
+    assert not (tmp_path / "s.tum").exists() and not (tmp_path / "t.tum").exists()
 
 
 def test_run_stops_at_an_unusable_stage(tmp_path, capsys):

@@ -1,0 +1,96 @@
+"""``--calib-draws``: a session's motion re-solved with camera models drawn from the calibration's
+uncertainty, for the calibration's share of each pair's covariance (docs/motion.md, "How far to
+trust the covariance").
+
+CLI layer (``polycam motion SESSION``, ``polycam run``): it drives the calibration and resampling
+stages (:mod:`calib.draws`, :class:`resample.stream.SessionLightField`); the numerics are
+:mod:`polycam.calib_spread`'s.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from contextlib import contextmanager
+from typing import Callable
+
+import numpy as np
+
+from .calib_spread import antithetic_covariance, pair_vectors
+from .lightfield import LightFieldGrid
+
+__all__ = ["calibration_draws", "calibration_line"]
+
+log = logging.getLogger(__name__)
+
+
+def calibration_draws(session_path: str | os.PathLike, models: dict, grid: LightFieldGrid, *, draws: int,
+                      seed: int = 0, resample_options=None, motion_options=None, scale_selection: bool = False,
+                      progress: Callable[[int, int], None] | None = None, cov=None) -> tuple[np.ndarray, np.ndarray]:
+    """Re-solve every frame pair of a session with ``draws`` model sets drawn from the calibration
+    of ``models`` (camera id → mrcal cameramodel with its ``optimization_inputs``), each at ``+δ``
+    and ``−δ`` (``2 draws`` re-solves), resampled onto ``grid`` with ``resample_options`` and solved
+    with ``motion_options`` / ``scale_selection`` as the nominal solve was.
+
+    Returns ((P, 6, 6) each pair's covariance of (t [m], r [rad]) over the draws, NaN where no draw
+    solved it; (P,) the draws that did): :func:`polycam.calib_spread.antithetic_covariance`.
+    ``progress(done, total)`` after each re-solve. ``cov``: the models'
+    :func:`calib.draws.calibration_covariance` when already computed. Raises InputError when the
+    models have no calibration covariance.
+    """
+    from calib.draws import calibration_covariance, covariance_factor, drawn_models
+    from resample.stream import SessionLightField
+
+    from .motion import estimate_trajectory
+
+    if draws < 1:
+        raise ValueError(f"draws must be >= 1, got {draws}")
+    if cov is None:
+        cov = calibration_covariance(models)
+    factor = covariance_factor(cov)
+    log.info("calibration draws: %d cameras, %d calibrated parameters, corner noise %.3f px",
+             len(cov.cameras), cov.dim, cov.noise_px)
+    rng = np.random.default_rng(seed)
+    plus, minus = [], []
+    for k in range(draws):
+        z = rng.standard_normal(cov.dim)
+        for sign, acc in ((1.0, plus), (-1.0, minus)):
+            with _quiet("resample"):                  # its warnings repeat the nominal resampling's
+                lf = SessionLightField(session_path, models=drawn_models(models, cov, sign * z, factor), grid=grid,
+                                       options=resample_options)
+                _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
+            acc.append(pair_vectors(results))
+            if progress is not None:
+                progress(len(plus) + len(minus), 2 * draws)
+    return antithetic_covariance(np.stack(plus), np.stack(minus))
+
+
+@contextmanager
+def _quiet(name: str):
+    """Only errors from logger ``name`` (and its children) inside the block."""
+    logger = logging.getLogger(name)
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def calibration_line(results, draws: int, fewest: int, seconds: float) -> str:
+    """How large the calibration's share of the reported std is (median over the pairs that have it;
+    ``fewest``: the fewest draws in which a pair was re-solved)."""
+    import numpy as np
+
+    from .calib_spread import calibration_std
+    from .evaluate import std_norms
+
+    cal = calibration_std(results)
+    have = np.all(np.isfinite(cal), axis=1)
+    if not have.any():
+        return f"calibration: {draws} draws, no pair re-solved ({seconds:.0f} s)"
+    (ct, cr), (tt, tr) = std_norms(cal[have]), std_norms(np.stack([r.std for r in results])[have])
+    few = f"; a pair solved in only {fewest} of them" if fewest < draws else ""
+    return (f"calibration: {draws} draws from its uncertainty ({2 * draws} re-solves, {seconds:.0f} s{few}): "
+            f"its std per pair {1e3 * np.median(ct):.3f} mm, {1e3 * np.degrees(np.median(cr)):.2f} mdeg (median), "
+            f"{100 * np.median(ct / tt):.0f}% / {100 * np.median(cr / tr):.0f}% of the reported std")
