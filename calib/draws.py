@@ -112,8 +112,8 @@ def drawn_models(models: dict, cov: CalibrationCovariance, z: np.ndarray, factor
     Each camera's solved lens parameters get its intrinsics' share of δ; its pose relative to the solve's
     reference camera, ``rt_cam_ref``, gets its extrinsics' share, and its rig-frame pose follows:
     ``T_cam_rig' = T(rt_cam_ref + δ) · T(rt_cam_ref)⁻¹ · T_cam_rig`` (the rig frame stays where it is
-    relative to the reference camera). ``factor``: (N, N) a lower-triangular factor of the covariance
-    to reuse (default: computed here). Returns camera id → new mrcal cameramodel (no
+    relative to the reference camera). ``factor``: (N, N) :func:`covariance_factor`'s factor of the
+    covariance, to reuse over draws (default: computed here). Returns camera id → new mrcal cameramodel (no
     optimisation record: the draw is not a solve).
     """
     mrcal = _mrcal()

@@ -80,8 +80,6 @@ def _quiet(name: str):
 def calibration_line(results, draws: int, fewest: int, seconds: float) -> str:
     """How large the calibration's share of the reported std is (median over the pairs that have it;
     ``fewest``: the fewest draws in which a pair was re-solved)."""
-    import numpy as np
-
     from .calib_spread import calibration_std
     from .evaluate import std_norms
 
