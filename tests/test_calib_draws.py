@@ -172,3 +172,18 @@ def test_with_calibration_adds_the_share_to_the_covariance():
     assert np.all(np.isnan(std[1]))
     with pytest.raises(ValueError, match="C must be"):
         with_calibration(results, C[:2])
+
+
+def test_calibration_line_reports_the_share_and_the_draws_that_counted():
+    """The CLI's line: the calibration's std per pair and its share of the reported std (medians), how
+    many draws a pair was re-solved in when some failed, and a plain line when none was."""
+    from polycam.calib_draws_cli import calibration_line
+    from polycam.calib_spread import with_calibration
+
+    results = with_calibration([_pair(0), _pair(1)], np.stack([np.diag([3e-8] * 6)] * 2))
+    line = calibration_line(results, 4, 3, 12.3)
+    assert line.startswith("calibration: 4 draws from its uncertainty (8 re-solves, 12 s; a pair solved in only 3 of them)")
+    # per axis: calibration √3e-8 = 1.732e-4 m of a total √4e-8; norm √3 · 1.732e-4 m = 0.300 mm, share √(3/4) = 87 %
+    assert "its std per pair 0.300 mm" in line and "87% / 87% of the reported std" in line, line
+    assert "only" not in calibration_line(results, 4, 4, 1.0)
+    assert calibration_line([_pair(0)], 2, 0, 1.0) == "calibration: 2 draws, no pair re-solved (1 s)"
