@@ -188,6 +188,16 @@ def test_lens_models_recover_noise_free_truth(tmp_path, lensmodel):
     # the real lens stopped in a 0.3 px local minimum on one CPU type)
     staged = [name for name, _ in cal.stages]
     assert ("LENSMODEL_OPENCV4" in staged[:-1]) == (lensmodel in ("opencv5", "opencv8"))
+    # the calibration's covariance (calib.draws) maps the solve's lens states onto the lens
+    # parameters: all of them, or without the 4 core ones the splined solve locks
+    from calib.draws import calibration_covariance, drawn_models
+
+    cc = calibration_covariance(cal.models)
+    n_lens = len(cal.models[next(iter(cal.models))].intrinsics()[1])
+    assert list(cc.lens_parameters) == list(range(4 if lensmodel == "splined" else 0, n_lens))
+    if lensmodel == "splined":                                       # its locked core stays
+        drawn = drawn_models(cal.models, cc, np.random.default_rng(0).standard_normal(cc.dim))
+        assert all(np.array_equal(drawn[c].intrinsics()[1][:4], m.intrinsics()[1][:4]) for c, m in cal.models.items())
     from calib.align import fit_rig_frame, rotation_angle
 
     cams = list(true)
