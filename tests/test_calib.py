@@ -20,7 +20,7 @@ from polycam.rig import load_rig
 from polycam.synth import board_poses, synth_board_session, true_cameramodels
 
 from conftest import SHARED_DATA
-from tolerances import (CALIB_SPLINED_POSITION_M, CALIB_EXACT_POSITION_M, CALIB_EXACT_PROJECTION_PX, CALIB_EXACT_REPROJ_PX,
+from tolerances import (CALIB_CORNER_DRIFT_PX, CALIB_REFINED_CORNER_GAIN, CALIB_SPLINED_POSITION_M, CALIB_EXACT_POSITION_M, CALIB_EXACT_PROJECTION_PX, CALIB_EXACT_REPROJ_PX,
                         CALIB_EXACT_ROTATION_DEG, CALIB_RENDERED_POSITION_M, CALIB_RENDERED_PROJECTION_PX,
                         CALIB_RENDERED_RMS_PX, CALIB_RENDERED_ROTATION_DEG, CALIB_UNCERTAINTY_DRAWS,
                         CALIB_UNCERTAINTY_RATIO, CALIB_SPLINED_BUNDLE_DEG, CALIB_SPLINED_RIG_DEG)
@@ -329,6 +329,46 @@ def test_blank_and_blurred_images_are_counted(board_session, tmp_path, caplog):
         assert counts["used"] + sum(counts[r] for r in ("no board", "blurred", "wrong board", "too few corners")) == 5
         assert counts["blurred"] + counts["no board"] >= 2
     assert "cam00" in caplog.text and "6000.png" in caplog.text
+
+
+def test_corner_refinement_removes_the_markers_pull(board_session):
+    """The refinement inside the markers' margin (calib.detect.SUBPIX_MARGIN_SHARE) against OpenCV's own
+    ChArUco corners, both against the true projections: a smaller error, and no drift outward from the
+    board's centre (the drift a focal length absorbs; docs/calibration.md)."""
+    from calib.detect import _Detector, _to_gray8
+    from calib.synthetic import project_board
+    from polycam.session import open_session
+    from polycam.trajectory import read_tum
+
+    session, board = board_session
+    s = open_session(session)
+    poses = read_tum(session / "board_poses.tum").T_world_rig
+    true = s.calibration()
+    det = _Detector(board)
+    w = board.cols - 1
+    err = {"opencv": [], "refined": []}
+    index = []
+    for i in range(len(s)):
+        for cam, image in s.read_frame(i).items():
+            g = _to_gray8(image)
+            q, ids, _, _ = det._charuco(g)
+            if q is None or len(ids) < 8:
+                continue
+            truth = project_board(true[cam], board, poses[i]).reshape(-1, 2)[ids]
+            axis = project_board(true[cam], board, poses[i])
+            ax = np.gradient(axis, axis=1).reshape(-1, 2)[ids]          # the board's x axis in the image
+            ax /= np.linalg.norm(ax, axis=1, keepdims=True)
+            for name, c in (("opencv", q), ("refined", det.refine(g, q, ids))):
+                e = c - truth
+                err[name].append(np.stack([np.sum(e * ax, axis=1), np.hypot(*e.T)], axis=1))
+            index.append(ids % w - (w - 1) / 2)                             # corner column from the centre
+    index = np.concatenate(index)
+    stats = {}
+    for name, v in err.items():
+        e = np.concatenate(v)
+        stats[name] = (math.sqrt(np.mean(e[:, 1] ** 2)), np.polyfit(index, e[:, 0], 1)[0])   # RMS, drift
+    assert stats["refined"][0] < CALIB_REFINED_CORNER_GAIN * stats["opencv"][0], stats
+    assert abs(stats["refined"][1]) < CALIB_CORNER_DRIFT_PX < abs(stats["opencv"][1]), stats
 
 
 def test_detected_corners_match_the_truth(board_session):
