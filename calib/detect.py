@@ -26,8 +26,8 @@ spacing): a larger window takes in the markers' edges, whose gradients pull the 
 demo's rendered board views (squares ~23 px, margins ~3 px) OpenCV's own corners sat 0.016 px per
 corner index outward from the board's centre (RMS 0.151 px against the true projections), which
 the solve absorbed as focal lengths 0.46 % long (mrcal predicted 0.09 %); with a 5 x 5 window the
-RMS is 0.113 px, the outward drift gone and the focal lengths within 0.01 % (7 x 7: −0.66 %, the
-markers again; docs/calibration.md).
+RMS is 0.117 px, the outward drift gone and the focal lengths within 0.01 % (7 x 7: −0.66 %, the
+markers again; docs/calibration.md, which also has where large squares gain nothing).
 
 Images without a usable board are counted per camera under one of the reasons
 :data:`SKIP_REASONS` (``no board``, ``blurred``, ``wrong board``, ``too few
