@@ -11,15 +11,16 @@ from __future__ import annotations
 
 import logging
 import os
-from contextlib import contextmanager
+import time
+from contextlib import contextmanager, nullcontext
 from typing import Callable
 
 import numpy as np
 
-from .calib_spread import antithetic_covariance, pair_vectors
+from .calib_spread import antithetic_covariance, pair_vectors, with_calibration
 from .lightfield import LightFieldGrid
 
-__all__ = ["calibration_draws", "calibration_line"]
+__all__ = ["calibration_draws", "add_calibration_share", "calibration_line"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,23 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
             if progress is not None:
                 progress(len(plus) + len(minus), 2 * draws)
     return antithetic_covariance(np.stack(plus), np.stack(minus))
+
+
+def add_calibration_share(session_path: str | os.PathLike, models: dict, grid: LightFieldGrid, results: list, *,
+                          draws: int, bar: Callable | None = None, **solve) -> tuple[list, str, float | None]:
+    """What ``polycam motion --calib-draws`` and ``polycam run`` do with the draws: ``results`` with the
+    calibration's share added (:func:`calibration_draws`, ``solve`` its keyword arguments;
+    :func:`polycam.calib_spread.with_calibration`), the line the CLI prints, and the seconds the
+    draws took (None: skipped, no pair was solved). ``bar(total)``: a context manager yielding
+    ``advance(done, total)`` (a progress bar), opened only when the draws run."""
+    if not any(results):
+        return results, "calibration draws skipped: no pair solved", None
+    t0 = time.perf_counter()
+    with (bar(2 * draws) if bar is not None else nullcontext(None)) as advance:
+        C, counts = calibration_draws(session_path, models, grid, draws=draws, progress=advance, **solve)
+    results = with_calibration(results, C)
+    seconds = time.perf_counter() - t0
+    return results, calibration_line(results, draws, int(counts.min(initial=draws)), seconds), seconds
 
 
 @contextmanager

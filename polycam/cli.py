@@ -168,7 +168,13 @@ def cmd_motion(args: argparse.Namespace) -> int:
         except InputError as e:                       # e.g. a frame with NaNs: name the store
             raise InputError(f"{src}: {e}") from None
     if calib_cov is not None:
-        results = _with_calibration_draws(store, results, args.calib_draws, opts, scale_selection, calib_cov)
+        from .calib_draws_cli import add_calibration_share
+
+        results, line, _ = add_calibration_share(
+            store.path, store.models, store.grid, results, draws=args.calib_draws,
+            bar=lambda total: _progress(f"calibration draws {src.name}", total), cov=calib_cov,
+            resample_options=store.resampler.options, motion_options=opts, scale_selection=scale_selection)
+        print("  " + line)
     write_tum(args.out, traj)
     failed = [r for r in results if not r]
     print(f"wrote {args.out}: {len(traj)} poses from {len(results)} frame pairs"
@@ -209,27 +215,6 @@ def cmd_motion(args: argparse.Namespace) -> int:
                                       scale_selection=scale_selection, preset=args.preset)
         print(f"report in {args.report}: {', '.join(written)}")
     return 0
-
-
-def _with_calibration_draws(store, results, draws: int, opts, scale_selection: bool, cov) -> list:
-    """``polycam motion --calib-draws``: the results with the calibration's share added to their
-    covariance (:func:`polycam.calib_draws_cli.calibration_draws`), and a line saying how large it is."""
-    import time
-
-    from .calib_draws_cli import calibration_draws, calibration_line
-    from .calib_spread import with_calibration
-
-    if not any(results):
-        print("  calibration draws skipped: no pair solved")
-        return results
-    t0 = time.perf_counter()
-    with _progress(f"calibration draws {store.path.name}", 2 * draws) as advance:
-        C, counts = calibration_draws(store.path, store.models, store.grid, draws=draws,
-                                      resample_options=store.resampler.options, motion_options=opts,
-                                      scale_selection=scale_selection, progress=advance, cov=cov)
-    results = with_calibration(results, C)
-    print("  " + calibration_line(results, draws, int(counts.min(initial=draws)), time.perf_counter() - t0))
-    return results
 
 
 def _camera_group(cams: list[str]) -> str:

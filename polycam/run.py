@@ -285,24 +285,18 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         traj, results = estimate_trajectory(lf, progress=tick, options=motion_options,
                                             scale_selection=opts.scale_selection)
     per_pair = np.diff(stamps) if len(stamps) > 1 else np.array([time.perf_counter() - stamps[0]])
-    draws_line, drawn = "", 0
-    if opts.calib_draws and not any(results):
-        draws_line = "calibration draws skipped: no pair solved"
-    elif opts.calib_draws:
-        from .calib_draws_cli import calibration_draws, calibration_line
-        from .calib_spread import with_calibration
+    draws_line, drawn, draws_s = "", 0, None
+    if opts.calib_draws:
+        from .calib_draws_cli import add_calibration_share
 
-        t0 = time.perf_counter()
         try:
-            with bar("5/6 calibration draws", 2 * opts.calib_draws) as adv:
-                C, counts = calibration_draws(out / "session", cal.models, lf.grid, draws=opts.calib_draws, seed=seed,
-                                              motion_options=motion_options, scale_selection=opts.scale_selection,
-                                              progress=adv)
+            results, draws_line, draws_s = add_calibration_share(
+                out / "session", cal.models, lf.grid, results, draws=opts.calib_draws,
+                bar=lambda total: bar("5/6 calibration draws", total), seed=seed, motion_options=motion_options,
+                scale_selection=opts.scale_selection)
         except InputError as e:                 # models without a covariance: the solver's covariance alone
             draws_line = f"calibration draws skipped: {e}"
-        else:
-            results, drawn, draws_s = with_calibration(results, C), opts.calib_draws, time.perf_counter() - t0
-            draws_line = calibration_line(results, drawn, int(counts.min(initial=drawn)), draws_s)
+        drawn = opts.calib_draws if draws_s is not None else 0
     write_tum(out / "trajectory.tum", traj)
     failed = [r for r in results if not r]
     ok = [r for r in results if r]
