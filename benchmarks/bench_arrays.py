@@ -1,21 +1,23 @@
 """Benchmark: the motion solver on camera-array sessions with and without the plenoptic
-sampling rule (``MotionOptions.max_view_disparity``, docs/motion.md "Camera arrays").
+sampling rule (``MotionOptions.max_view_disparity``) and the warp's blend of the views along the
+disparity (``MotionOptions.depth_views``; docs/motion.md "Camera arrays").
 
 Data: ``polycam synth session`` of each rig (its ``[mock]`` table: the textured room, smooth
 motion of 5 mm and 0.2 deg per frame, its noise), one session per seed, with the true
 camera models. Each session is resampled on the fly (``resample.stream.SessionLightField``,
 the automatic grid with ``--uv-step``, as ``polycam motion SESSION`` does) and solved with the
 default :class:`~polycam.motion_options.MotionOptions` once per threshold (``inf``: always the
-frames' own (u, v) sampling, the solver before session 30).
+frames' own (u, v) sampling, the solver before session 30) and ``depth_views`` value (``inf``: the
+plain blend, the solver before session 43).
 
-Prints per session and threshold: the disparity per view step the solver measured (median over
+Prints per session and setting: the disparity per view step the solver measured (median over
 the pairs), the (u, v) level it stopped at, the median per-pair translation and rotation errors
 relative to the true motion, the ATE and the solve time per pair; then per rig the medians over
-the seeds and the ratio of each threshold's ATE to the last threshold's (measured in the same
-run). Usage::
+the seeds and the ratio of each setting's ATE to the last one's (measured in the same run).
+Usage::
 
     .venv/bin/python benchmarks/bench_arrays.py [--rigs webcam3x3 mock5x5] [--seeds 3 11 12 13]
-        [--frames 9] [--thresholds 0.75 inf] [--uv-step 1] [--keep DIR]
+        [--frames 9] [--thresholds 0.75 inf] [--depth-views 0.3] [--uv-step 1] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -40,11 +42,13 @@ from polycam.synth import synth_session  # noqa: E402
 from resample.stream import SessionLightField  # noqa: E402
 
 
-def solve(session: Path, threshold: float, uv_step: float) -> dict:
-    """Errors, chosen level and time of the default solver with ``max_view_disparity=threshold``."""
+def solve(session: Path, threshold: float, uv_step: float, depth_views: float = MotionOptions.depth_views) -> dict:
+    """Errors, chosen level and time of the default solver with ``max_view_disparity=threshold`` and
+    ``depth_views``."""
     lf = SessionLightField(session, uv_step_px=uv_step)
     t0 = time.perf_counter()
-    traj, results = estimate_trajectory(lf, options=MotionOptions(max_view_disparity=threshold))
+    traj, results = estimate_trajectory(lf, options=MotionOptions(max_view_disparity=threshold,
+                                                                  depth_views=depth_views))
     seconds = time.perf_counter() - t0 - lf.seconds_frames
     truth = lf.groundtruth()
     err = pair_errors(traj, truth)
@@ -75,14 +79,18 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[3, 11, 12, 13])
     ap.add_argument("--frames", type=int, default=9)
     ap.add_argument("--thresholds", nargs="+", type=float, default=[0.75, math.inf],
-                    help="max_view_disparity values to compare (the last one is the ratios' baseline)")
+                    help="max_view_disparity values to compare")
+    ap.add_argument("--depth-views", nargs="+", type=float, default=[MotionOptions.depth_views],
+                    help="depth_views values to compare (with each threshold; the last pair is the ratios' "
+                         "baseline)")
     ap.add_argument("--uv-step", type=float, default=1.0, help="direction spacing of the grid in camera pixels")
     add_keep_option(ap)
     args = ap.parse_args()
     root, tmp = sessions_root(args.keep, "bench_arrays_")
     rows = []
-    print("| rig | seed | max_view_disparity | disparity [samples / view step] | level | translation | rotation "
-          "| ATE [mm] | solve s / pair | failed |")
+    settings = [(thr, dv) for thr in args.thresholds for dv in args.depth_views]
+    print("| rig | seed | max_view_disparity / depth_views | disparity [samples / view step] | level | translation "
+          "| rotation | ATE [mm] | solve s / pair | failed |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.rigs:
         rig = load_rig(REPO / "rigs" / f"{name}.toml")
@@ -90,22 +98,22 @@ def main() -> None:
             session = root / f"{name}_seed{seed}_f{args.frames}"
             if not (session / "groundtruth.tum").exists():
                 synth_session(rig, session, frames=args.frames, seed=seed, scene="room", overwrite=True)
-            for thr in args.thresholds:
-                r = solve(session, thr, args.uv_step)
-                rows.append((name, seed, thr, r))
-                print(f"| {name} | {seed} | {thr:g} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
+            for thr, dv in settings:
+                r = solve(session, thr, args.uv_step, dv)
+                rows.append((name, seed, (thr, dv), r))
+                print(f"| {name} | {seed} | {thr:g} / {dv:g} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
                       f"| {100 * r['w']:.2f} % | {1e3 * r['ate']:.3f} | {r['seconds']:.2f} | {r['failed']} |",
                       flush=True)
-    print("\nmedian over the seeds; ATE ratio against max_view_disparity = "
-          f"{args.thresholds[-1]:g} (the same sessions, this run):\n")
-    print("| rig | max_view_disparity | translation | rotation | ATE [mm] | ATE ratio (per seed) |")
+    print("\nmedian over the seeds; ATE ratio against max_view_disparity / depth_views = "
+          f"{settings[-1][0]:g} / {settings[-1][1]:g} (the same sessions, this run):\n")
+    print("| rig | max_view_disparity / depth_views | translation | rotation | ATE [mm] | ATE ratio (per seed) |")
     print("|---|---|---|---|---|---|")
     for name in args.rigs:
-        base = {s: r["ate"] for n, s, t, r in rows if n == name and t == args.thresholds[-1]}
-        for thr in args.thresholds:
-            sel = [(s, r) for n, s, t, r in rows if n == name and t == thr]
+        base = {s: r["ate"] for n, s, t, r in rows if n == name and t == settings[-1]}
+        for thr, dv in settings:
+            sel = [(s, r) for n, s, t, r in rows if n == name and t == (thr, dv)]
             ratios = [r["ate"] / base[s] for s, r in sel if base.get(s)]
-            print(f"| {name} | {thr:g} | {100 * np.median([r['t'] for _, r in sel]):.2f} % "
+            print(f"| {name} | {thr:g} / {dv:g} | {100 * np.median([r['t'] for _, r in sel]):.2f} % "
                   f"| {100 * np.median([r['w'] for _, r in sel]):.2f} % | {1e3 * np.median([r['ate'] for _, r in sel]):.3f} "
                   f"| {np.median(ratios):.2f} ({', '.join(f'{q:.2f}' for q in ratios)}) |")
     if tmp is not None:

@@ -51,7 +51,12 @@ extrapolates from its first warp on and mostly converges in two solves.
 Where the views are too far apart for the scene (disparity per view step above
 ``max_view_disparity`` samples: camera arrays), the light field is aliased across the views
 at the fine (u, v) scales, and the finest level used is the first coarse enough
-(:func:`_aliasing_start`; docs/motion.md, "Camera arrays").
+(:func:`_aliasing_start`; docs/motion.md, "Camera arrays"). Where a level's disparity per view
+step is above ``depth_views`` (0.3 samples), the warp blends the views around each moved ray
+along ρ̄ (Eq. 6: each view read at the direction that sees the same scene point) instead of at
+one direction: the plain blend of views a sizeable fraction of a sample apart mixes different
+scene points, so at the converged estimate the warped frame lags the motion and the translation
+came out 3–10 % long on the camera arrays (:func:`polycam.warp._depth_views_kernel`).
 
 Linear arrays
 -------------
@@ -416,6 +421,10 @@ before: docs/motion_log.md)."""
 _NO_NODATA = np.zeros(1, np.float32)
 """Placeholder "no data" channel for :func:`~polycam.warp._warped_confidence_kernel` (never read)."""
 
+_VIEWS_RHO_FILL = 16
+"""Rounds of :func:`~polycam.warp._filled_view_mean` that fill the unknown directions of ρ̄ for the
+warp's blend along the disparity (``MotionOptions.depth_views``; the rest get the face's median)."""
+
 _W_SETTLED = 0.25
 """With confidences W whose W1 is warped (``MotionOptions.warp_confidence``, or W1 with zeros; else
 W1 is taken at each ray's own sample and only W0 is folded), a re-warp keeps the warped W of each
@@ -499,9 +508,13 @@ def free_work_buffers() -> None:
 class _Solver:
     """One pyramid level: warp, fused derivatives / weights / normal sums, IRLS passes."""
 
-    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0):
+    def __init__(self, lev: _Level, opts: MotionOptions, filters: dict, level: int = 0,
+                 view_disparity: float = math.nan):
         self.lev = lev
         self.level = level                   # 0: the finest
+        # the warp blends the views along ρ̄ (MotionOptions.depth_views) where this level's
+        # disparity per view step (its own samples; NaN: not measured) is above the threshold
+        self.depth_views = bool(view_disparity > opts.depth_views)
         self.g = g = lev.grid
         self.opts = opts
         self.filters = filters
@@ -604,6 +617,8 @@ class _Solver:
         self.rho_bar_handed = False            # rho_bar is the coarser level's (_finer_rho_bar) until the first rho
         self.rho_bar: np.ndarray | None = None  # (F, Nv, Nu) ρ̂ averaged over the views (extrapolate_views)
         self.gate_misfit: float | None = None  # the disparity gate's misfit floor (decided at the first rho)
+        self.views_rho: np.ndarray | None = None   # rho_bar filled, for depth_views (_views_rho)
+        self.views_rho_of: np.ndarray | None = None  # the rho_bar it was made from
         self.M_conf: np.ndarray | None = None  # the estimate whose warp made conf's warped W (fold)
         self.n_base = 0
         self.whitened: bool | None = None    # GLS re-solves (None: not decided yet)
@@ -730,7 +745,7 @@ class _Solver:
                     if cond <= opts.depth_gate_cond * cond_measured or z.max() > opts.depth_gate_z:
                         break
         # (a linear array's from each fresh ρ̂: its warp extrapolates every ray moved off the axis)
-        if first_dr and (self.linear or (opts.extrapolate_views > 0 and not extrapolate)):
+        if first_dr and (self.linear or ((opts.extrapolate_views > 0 or self.depth_views) and not extrapolate)):
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
             if self.linear:
                 self.rho_bar = _filled_view_mean(self.rho_bar)
@@ -756,7 +771,8 @@ class _Solver:
                    rho_bar, opts.extrapolate_views, marks=marks,
                    scratch=self.warp_scratch, ratio=self.units1,
                    confidence_channels=self.K1 if fold else 0, W0=lev.W0 if fold else None,
-                   nodata=self.nodata1 if fold else None, lag_confidence=lag)
+                   nodata=self.nodata1 if fold else None, lag_confidence=lag,
+                   depth_views=self._views_rho(rho_bar))
         if fold and not lag:
             self.M_conf = np.array(M, float)
         if self.own_w1:                           # × W1 at each ray's own sample, in conf's units
@@ -773,6 +789,18 @@ class _Solver:
         if lev.W0 is not None:
             _apply_warped_confidence(conf, out0)
         return out0[0]
+
+    def _views_rho(self, rho_bar: np.ndarray | None) -> np.ndarray | None:
+        """The warp's ρ for blending the views along the disparity (``depth_views``; None: off, or no
+        ρ̄ yet): ``rho_bar`` with its unknown directions filled from their neighbours
+        (:func:`~polycam.warp._filled_view_mean`: ρ̂ leaves out the windows no single depth explains,
+        half or more of a room's directions), kept while ``rho_bar`` is the same array."""
+        if not self.depth_views or rho_bar is None:
+            return None
+        if self.views_rho_of is not rho_bar:
+            self.views_rho = _filled_view_mean(rho_bar, _VIEWS_RHO_FILL)
+            self.views_rho_of = rho_bar
+        return self.views_rho
 
     def _depth_rho(self, var: np.ndarray, rho_max: float, floor: float, near: np.ndarray | None) -> np.ndarray:
         """:func:`polycam.eq5.depth_rho` into ``self.rho`` from the measured regressors; with
@@ -1128,10 +1156,12 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
         levels = _pyramid(L0, L1, W0, W1, grid, opts, radius, alloc=_tail_array)
         start, disparity = _aliasing_start(levels, opts, radius)
         if start == 0:
-            return replace(_estimate_levels(levels, M, opts, filters, index), view_disparity=disparity)
+            return replace(_estimate_levels(levels, M, opts, filters, index, disparity=disparity),
+                           view_disparity=disparity)
         work = levels[start:]
+        d_start = disparity * _per_view(work[0].grid, levels[0].grid)     # (finite: start > 0)
         del levels[1:]                            # the finer levels' frames are not needed
-        res = _estimate_levels(work, M, opts, filters, index, own_finest=False)
+        res = _estimate_levels(work, M, opts, filters, index, own_finest=False, disparity=d_start)
         return replace(res, uv_level=start, view_disparity=disparity,
                        noise_sigma=math.sqrt(_noise_variance(levels[0])))
     finally:
@@ -1163,10 +1193,7 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     from .scales import VIEW_DISPARITY_AGREE, view_disparity
 
     def per_view(g: LightFieldGrid) -> float:
-        """Samples of level grid g per sample of the finest, per view step of g per the finest's."""
-        if single == "x":
-            return (g.y.step / g0.y.step) / (g.v.step / g0.v.step)
-        return (g.x.step / g0.x.step) / (g.u.step / g0.u.step)
+        return _per_view(g, g0)
 
     m = min(2, len(levels) - 1)
     lev = levels[m]
@@ -1197,11 +1224,23 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     return k, d
 
 
+def _per_view(g: LightFieldGrid, g0: LightFieldGrid) -> float:
+    """Samples of level grid g per sample of the finest level's g0, per view step of g per g0's
+    (along y on a linear array with one viewpoint along x): a disparity per view step measured in
+    g0's samples times this is g's."""
+    if g0.single_view_axis == "x":
+        return (g.y.step / g0.y.step) / (g.v.step / g0.v.step)
+    return (g.x.step / g0.x.step) / (g.u.step / g0.u.step)
+
+
 def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: dict, index: int,
-                     own_finest: bool = True) -> PairResult:
+                     own_finest: bool = True, disparity: float = math.nan) -> PairResult:
     """:func:`estimate_motion` on the pyramid ``levels`` (finest first) from ``M``.
     ``own_finest``: ``levels[0]``'s frames are not borrowed work memory (:func:`_tail_array`),
-    so the loans end once it is reached."""
+    so the loans end once it is reached. ``disparity``: per view step in ``levels[0]``'s
+    samples (:func:`_aliasing_start`; NaN: not measured), which turns on each level's
+    ``depth_views``."""
+    g0 = levels[0].grid
     n_solves = 0
     sol = None
     solver = None
@@ -1219,7 +1258,8 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
         levels[li + 1:] = [None] * (len(levels) - li - 1)      # and its frames
         if li == 0 and own_finest:
             _return_tails()                       # the coarse frames are dead now
-        solver = _Solver(levels[li], opts, filters, li)
+        solver = _Solver(levels[li], opts, filters, li,
+                         disparity * _per_view(levels[li].grid, g0) if math.isfinite(disparity) else math.nan)
         if coarse_rho is not None:
             rho_bar, coarse_grid, gate_misfit = coarse_rho
             solver.rho_bar = _finer_rho_bar(rho_bar, coarse_grid, levels[li].grid)

@@ -46,6 +46,19 @@ class MotionOptions:
     too (``pyramid_xy``) do not lower the disparity per view step, so the search stops before
     them. ``PairResult.uv_level`` says which level the
     estimate comes from."""
+    depth_views: float = 0.3
+    """The warp blends the (up to) four viewpoints around each moved ray along the direction's
+    disparity ρ̄ (paper Eq. 6: each view read at the direction that sees the same scene point;
+    :func:`polycam.warp._depth_views_kernel`) instead of at one direction, at every level whose
+    disparity per view step (measured as for ``max_view_disparity``, in the level's own samples)
+    is above this many samples, from the warp after the level's first ρ̂ on (or the coarser
+    level's ρ̄). Linear interpolation across views that far apart blends different scene points,
+    so the warped frame lags the true motion at the converged estimate and the translation comes
+    out long (camera arrays: per-pair translation error 5–8 % → 1.2–2.5 %; docs/motion.md, "Camera
+    arrays"). Below ~0.2 the plain blend is already exact and ρ̄'s own error costs a little (the
+    paper's spheres at 8 m, 0.1 samples per view step: t 0.07 → 0.15 % with 0), hence the threshold.
+    ``inf``: never. Not measured (fewer than 3 views along x or y, ``max_view_disparity`` inf):
+    never."""
     pyramid_xy: bool = False
     """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
     iterations: int = 4
@@ -240,6 +253,8 @@ class MotionOptions:
             raise ValueError(f"model_weight_gain must be > 0 and finite, got {self.model_weight_gain}")
         if not 0.0 <= self.extrapolate_views < math.inf:
             raise ValueError(f"extrapolate_views must be >= 0 and finite, got {self.extrapolate_views}")
+        if not self.depth_views >= 0.0:
+            raise ValueError(f"depth_views must be >= 0 (inf: never), got {self.depth_views}")
         if not self.max_view_disparity > 0.0:
             raise ValueError(f"max_view_disparity must be > 0 (inf: no limit), got {self.max_view_disparity}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:

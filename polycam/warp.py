@@ -29,6 +29,16 @@ the overshoot (:func:`_extrapolate_xy_kernel`, cubic in (u, v): the shift is a s
 fraction of a sample, which linear interpolation gets wrong by a large part of itself
 on sharp images).
 
+Across the views the blend is linear at one direction, exact where the scene's disparity per
+view step is a small fraction of a sample. Where it is not (camera arrays: a sample or more at
+the frames' own sampling, still 0.4–0.9 at the level the solver stops at), neighbouring views
+see different scene points at one direction and the blend lags the motion; there the motion
+solver (``MotionOptions.depth_views``) has L blended along the disparity ρ̄ per direction
+instead: each of the four views around the moved ray read at ``u + ρ (x' − x_n)``, the direction
+at which view ``x_n`` sees the scene point that the moved ray ``(x', u)`` sees
+(:func:`_depth_views_kernel`, vectorised over the views; :func:`_depth_views_exact_kernel`, every
+ray's own stencils, its reference).
+
 The fast path (:func:`warp_lightfield`) is views-innermost: the (u, v) part of the
 stencil depends only on the direction, so each of the 6 x 6 (u, v) taps is one
 vectorised multiply-add over all view images, followed by a branch-free blend across
@@ -868,6 +878,173 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                         marks[face, jy, ix, jv, iu] = 1
 
 
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _depth_views_exact_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx,
+                              ky, r0, out):
+    """Channel 0 (L) of face ``face`` of ``out`` (K, F, Ny, Nx, Nv, Nu) again at every ray whose moved
+    focal-plane point lies inside the viewpoints, blended across the (up to) four viewpoints around
+    that point *along the direction's disparity* instead of at one direction: by paper Eq. 6 the ray
+    from ``x'`` along ``u'`` is, on a Lambertian surface, the ray from the neighbouring view ``x_n``
+    along ``u' + ρ (x' − x_n)`` (ρ = f / Z, u per unit x), so each neighbour is read at its own
+    direction (``uv_taps``-point Lagrange from srcT (Nv, Nu, M), views innermost, channel 0 at
+    m = view) and the bilinear weights blend four samples of one scene point. Linear interpolation
+    across views a sample or more of disparity apart blends different scene points: at the
+    converged estimate the warped frame then lags the true motion, which the solve makes up by a
+    long translation (docs/motion.md, "Camera arrays"). ``rho`` (Nv, Nu): ρ per direction of this
+    face (NaN: unknown, the ray keeps the plain blend); ``kx``, ``ky``: view step over (u, v) step;
+    ``r0``: channel 0's ``ratio``; positions and arguments otherwise as :func:`_xy_row`. A ray whose
+    shifted direction leaves the (u, v) samples keeps the plain blend too. Every ray's own
+    stencils, one view sample at a time: the reference of :func:`_depth_views_kernel`."""
+    _, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = srcT.shape
+    eps = 1e-6
+    dens = _lagrange_dens(Nv, Nu, taps)
+    tv = _taps_used(taps, Nv)
+    tu = _taps_used(taps, Nu)
+    for jv in numba.prange(Nv):
+        wv = np.empty(_UV_TAPS_MAX)
+        wu = np.empty(_UV_TAPS_MAX)
+        iv = np.empty(_UV_TAPS_MAX, np.int64)
+        iu = np.empty(_UV_TAPS_MAX, np.int64)
+        for ju in range(Nu):
+            r = rho[jv, ju]
+            if not ok_uv[jv, ju] or not r == r:
+                continue
+            fv, fu, _, _, _ = _moved_uv(us, vs, R, f, jv, ju)
+            for jy in range(Ny):
+                for ix in range(Nx):
+                    fx = ax_[jy, ix] + bx_[jy, ix] * slope_x[jv, ju]
+                    fy = ay_[jy, ix] + by_[jy, ix] * slope_y[jv, ju]
+                    if not (fx > -eps and fx < Nx - 1 + eps and fy > -eps and fy < Ny - 1 + eps):
+                        continue
+                    fx = min(max(fx, 0.0), Nx - 1.0)
+                    fy = min(max(fy, 0.0), Ny - 1.0)
+                    bx = min(int(fx), max(Nx - 2, 0))
+                    by = min(int(fy), max(Ny - 2, 0))
+                    wx = fx - bx if Nx > 1 else 0.0
+                    wy = fy - by if Ny > 1 else 0.0
+                    acc = 0.0
+                    inside = True
+                    for cy in range(2 if Ny > 1 else 1):
+                        for cx in range(2 if Nx > 1 else 1):
+                            w = (wx if cx else 1.0 - wx) * (wy if cy else 1.0 - wy)
+                            if w == 0.0:
+                                continue
+                            su = fu + r * kx * (fx - (bx + cx)) if Nu > 1 else 0.0
+                            sv = fv + r * ky * (fy - (by + cy)) if Nv > 1 else 0.0
+                            if su < -eps or su > Nu - 1 + eps or sv < -eps or sv > Nv - 1 + eps:
+                                inside = False
+                                break
+                            _lagrange_stencil(sv, Nv, taps, dens[0], wv, iv)
+                            _lagrange_stencil(su, Nu, taps, dens[1], wu, iu)
+                            m = (by + cy) * Nx + bx + cx
+                            val = 0.0
+                            for q in range(tv):
+                                row = srcT[iv[q]]
+                                a = 0.0
+                                for t in range(tu):
+                                    a += wu[t] * np.float32(row[iu[t], m])
+                                val += wv[q] * a
+                            acc += w * val
+                        if not inside:
+                            break
+                    if inside:
+                        _store(out[0, face, jy, ix, jv], ju, acc * r0)
+
+
+@numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+def _depth_views_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
+                        r0, out):
+    """:func:`_depth_views_exact_kernel` (same arguments and result up to the shift below) with the
+    (u, v) interpolation vectorised over the views, as :func:`_uv_row`: the moved ray of view
+    (jy, ix) along direction (v, u) falls at ``(ix + δx, jy + δy)`` among the viewpoints, and its
+    four neighbours are the views at offsets ``(ox + c, oy + r)``, c, r ∈ {0, 1}, each read at the
+    moved direction shifted by ``ρ (kx (δx − ox − c), ky (δy − oy − r))`` samples. δ changes from
+    view to view only through the rotation's moved origins (by ~ω times the array's extent in view
+    steps: 0.01 view steps for 0.2 deg over 4 cm), so the shifts are taken at the central view's
+    δ for every view of a direction, ``(ox, oy)`` = its floor: then a neighbour role's stencil is one
+    per direction and each of the four roles is one vectorised multiply-add per tap over all view
+    images (the shift's error: ρ times that change, ~0.01 samples at a disparity of one sample per
+    view step). Each view keeps its own bilinear weights (from its own δ, which may pass 0 or 1 by
+    that change: a tiny linear extrapolation); a ray whose neighbours leave the views, or whose
+    shifted directions leave the (u, v) samples, keeps the plain blend."""
+    _, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = srcT.shape
+    eps = 1e-6
+    dens = _lagrange_dens(Nv, Nu, taps)
+    tv = _taps_used(taps, Nv)
+    tu = _taps_used(taps, Nu)
+    nr_x = 2 if Nx > 1 else 1
+    nr_y = 2 if Ny > 1 else 1
+    cy0, cx0 = Ny // 2, Nx // 2
+    chunks = min(Nv, 32)
+    for c in numba.prange(chunks):
+        U = np.empty((4, Nu, M), np.float32)        # the four roles' (u, v)-shifted view images of a row
+        wv = np.empty((4, Nu, _UV_TAPS_MAX))
+        wu = np.empty((4, Nu, _UV_TAPS_MAX))
+        iv = np.empty((4, Nu, _UV_TAPS_MAX), np.int64)
+        iu = np.empty((4, Nu, _UV_TAPS_MAX), np.int64)
+        lanes = np.zeros(Nu, np.int64)
+        ox = np.zeros(Nu, np.int64)
+        oy = np.zeros(Nu, np.int64)
+        for jv in range(c * Nv // chunks, (c + 1) * Nv // chunks):
+            any_valid = False
+            for ju in range(Nu):
+                r = rho[jv, ju]
+                lanes[ju] = 0
+                if not ok_uv[jv, ju] or not r == r:
+                    continue
+                fv, fu, _, _, _ = _moved_uv(us, vs, R, f, jv, ju)
+                dx = ax_[cy0, cx0] + bx_[cy0, cx0] * slope_x[jv, ju] - cx0 if Nx > 1 else 0.0
+                dy = ay_[cy0, cx0] + by_[cy0, cx0] * slope_y[jv, ju] - cy0 if Ny > 1 else 0.0
+                ox[ju] = math.floor(dx)
+                oy[ju] = math.floor(dy)
+                good = True
+                for rr in range(nr_y):
+                    for cc in range(nr_x):
+                        q = rr * 2 + cc
+                        su = fu + r * kx * (dx - ox[ju] - cc) if Nu > 1 else 0.0
+                        sv = fv + r * ky * (dy - oy[ju] - rr) if Nv > 1 else 0.0
+                        good = good and su > -eps and su < Nu - 1 + eps and sv > -eps and sv < Nv - 1 + eps
+                        _lagrange_stencil(sv, Nv, taps, dens[0], wv[q, ju], iv[q, ju])
+                        _lagrange_stencil(su, Nu, taps, dens[1], wu[q, ju], iu[q, ju])
+                if good:
+                    lanes[ju] = M
+                    any_valid = True
+            if not any_valid:
+                continue
+            for rr in range(nr_y):
+                for cc in range(nr_x):
+                    q = rr * 2 + cc
+                    _uv_row(srcT, wv[q], iv[q], wu[q], iu[q], U[q], lanes, True, tv, tu)
+            for jy in range(Ny):
+                for ix in range(Nx):
+                    orow = out[0, face, jy, ix, jv]
+                    a_x = ax_[jy, ix]
+                    b_x = bx_[jy, ix]
+                    a_y = ay_[jy, ix]
+                    b_y = by_[jy, ix]
+                    for ju in range(Nu):
+                        if lanes[ju] == 0:
+                            continue
+                        fx = a_x + b_x * slope_x[jv, ju]
+                        fy = a_y + b_y * slope_y[jv, ju]
+                        if not (fx > -eps and fx < Nx - 1 + eps and fy > -eps and fy < Ny - 1 + eps):
+                            continue
+                        vx = ix + ox[ju]                    # the lower neighbour's view
+                        vy = jy + oy[ju]
+                        if vx < 0 or vx + nr_x - 1 > Nx - 1 or vy < 0 or vy + nr_y - 1 > Ny - 1:
+                            continue
+                        wx = fx - vx if Nx > 1 else 0.0
+                        wy = fy - vy if Ny > 1 else 0.0
+                        m = vy * Nx + vx
+                        acc = (1.0 - wy) * ((1.0 - wx) * U[0, ju, m] + (wx * U[1, ju, m + 1] if nr_x > 1 else 0.0))
+                        if nr_y > 1:
+                            acc += wy * ((1.0 - wx) * U[2, ju, m + Nx] + (wx * U[3, ju, m + Nx + 1] if nr_x > 1
+                                                                          else 0.0))
+                        _store(orow, ju, acc * r0)
+
+
 @numba.njit(cache=True, inline="always")
 def _channels(K, has_nd, ND, cvals, ov, ou, nv, nu):
     """How many of the K channels :func:`_extrapolate_xy_kernel` computes for a ray whose
@@ -1161,7 +1338,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                marks: np.ndarray | None = None, scratch: np.ndarray | None = None,
                ratio: np.ndarray | None = None, confidence_channels: int = 0,
                W0: np.ndarray | None = None, nodata: np.ndarray | None = None,
-               lag_confidence: bool = False) -> None:
+               lag_confidence: bool = False, depth_views: np.ndarray | None = None) -> None:
     """:func:`warp_lightfield` into given buffers. srcT (F, Nv, Nu, M) float32 C
     (:func:`_views_inner`); out (K, F, Ny, Nx, Nv, Nu) float32; ok (F, Ny, Nx, Nv, Nu)
     float32 or uint8 (1 inside, 0 outside; the solver uses uint8 without confidences).
@@ -1192,7 +1369,10 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
     that is inside the grid or filled by the extrapolation keeps its confidence unless it is 0
     (then it gets a fresh one), so the warped W is not blended again for it (:func:`_xy_row`,
     :func:`_extrapolate_xy_kernel`); L is warped as always. The motion solver's re-warps
-    (``polycam.motion._W_SETTLED``)."""
+    (``polycam.motion._W_SETTLED``).
+    ``depth_views`` (F, Nv, Nu), ρ per direction as ``rho`` (NaN: unknown): L (channel 0) of the
+    rays inside the viewpoints is blended across the views along it (:func:`_depth_views_kernel`)
+    instead of at one direction; the other channels and ``ok`` are those of the plain blend."""
     _, F, Ny, Nx, Nv, Nu = out.shape
     fold = confidence_channels > 0
     if fold and ok.dtype != np.uint16:
@@ -1256,11 +1436,15 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                                    *e_max, ratio[k], out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd,
                                    ND, lag)
+        if depth_views is not None and (Nx > 1 or Ny > 1):
+            _depth_views_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
+                                np.ascontiguousarray(depth_views[k], dtype=np.float64), hx / grid.u.step if Nu > 1 else 0.0, hy / grid.v.step if Nv > 1 else 0.0,
+                                float(ratio[k, 0]), out)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
                     uv_taps: int = 6, rho: np.ndarray | None = None,
-                    extrapolate_views: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                    extrapolate_views: float = 0.0, depth_views: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Resample light fields at the grid rays moved by the rigid transform ``T_ray`` (rig frame).
 
     ``arrays``: (K, F, Ny, Nx, Nv, Nu) stacked fields (e.g. L and W) sharing the
@@ -1272,14 +1456,20 @@ def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray,
     ``rho`` (F, Nv, Nu): the disparity ρ = f / Z per direction (u per unit of x; NaN:
     unknown); with it, rays that leave the viewpoints by at most ``extrapolate_views``
     view steps are extrapolated by paper Eq. 6 from the nearest edge viewpoint(s)
-    (``L(x_e + d, u) = L(x_e, u + ρ d)``) and count as inside.
+    (``L(x_e + d, u) = L(x_e, u + ρ d)``) and count as inside; with ``depth_views`` too, the
+    first array (L) of the rays inside is blended across the views along ρ as well (each of the
+    four views around the moved point read at the direction that sees the same scene point; the
+    other arrays keep the plain blend): where the views are a sample or more of disparity apart,
+    the plain blend mixes different scene points (:func:`_depth_views_kernel`).
     """
     arrays = np.asarray(arrays, dtype=np.float32)
     K, F, Ny, Nx, Nv, Nu = arrays.shape
     out = np.empty(arrays.shape, np.float32)
     ok = np.empty(arrays.shape[1:], np.float32)
     srcT = _views_inner(np.moveaxis(arrays, 0, 1))
-    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, None if rho is None else np.asarray(rho, np.float64), extrapolate_views)
+    rho = None if rho is None else np.asarray(rho, np.float64)
+    _warp_into(srcT, grid, T_ray, uv_taps, out, ok, rho, extrapolate_views,
+               depth_views=rho if depth_views else None)
     return out, ok > 0
 
 

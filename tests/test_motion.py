@@ -32,6 +32,8 @@ from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION
                         MOTION_DEPTH_POOL_GAIN, MOTION_DEPTH_RHO_POOLED_RTOL, MOTION_DEPTH_RHO_RTOL, MOTION_WARP_TAPS_GAIN,
                         MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL,
+                        MOTION_DEPTH_VIEWS_ATOL, MOTION_DEPTH_VIEWS_SOLVE_GAIN, MOTION_DEPTH_VIEWS_FAST_ATOL,
+                        MOTION_DEPTH_VIEWS_FAST_RMS,
                         MOTION_VIEW_DISPARITY_RTOL)
 
 ROOM_RADIUS = 6.0
@@ -613,6 +615,92 @@ def test_warp_extrapolates_beyond_the_views_by_eq6(tx, ty):
     assert not (ok_part & ~ok_plain)[..., : grid.v.count // 2, :].any() and (ok_part & ~ok_plain).any()
     _, ok_short = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=0.2)
     assert not ok_short[edge].any()
+
+
+def _aliased_plane(grid: LightFieldGrid, Z: float, shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
+    """(1, Ny, Nx, Nv, Nu): a plane Z [m] in front of the face plane with texture up to 66 rad/m, so
+    that on :func:`make_grid`'s 1.5 cm views it changes by up to ~1 rad from view to view (aliased
+    across the views) at the rays moved by (shift_x, shift_y) [m] (as :func:`_plane_lightfield`)."""
+    f = grid.faces[0].f
+    y, x, v, u = np.meshgrid(grid.y.values, grid.x.values, grid.v.values, grid.u.values, indexing="ij")
+    s, t = x + shift_x + Z * u / f, y + shift_y + Z * v / f
+    waves = ((20.0, 27.0, 0.3), (41.0, -33.0, 1.1), (-57.0, 48.0, 2.0), (66.0, 12.0, 0.7))
+    return (0.5 + 0.08 * sum(np.sin(a * s + b * t + p) for a, b, p in waves))[None].astype(np.float32)
+
+
+def test_warp_blends_views_along_the_disparity():
+    """``depth_views``: each of the four views around a moved ray is read at the direction that
+    sees the same point of the plane (Eq. 6), so the blend is exact up to the (u, v) interpolation
+    where the plain blend across views 1.8 samples of disparity apart mixes different points; ok
+    is the plain blend's, unknown disparity keeps the plain blend, and the wrong sign is worse."""
+    grid = make_grid(("+z",), views=5, directions=48, spacing=0.015)
+    Z = 0.2
+    assert grid.faces[0].f / Z * grid.x.step / grid.u.step == pytest.approx(1.8)
+    L = _aliased_plane(grid, Z)
+    tx, ty = 0.006, -0.004                                 # 0.4 and 0.27 view steps
+    truth = _aliased_plane(grid, Z, tx, ty)
+    M = T_from_rt(np.array([0.0, 0.0, 0.0, tx, ty, 0.0]))
+    rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / Z)
+    plain, ok = warp_lightfield(L[None], grid, M)
+    along, ok_along = warp_lightfield(L[None], grid, M, rho=rho, depth_views=True)
+    assert np.array_equal(ok, ok_along)
+    inner = ok.copy()                 # the shifted stencils of the border directions are clamped
+    inner[..., :4, :] = inner[..., -4:, :] = inner[..., :4] = inner[..., -4:] = False
+    assert inner.sum() > 0.3 * inner.size
+    err_plain = np.abs(plain[0] - truth)[inner].max()
+    err_along = np.abs(along[0] - truth)[inner].max()
+    assert err_along < MOTION_DEPTH_VIEWS_ATOL < err_plain
+    unknown, _ = warp_lightfield(L[None], grid, M, rho=np.full_like(rho, np.nan), depth_views=True)
+    assert np.array_equal(unknown, plain)
+    wrong, _ = warp_lightfield(L[None], grid, M, rho=-rho, depth_views=True)
+    assert np.abs(wrong[0] - truth)[inner].max() > err_plain
+
+
+@pytest.mark.parametrize("rt", [(0.0, 0.0, 0.0, 0.006, -0.004, 0.0), (0.004, -0.003, 0.0035, 0.006, -0.004, 0.002)],
+                         ids=["translation", "with-rotation"])
+def test_depth_views_fast_kernel_matches_the_exact_one(monkeypatch, rt):
+    """The vectorised blend along the disparity (one shift per direction and neighbour, taken at the
+    central view) against every ray's own stencils: equal under a translation; with a rotation
+    within the shift's change across the views, far below the plain blend's error."""
+    import polycam.warp as pw
+    grid = make_grid(("+z",), views=5, directions=48, spacing=0.015)
+    Z = 0.2
+    L = _aliased_plane(grid, Z)
+    rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / Z)
+    M = T_from_rt(np.array(rt))
+    fast, ok = warp_lightfield(L[None], grid, M, rho=rho, depth_views=True)
+    plain, _ = warp_lightfield(L[None], grid, M)
+    monkeypatch.setattr(pw, "_depth_views_kernel", pw._depth_views_exact_kernel)
+    exact, ok_exact = warp_lightfield(L[None], grid, M, rho=rho, depth_views=True)
+    assert np.array_equal(ok, ok_exact)
+    inner = ok.copy()
+    inner[..., :4, :] = inner[..., -4:, :] = inner[..., :4] = inner[..., -4:] = False
+    d = np.abs(fast - exact)[0][inner]
+    if rt[0] == 0.0:
+        assert d.max() < 1e-5
+    else:
+        assert d.max() < MOTION_DEPTH_VIEWS_FAST_ATOL and np.sqrt(np.mean(d * d)) < MOTION_DEPTH_VIEWS_FAST_RMS
+    assert np.abs(plain - exact)[0][inner].max() > 5 * MOTION_DEPTH_VIEWS_FAST_ATOL
+
+
+def test_solver_blends_views_along_the_disparity():
+    """Where the views are far apart for the scene (1.8 samples per view step: the solve stops at
+    (u, v) level 1, 0.9 there), the solver's warp blends them along ρ̄ (``depth_views``): the
+    translation error falls by more than MOTION_DEPTH_VIEWS_SOLVE_GAIN; below the threshold
+    (the level's disparity under ``depth_views``) the estimate is the plain blend's, bit for bit."""
+    grid = make_grid(("+z",), views=5, directions=48, spacing=0.015)
+    Z, t = 0.2, np.array([0.006, -0.004])
+    L0, L1 = _aliased_plane(grid, Z), _aliased_plane(grid, Z, *t)
+    errs = {}
+    for name, opts in (("plain", MotionOptions(depth_views=math.inf)), ("along", MotionOptions())):
+        res = estimate_motion(L0, L1, grid, options=opts)
+        assert res, res.reason
+        assert res.uv_level == 1
+        errs[name] = np.linalg.norm(res.T_prev_next[:2, 3] - t) / np.linalg.norm(t)
+    assert errs["plain"] > MOTION_DEPTH_VIEWS_SOLVE_GAIN * errs["along"]
+    high = estimate_motion(L0, L1, grid, options=MotionOptions(depth_views=1.0))     # level 1 is at 0.9
+    plain = estimate_motion(L0, L1, grid, options=MotionOptions(depth_views=math.inf))
+    assert np.array_equal(high.T_prev_next, plain.T_prev_next)
 
 
 def test_warp_scratch_holds_the_edge_copy():
