@@ -1192,9 +1192,6 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
         return 0, math.nan
     from .scales import VIEW_DISPARITY_AGREE, view_disparity
 
-    def per_view(g: LightFieldGrid) -> float:
-        return _per_view(g, g0)
-
     m = min(2, len(levels) - 1)
     lev = levels[m]
     g = lev.grid
@@ -1209,12 +1206,12 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     d_faces = view_disparity(L, L, sub, W0=W, noise_var=2.0 * _noise_variance(lev), agree=VIEW_DISPARITY_AGREE)
     if not np.any(np.isfinite(d_faces)):
         return 0, math.nan
-    d = float(np.nanmax(d_faces)) / per_view(g)          # finest level's samples per its view step
+    d = float(np.nanmax(d_faces)) / _per_view(g, g0)          # finest level's samples per its view step
     k = 0
-    while d * per_view(levels[k].grid) > thr:
+    while d * _per_view(levels[k].grid, g0) > thr:
         if k + 1 >= len(levels) and not _add_level(levels, opts, radius, _tail_array):
             break
-        if per_view(levels[k + 1].grid) >= per_view(levels[k].grid):
+        if _per_view(levels[k + 1].grid, g0) >= _per_view(levels[k].grid, g0):
             break                 # (x, y) halved with (u, v) (pyramid_xy): no nearer the threshold
         k += 1
     while len(levels) < k + opts.levels and _add_level(levels, opts, radius, _tail_array):
