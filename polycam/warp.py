@@ -739,9 +739,31 @@ def _perimeter(Ny: int, Nx: int) -> np.ndarray:
     return slot
 
 
+@numba.njit(cache=True, inline="always")
+def _edge_sample(Ef, K, P, Nu, Nv, p, jv, iu, su, sv, ok_uv, wu, wv):
+    """(value, ok): channel 0 of edge view ``p``'s (u, v)-warped image in Ef (the flat E of
+    :func:`_extrapolate_xy_kernel`) at direction (jv, iu) shifted by (sv, su) samples (4-point
+    Lagrange along an axis with a shift, :func:`_shift_stencil`); not ok where a node leaves the
+    directions or is not ``ok_uv``. wu, wv: (4,) scratch."""
+    tu, ou = _shift_stencil(iu, su, Nu, wu)
+    tv, ov = _shift_stencil(jv, sv, Nv, wv)
+    if tu == 0 or tv == 0:
+        return 0.0, False
+    val = 0.0
+    for q in range(tv):
+        acc = 0.0
+        for t in range(tu):
+            if not ok_uv[ov + q, ou + t]:
+                return 0.0, False
+            acc += wu[t] * Ef[(((ov + q) * K) * P + p) * Nu + ou + t]
+        val += wv[q] * acc
+    return val, True
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx, ky,
-                           e_max_x, e_max_y, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND, lag):
+                           e_max_x, e_max_y, ratio, out, ok, marks, has_marks, fold, W0, has_w0, cq, crnd, ND, lag,
+                           along=False):
     """Fill the rays :func:`_warp_rows_kernel` left empty because their moved focal-plane point
     lies outside the viewpoints' range, by at most ``e_max_x``, ``e_max_y`` view steps along x and y
     (inf: the single-view axis of a linear array), from the nearest edge viewpoint(s) by paper Eq. 6:
@@ -764,7 +786,10 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     left at 0 where ND (Nv, Nu) (:func:`_warp_rows_kernel`) is 0 at every node: it is 0
     there. With ``lag`` (:func:`_xy_row`'s ``lag`` 2) the rays to fill are those whose L is
     _OUTSIDE: each is filled, keeping its confidence in ok when that is not 0 (only L is
-    extrapolated for it), or else cleared (L and ok 0)."""
+    extrapolated for it), or else cleared (L and ok 0). With ``along`` (the warp's blend along the
+    disparity, :func:`_depth_views_kernel`) L's blend between the two edge views is along the
+    disparity too: each read at its own shift along the edge, ``ρ k (c − b)`` for the view at b and
+    the point at c (where a node of that leaves the directions, the plain blend stays)."""
     K = ratio.shape[0]
     has_nd = fold and K == 3
     _, _, Ny, Nx = out.shape[:4]
@@ -774,6 +799,8 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
     for jv in numba.prange(Nv):
         wu = np.empty(4)
         wv = np.empty(4)
+        wa = np.empty(4)                              # (along: _edge_sample's stencils)
+        wb = np.empty(4)
         vals = np.zeros(3, np.float32)                # fold: the confidence channels' values
         vals[1] = 1.0                                 # (W = 1 when there is none: K = 1)
         for jy in range(Ny):
@@ -868,6 +895,18 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                                     acc += wu[t] * (w0 * Ef[o0 + q * KPN + t] + w1 * Ef[o1 + q * KPN + t])
                                 val += wv[q] * acc
                             _put_channel(out, vals, fold, k, (face, jy, ix, jv, iu), val * ratio[k])
+                    if along and w0 != 0.0 and w1 != 0.0:
+                        # L along the disparity: the edge views at their own shifts along the edge
+                        if ex != 0.0:
+                            su0 = su1 = ex * kx * r
+                            sv0, sv1 = w1 * ky * r, -w0 * ky * r
+                        else:
+                            su0, su1 = w1 * kx * r, -w0 * kx * r
+                            sv0 = sv1 = ey * ky * r
+                        v0, g0 = _edge_sample(Ef, K, P, Nu, Nv, p0, jv, iu, su0, sv0, ok_uv, wa, wb)
+                        v1, g1 = _edge_sample(Ef, K, P, Nu, Nv, p1, jv, iu, su1, sv1, ok_uv, wa, wb)
+                        if g0 and g1:
+                            _put_channel(out, vals, fold, 0, (face, jy, ix, jv, iu), (w0 * v0 + w1 * v1) * ratio[0])
                     if keep > 0:
                         okrow[iu] = keep
                     elif fold:
@@ -1435,7 +1474,7 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
             _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, *cx, *cy, k, rho[k], ku, kv,
                                    *e_max, ratio[k], out, ok,
                                    _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd,
-                                   ND, lag)
+                                   ND, lag, depth_views is not None)
         if depth_views is not None and (Nx > 1 or Ny > 1):
             _depth_views_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
                                 np.ascontiguousarray(depth_views[k], dtype=np.float64), hx / grid.u.step if Nu > 1 else 0.0, hy / grid.v.step if Nv > 1 else 0.0,

@@ -33,7 +33,7 @@ from tolerances import (MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION
                         MOTION_SCALED_VIEWS_RTOL, MOTION_WARP_SOURCE_UNITS, MOTION_WHITEN_GLS_RTOL,
                         MOTION_WHITEN_VS_PLAIN, MOTION_EXTRAPOLATION_ATOL, MOTION_NOISE_EXTRAPOLATION_REL,
                         MOTION_DEPTH_VIEWS_ATOL, MOTION_DEPTH_VIEWS_SOLVE_GAIN, MOTION_DEPTH_VIEWS_FAST_ATOL,
-                        MOTION_DEPTH_VIEWS_FAST_RMS,
+                        MOTION_DEPTH_VIEWS_FAST_RMS, MOTION_DEPTH_VIEWS_EXTRAPOLATION_ATOL,
                         MOTION_VIEW_DISPARITY_RTOL)
 
 ROOM_RADIUS = 6.0
@@ -654,6 +654,30 @@ def test_warp_blends_views_along_the_disparity():
     assert np.array_equal(unknown, plain)
     wrong, _ = warp_lightfield(L[None], grid, M, rho=-rho, depth_views=True)
     assert np.abs(wrong[0] - truth)[inner].max() > err_plain
+
+
+def test_extrapolation_blends_the_edge_views_along_the_disparity():
+    """Rays moved beyond the views are extrapolated from the two edge views around them (Eq. 6);
+    with ``depth_views`` that blend along the edge reads each edge view at its own shift too, so on
+    the aliased plane the extrapolated samples are as exact as the interpolated ones, where the plain
+    blend along the edge mixes different points."""
+    grid = make_grid(("+z",), views=5, directions=48, spacing=0.015)
+    Z = 0.2
+    L = _aliased_plane(grid, Z)
+    tx, ty = 0.02, 0.006                                    # 1.33 view steps beyond the x edge, 0.4 along y
+    truth = _aliased_plane(grid, Z, tx, ty)
+    M = T_from_rt(np.array([0.0, 0.0, 0.0, tx, ty, 0.0]))
+    rho = np.full((1, grid.v.count, grid.u.count), grid.faces[0].f / Z)
+    _, ok_inside = warp_lightfield(L[None], grid, M)
+    plain, ok = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=2.0)
+    along, ok_along = warp_lightfield(L[None], grid, M, rho=rho, extrapolate_views=2.0, depth_views=True)
+    assert np.array_equal(ok, ok_along)
+    new = ok & ~ok_inside
+    new[..., :6, :] = new[..., -6:, :] = new[..., :6] = new[..., -6:] = False    # shifted nodes in the directions
+    assert new.sum() > 0.1 * new.size
+    err_plain = np.abs(plain[0] - truth)[new].max()
+    err_along = np.abs(along[0] - truth)[new].max()
+    assert err_along < MOTION_DEPTH_VIEWS_EXTRAPOLATION_ATOL < err_plain
 
 
 @pytest.mark.parametrize("rt", [(0.0, 0.0, 0.0, 0.006, -0.004, 0.0), (0.004, -0.003, 0.0035, 0.006, -0.004, 0.002)],

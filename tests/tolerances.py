@@ -28,6 +28,7 @@ MOTION_EXTRAPOLATION_ATOL = 5e-4  # Eq. 6 extrapolation of a textured plane's li
 MOTION_DEPTH_VIEWS_ATOL = 2e-4  # warp blending the views along the disparity vs the moved plane's light field, 1.8 samples per view step (values 0.2-0.8; measured 1e-5, the plain blend 0.027)
 MOTION_DEPTH_VIEWS_FAST_ATOL = 5e-3  # vectorised vs per-ray blend along the disparity, 0.23 deg rotation (the shift taken at the central view; measured max 2.8e-3, RMS 4.8e-4; the plain blend 0.027)
 MOTION_DEPTH_VIEWS_FAST_RMS = 1e-3
+MOTION_DEPTH_VIEWS_EXTRAPOLATION_ATOL = 1e-3  # Eq. 6 extrapolation with the blend along the edge along the disparity, aliased plane (measured 3.2e-4: 4-point shifts; the plain blend along the edge 0.019)
 MOTION_DEPTH_VIEWS_SOLVE_GAIN = 1.5  # translation error without / with depth_views, textured plane at 1.8 samples per view step (measured 2.3)
 MOTION_NOISE_EXTRAPOLATION_REL = 0.03  # |mean t-hat.t/|t|^2 - 1| over 4 draws, 6 faces 16x16 dirs, 1.6-view motion, noise 0.01 (measured 0.0075)
 MOTION_SPHERES_REL = 0.05     # relative error per component with occluding spheres
