@@ -17,7 +17,7 @@ the seeds and the ratio of each setting's ATE to the last one's (measured in the
 Usage::
 
     .venv/bin/python benchmarks/bench_arrays.py [--rigs webcam3x3 mock5x5] [--seeds 3 11 12 13]
-        [--frames 9] [--thresholds 0.75 inf] [--depth-views 0.3] [--uv-step 1] [--keep DIR]
+        [--frames 9] [--thresholds 0.75 inf] [--depth-views 0.25] [--uv-step 1] [--keep DIR]
 """
 
 from __future__ import annotations

@@ -52,7 +52,7 @@ Where the views are too far apart for the scene (disparity per view step above
 ``max_view_disparity`` samples: camera arrays), the light field is aliased across the views
 at the fine (u, v) scales, and the finest level used is the first coarse enough
 (:func:`_aliasing_start`; docs/motion.md, "Camera arrays"). Where a level's disparity per view
-step is above ``depth_views`` (0.3 samples), the warp blends the views around each moved ray
+step is above ``depth_views`` (0.25 samples), the warp blends the views around each moved ray
 along ρ̄ (Eq. 6: each view read at the direction that sees the same scene point) instead of at
 one direction: the plain blend of views a sizeable fraction of a sample apart mixes different
 scene points, so at the converged estimate the warped frame lags the motion and the translation

@@ -46,7 +46,7 @@ class MotionOptions:
     too (``pyramid_xy``) do not lower the disparity per view step, so the search stops before
     them. ``PairResult.uv_level`` says which level the
     estimate comes from."""
-    depth_views: float = 0.3
+    depth_views: float = 0.25
     """The warp blends the (up to) four viewpoints around each moved ray along the direction's
     disparity ρ̄ (paper Eq. 6: each view read at the direction that sees the same scene point;
     :func:`polycam.warp._depth_views_kernel`) instead of at one direction, at every level whose
@@ -56,8 +56,8 @@ class MotionOptions:
     so the warped frame lags the true motion at the converged estimate and the translation comes
     out long (camera arrays: per-pair translation error 5–8 % → 1.2–2.5 %; docs/motion.md, "Camera
     arrays"). Below ~0.2 the plain blend is already exact and ρ̄'s own error costs a little (the
-    paper's spheres at 8 m, 0.1 samples per view step: t 0.07 → 0.15 % with 0), hence the threshold.
-    ``inf``: never. Not measured (fewer than 3 views along x or y, ``max_view_disparity`` inf):
+    paper's spheres at 8 m, 0.1 samples per view step: t 0.07 → 0.15 % with 0; at 12 m, 0.21: 0.44 →
+    0.49 %), hence the threshold; a row of five cameras at 0.28 gains (1.4 → 1.0 %). ``inf``: never. Not measured (fewer than 3 views along x or y, ``max_view_disparity`` inf):
     never."""
     pyramid_xy: bool = False
     """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
