@@ -170,6 +170,14 @@ def _shift_stencil(i, d, n, w):
 
 
 @numba.njit(cache=True, inline="always")
+def _stencil_scratch():
+    """(wv, wu, iv, iu): one ray's Lagrange weights (float64) and indices (int64) along v and u,
+    _UV_TAPS_MAX each (:func:`_lagrange_stencil`), per thread."""
+    return (np.empty(_UV_TAPS_MAX), np.empty(_UV_TAPS_MAX), np.empty(_UV_TAPS_MAX, np.int64),
+            np.empty(_UV_TAPS_MAX, np.int64))
+
+
+@numba.njit(cache=True, inline="always")
 def _face_direction(R, u, v, f):
     """``R (u, v, f)``: a face sample's direction (u, v, f) moved by the rotation R (3, 3)."""
     return (R[0, 0] * u + R[0, 1] * v + R[0, 2] * f,
@@ -200,10 +208,7 @@ def _warp_kernel(src, xs, ys, us, vs, R, tr, z_pi, f, uv_taps, out, ok):
     nu_t = _taps_used(uv_taps, Nu)
     nv_t = _taps_used(uv_taps, Nv)
     for jy in numba.prange(Ny):
-        wu = np.empty(_UV_TAPS_MAX)
-        wv = np.empty(_UV_TAPS_MAX)
-        iu_idx = np.empty(_UV_TAPS_MAX, np.int64)
-        iv_idx = np.empty(_UV_TAPS_MAX, np.int64)
+        wv, wu, iv_idx, iu_idx = _stencil_scratch()
         for ix in range(Nx):
             ox = xs[ix]
             oy = ys[jy]
@@ -941,10 +946,7 @@ def _depth_views_exact_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y,
     tv = _taps_used(taps, Nv)
     tu = _taps_used(taps, Nu)
     for jv in numba.prange(Nv):
-        wv = np.empty(_UV_TAPS_MAX)
-        wu = np.empty(_UV_TAPS_MAX)
-        iv = np.empty(_UV_TAPS_MAX, np.int64)
-        iu = np.empty(_UV_TAPS_MAX, np.int64)
+        wv, wu, iv, iu = _stencil_scratch()
         for ju in range(Nu):
             r = rho[jv, ju]
             if not ok_uv[jv, ju] or not r == r:
