@@ -1180,7 +1180,8 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     that level's (u, v) step over the (x, y) step relative to the finest's, its rays gated
     against that level's sensor noise (``noise_var``: rays without texture left out, rays whose
     views differ by no more than the noise counted as disparity 0) and counted only where the
-    two stereo equations agree (``agree``: :data:`~polycam.scales.VIEW_DISPARITY_AGREE`). Needs
+    two stereo equations agree (``agree``: :data:`~polycam.scales.VIEW_DISPARITY_AGREE`), with
+    confidences W0 only on rays with at least half the best W0 of those views. Needs
     3 views along x and y, or along one of them on a linear array (one viewpoint along the other).
     A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
     view step: the search stops before it."""
@@ -1202,6 +1203,11 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     views = (slice(None), ys, xs)
     L = lev.L0[views]
     W = None if lev.W0 is None else lev.W0[views]
+    if W is not None and 0.0 < float(W.max()) < 1.0:
+        # the gate (W0 > 0.5) relative to the best of these views: a stereo pair resampled with
+        # 4 views per camera spacing has no camera among its central views (W 0.25-0.375), whose
+        # disparity was then never measured (docs/motion.md, "Blending the views along the disparity")
+        W = W / float(W.max())
     # (one frame as both: their mean carries its whole noise, twice that of two frames' mean)
     d_faces = view_disparity(L, L, sub, W0=W, noise_var=2.0 * _noise_variance(lev), agree=VIEW_DISPARITY_AGREE)
     if not np.any(np.isfinite(d_faces)):

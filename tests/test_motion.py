@@ -727,6 +727,22 @@ def test_solver_blends_views_along_the_disparity():
     assert np.array_equal(high.T_prev_next, plain.T_prev_next)
 
 
+def test_view_disparity_measured_on_filled_views():
+    """A stereo pair resampled with 4 views per camera spacing has no camera among its central
+    views (confidence W 0.25-0.375 there): the disparity per view step is still measured (the
+    gate is relative to the best W of the measured views), so the level rule and ``depth_views``
+    apply to it."""
+    grid = linear_grid(("+z",), "y", views=5, directions=48)
+    Z, t = 0.4, np.array([0.004, 0.0])                      # 0.9 samples per view step
+    L0, L1 = _aliased_plane(grid, Z), _aliased_plane(grid, Z, *t)
+    W = np.broadcast_to(np.array([1.0, 0.375, 0.25, 0.375, 1.0], np.float32)[None, None, :, None, None],
+                        L0.shape).copy()
+    expected = grid.faces[0].f / Z * grid.x.step / grid.u.step
+    res = estimate_motion(L0, L1, grid, W0=W, W1=W)
+    assert res, res.reason
+    assert res.view_disparity == pytest.approx(expected, rel=MOTION_VIEW_DISPARITY_RTOL)
+
+
 def test_warp_scratch_holds_the_edge_copy():
     """The warp's copy of the edge views (Eq. 6 extrapolation) goes in the caller's scratch
     when it fits (the solver passes its derivatives' memory), with the same output; a
