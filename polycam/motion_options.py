@@ -57,7 +57,8 @@ class MotionOptions:
     out long (camera arrays: per-pair translation error 5–8 % → 1.2–2.5 %; docs/motion.md, "Camera
     arrays"). Below ~0.2 the plain blend is already exact and ρ̄'s own error costs a little (the
     paper's spheres at 8 m, 0.1 samples per view step: t 0.07 → 0.15 % with 0; at 12 m, 0.21: 0.44 →
-    0.49 %), hence the threshold; a row of five cameras at 0.28 gains (1.4 → 1.0 %). ``inf``: never. Not measured (fewer than 3 views along x or y, ``max_view_disparity`` inf):
+    0.49 %), hence the threshold; a row of five cameras at 0.28 gains (1.4 → 1.0 %). Not with
+    ``symmetric`` (whose warps have no ρ̄). ``inf``: never. Not measured (fewer than 3 views along x or y, ``max_view_disparity`` inf):
     never."""
     pyramid_xy: bool = False
     """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
