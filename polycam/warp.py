@@ -922,6 +922,15 @@ def _extrapolate_xy_kernel(E, slot, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_,
                         marks[face, jy, ix, jv, iu] = 1
 
 
+@numba.njit(cache=True, inline="always")
+def _depth_views_dims(out, srcT, taps):
+    """(Ny, Nx, Nv, Nu, M, dens, tv, tu) of :func:`_depth_views_kernel`'s arguments: the grid's and
+    srcT's dims, the Lagrange denominators (:func:`_lagrange_dens`) and the taps used along v, u."""
+    _, _, Ny, Nx = out.shape[:4]
+    Nv, Nu, M = srcT.shape
+    return Ny, Nx, Nv, Nu, M, _lagrange_dens(Nv, Nu, taps), _taps_used(taps, Nv), _taps_used(taps, Nu)
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FASTMATH)
 def _depth_views_exact_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, bx_, ay_, by_, face, rho, kx,
                               ky, r0, out):
@@ -939,12 +948,8 @@ def _depth_views_exact_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y,
     ``r0``: channel 0's ``ratio``; positions and arguments otherwise as :func:`_xy_row`. A ray whose
     shifted direction leaves the (u, v) samples keeps the plain blend too. Every ray's own
     stencils, one view sample at a time: the reference of :func:`_depth_views_kernel`."""
-    _, _, Ny, Nx = out.shape[:4]
-    Nv, Nu, M = srcT.shape
+    Ny, Nx, Nv, Nu, M, dens, tv, tu = _depth_views_dims(out, srcT, taps)
     eps = 1e-6
-    dens = _lagrange_dens(Nv, Nu, taps)
-    tv = _taps_used(taps, Nv)
-    tu = _taps_used(taps, Nu)
     for jv in numba.prange(Nv):
         wv, wu, iv, iu = _stencil_scratch()
         for ju in range(Nu):
@@ -1009,12 +1014,8 @@ def _depth_views_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, 
     view step). Each view keeps its own bilinear weights (from its own δ, which may pass 0 or 1 by
     that change: a tiny linear extrapolation); a ray whose neighbours leave the views, or whose
     shifted directions leave the (u, v) samples, keeps the plain blend."""
-    _, _, Ny, Nx = out.shape[:4]
-    Nv, Nu, M = srcT.shape
+    Ny, Nx, Nv, Nu, M, dens, tv, tu = _depth_views_dims(out, srcT, taps)
     eps = 1e-6
-    dens = _lagrange_dens(Nv, Nu, taps)
-    tv = _taps_used(taps, Nv)
-    tu = _taps_used(taps, Nu)
     nr_x = 2 if Nx > 1 else 1
     nr_y = 2 if Ny > 1 else 1
     cy0, cx0 = Ny // 2, Nx // 2
