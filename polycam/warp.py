@@ -1019,6 +1019,7 @@ def _depth_views_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, 
     nr_x = 2 if Nx > 1 else 1
     nr_y = 2 if Ny > 1 else 1
     cy0, cx0 = Ny // 2, Nx // 2
+    m1 = min(-(-Ny * Nx // 16) * 16, M)            # L's lanes (padded as _padded): the other channels are not read
     chunks = min(Nv, 32)
     for c in numba.prange(chunks):
         U = np.empty((4, Nu, M), np.float32)        # the four roles' (u, v)-shifted view images of a row
@@ -1051,7 +1052,7 @@ def _depth_views_kernel(srcT, us, vs, R, f, taps, ok_uv, slope_x, slope_y, ax_, 
                         _lagrange_stencil(sv, Nv, taps, dens[0], wv[q, ju], iv[q, ju])
                         _lagrange_stencil(su, Nu, taps, dens[1], wu[q, ju], iu[q, ju])
                 if good:
-                    lanes[ju] = M
+                    lanes[ju] = m1
                     any_valid = True
             if not any_valid:
                 continue
@@ -1479,9 +1480,10 @@ def _warp_into(srcT: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, uv_tap
                                    _NO_MARKS if marks is None else marks, marks is not None, fold, W0, has_w0, cq, crnd,
                                    ND, lag, depth_views is not None)
         if depth_views is not None and (Nx > 1 or Ny > 1):
+            kx = hx / grid.u.step if Nu > 1 else 0.0
+            ky = hy / grid.v.step if Nv > 1 else 0.0
             _depth_views_kernel(srcT[k], us, vs, R, float(face.f), int(uv_taps), ok_uv, slope_x, slope_y, *cx, *cy, k,
-                                np.ascontiguousarray(depth_views[k], dtype=np.float64), hx / grid.u.step if Nu > 1 else 0.0, hy / grid.v.step if Nv > 1 else 0.0,
-                                float(ratio[k, 0]), out)
+                                np.ascontiguousarray(depth_views[k], dtype=np.float64), kx, ky, float(ratio[k, 0]), out)
 
 
 def warp_lightfield(arrays: np.ndarray, grid: LightFieldGrid, T_ray: np.ndarray, *,
