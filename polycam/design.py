@@ -791,7 +791,9 @@ def predict_pair(sampling: RigSampling, src0: np.ndarray, src1: np.ndarray, M: n
     unobservable), and for a linear array's single-view axis, whose regressor the solver takes
     from depth (else that translation is reported unobservable).
     """
-    opts = options or MotionOptions()
+    # the solver's options on these frames: measure_pairs passes the confidences W unless every
+    # sample has data
+    opts = (options or MotionOptions()).for_frames(not sampling.all_data)
     rng = rng if rng is not None else np.random.default_rng(0)
     g = sampling.grid
     F, Ny, Nx, Nv, Nu = g.shape

@@ -1129,7 +1129,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     [0, 1]. ``T_init``: (4, 4) starting estimate of ``T_rig0_rig1`` (identity).
     Raises :class:`InputError` for unusable input (NaNs, mismatched dims).
     """
-    opts = options or MotionOptions()
+    opts = (options or MotionOptions()).for_frames(W0 is not None or W1 is not None)
     W0 = None if W0 is None else _check_frame(f"weights of frame {index}", W0, grid)
     W1 = None if W1 is None else _check_frame(f"weights of frame {index + 1}", W1, grid)
     L0 = _check_frame(f"frame {index}", L0, grid, W0)

@@ -73,7 +73,21 @@ class MotionOptions:
     smooth_c: float = 0.5
     """Discontinuity weight ``1 / (1 + (e / (c · median e))²)``, e = the largest |∂²L/∂u²| +
     |∂²L/∂v²| within ``smooth_radius`` samples (0 disables): silhouettes, creases and
-    aliased steps, where interpolation and linearisation fail, get little weight."""
+    aliased steps, where interpolation and linearisation fail, get little weight. On frames
+    without confidences W (rendered light fields, plenoptic cameras' decoded ones); with them
+    the solver takes ``smooth_c_resampled``."""
+    smooth_c_resampled: float = 0.0
+    """``smooth_c`` on frames with confidences W (a resampled camera-array session, or a store
+    ``polycam resample`` wrote; :meth:`for_frames`); 0: no discontinuity weight there. The
+    weight normalises e by its median, so a ray of median e gets 0.2: on a textured room that
+    is most rays (mean weight 0.27–0.36 on the example rigs' sessions), and the weight then
+    mostly ranks texture rather than flagging silhouettes; where noise dominates e it ranks
+    the noise. Measured against 0.5 (docs/motion.md, "The discontinuity weight on resampled
+    sessions", session 44; median per-pair translation error): benchmarks/bench_arrays.py
+    webcam3x3 2.57 → 1.92 %, oak_array 2.22 → 1.78, webcam5x5 1.87 → 1.45, oak_d_lite 3.56 →
+    3.26, mock5x5 0.77 → 0.79, mock1x5 2.13 → 2.24; the nested cube's spheres with its 2.55
+    grey levels of camera noise 1.94 → 0.94 % (noise-free cameras: 0.17 → 0.33 %). ``polycam
+    run`` had used 0 since session 2 (``RunOptions.smooth_c``, now this default)."""
     smooth_radius: int = 2
     """Half-width in (u, v) samples of the neighbourhood searched for discontinuities."""
     eiv: bool = False
@@ -250,6 +264,8 @@ class MotionOptions:
             raise ValueError(f"depth_gate_cond must be >= 1, got {self.depth_gate_cond}")
         if not self.depth_gate_z > 0.0:
             raise ValueError(f"depth_gate_z must be > 0, got {self.depth_gate_z}")
+        if not 0.0 <= self.smooth_c_resampled < math.inf:
+            raise ValueError(f"smooth_c_resampled must be >= 0 and finite, got {self.smooth_c_resampled}")
         if not 0.0 < self.model_weight_gain < math.inf:
             raise ValueError(f"model_weight_gain must be > 0 and finite, got {self.model_weight_gain}")
         if not 0.0 <= self.extrapolate_views < math.inf:
@@ -260,6 +276,13 @@ class MotionOptions:
             raise ValueError(f"max_view_disparity must be > 0 (inf: no limit), got {self.max_view_disparity}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
+
+    def for_frames(self, confidences: bool) -> "MotionOptions":
+        """The options as the solver applies them to a frame pair with (``confidences``: W0 or
+        W1 given) or without confidences W: with them ``smooth_c`` is ``smooth_c_resampled``."""
+        if confidences and self.smooth_c != self.smooth_c_resampled:
+            return replace(self, smooth_c=self.smooth_c_resampled)
+        return self
 
 
 NOISY = MotionOptions(smooth_c=0.0, eiv=True, whiten="on", model_weight=True, model_weight_gain=8.0, uv_taps=14,

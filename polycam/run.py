@@ -114,10 +114,6 @@ class RunOptions:
     spread of each pair's estimate is added to its covariance (:mod:`polycam.calib_draws_cli`;
     0: the calibrated models are taken as exact). About one resampling and solve of the session
     per re-solve (the demo: ~7 s each)."""
-    smooth_c: float = 0.0
-    """The motion solver's discontinuity-weight constant (:class:`polycam.motion.MotionOptions`;
-    0 disables it). On the same sessions its default 0.5 gave 7.3% / 1.8% with a worst
-    session at 15.5% / 6.1%; 0 gave at most 6.5% / 2.5%."""
     calib_plots: bool = False
     """Also write the calibration stage's own plots (per-camera residual maps; slow for many cameras)."""
     depth_views: int = 3
@@ -274,7 +270,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     from .trajectory import write_tum
 
     lf = open_lightfield(out / "lightfield.zarr")
-    motion_options = MotionOptions(smooth_c=opts.smooth_c)
+    motion_options = MotionOptions()     # (no discontinuity weight on these resampled frames:
+                                         # MotionOptions.smooth_c_resampled)
     stamps = [time.perf_counter()]                 # after each pair: per-pair times
     with bar("5/6 plenoptic motion", len(lf) - 1) as adv, _stage("motion"):
         def tick(done: int, total: int) -> None:

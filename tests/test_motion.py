@@ -454,6 +454,33 @@ def test_confidence_zero_region_is_ignored(scene):
     assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL_ONE_FACE)
 
 
+def test_frames_with_confidences_take_their_own_discontinuity_constant(scene):
+    """With confidences W (resampled sessions) the discontinuity weight's constant is
+    ``smooth_c_resampled`` (default 0: off), without them ``smooth_c``."""
+    grid = make_grid(("+z", "-x"), directions=24)
+    rt = np.array([0.004, -0.003, 0.0035, 0.005, -0.004, 0.003])
+    L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    W = np.ones(grid.shape, np.float32)
+    W[:, ::2] = 0.5                                     # in-between views, as a resampled grid's
+
+    def solve(opts, W=None):
+        return estimate_motion(L0, L1, grid, W0=W, W1=W, options=opts)
+
+    default = solve(MotionOptions(), W)
+    assert default, default.reason
+    off = solve(MotionOptions(smooth_c=0.0), W)
+    assert np.array_equal(default.T_prev_next, off.T_prev_next) and np.array_equal(default.covariance, off.covariance)
+    on = solve(MotionOptions(smooth_c_resampled=0.5), W)
+    assert not np.array_equal(on.T_prev_next, default.T_prev_next)       # the weight is on again
+    assert np.array_equal(on.T_prev_next, solve(MotionOptions(smooth_c=0.5, smooth_c_resampled=0.5), W).T_prev_next)
+    # without W: smooth_c, whatever smooth_c_resampled says
+    plain = solve(MotionOptions())
+    assert np.array_equal(plain.T_prev_next, solve(MotionOptions(smooth_c_resampled=0.5)).T_prev_next)
+    assert not np.array_equal(plain.T_prev_next, solve(MotionOptions(smooth_c=0.0)).T_prev_next)
+    for res in (default, on, plain):
+        assert np.all(rel_errors(res.T_prev_next, rt) < MOTION_COMBINED_REL_ONE_FACE)
+
+
 def test_no_data_channel_left_out_only_when_empty(scene, monkeypatch):
     """Without samples of W <= 0 the warp source has no "no data" channel (it would warp to
     0 everywhere): the estimate equals the one with the channel warped; with such samples

@@ -43,8 +43,19 @@ def test_presets_and_options_on_top_of_them():
     ("levels=2.5", "expected an integer"), ("tol=x", "expected a number"), ("tol=nan", "nan"),
     ("robust=bogus", "robust must be"), ("uv_taps=3", "uv_taps must be"), ("filters=foo", "unknown filter 'foo'"),
     ("filters=q:fs3", "axis:name pairs"), ("smooth_c", "expected KEY=VALUE"), ("levels=0", "levels"),
+    ("smooth_c_resampled=-1", "smooth_c_resampled must be"),
 ])
 def test_bad_items_give_one_line_naming_them(item, fragment):
     with pytest.raises(InputError) as e:
         options_from_strings(["eiv=true", item])
     assert fragment in str(e.value) and "\n" not in str(e.value)
+
+
+def test_frames_with_confidences_take_smooth_c_resampled():
+    """``for_frames``: with confidences W the discontinuity constant is ``smooth_c_resampled``."""
+    opts = MotionOptions()
+    assert opts.for_frames(False) is opts and opts.for_frames(True) == replace(opts, smooth_c=0.0)
+    assert opts.smooth_c == 0.5 and opts.smooth_c_resampled == 0.0
+    on = options_from_strings(["smooth_c_resampled=0.5"])
+    assert on.for_frames(True) is on and on.for_frames(False) is on
+    assert NOISY.for_frames(True) is NOISY         # already without the weight
