@@ -1,14 +1,17 @@
 """Benchmark: the motion solver on camera-array sessions with and without the plenoptic
-sampling rule (``MotionOptions.max_view_disparity``) and the warp's blend of the views along the
-disparity (``MotionOptions.depth_views``; docs/motion.md "Camera arrays").
+sampling rule (``MotionOptions.max_view_disparity``), the warp's blend of the views along the
+disparity (``MotionOptions.depth_views``; docs/motion.md "Camera arrays") and the discontinuity
+weight on resampled frames (``MotionOptions.smooth_c_resampled``; docs/motion.md "The
+discontinuity weight on resampled sessions").
 
 Data: ``polycam synth session`` of each rig (its ``[mock]`` table: the textured room, smooth
 motion of 5 mm and 0.2 deg per frame, its noise), one session per seed, with the true
 camera models. Each session is resampled on the fly (``resample.stream.SessionLightField``,
 the automatic grid with ``--uv-step``, as ``polycam motion SESSION`` does) and solved with the
 default :class:`~polycam.motion_options.MotionOptions` once per threshold (``inf``: always the
-frames' own (u, v) sampling, the solver before session 30) and ``depth_views`` value (``inf``: the
-plain blend, the solver before session 43).
+frames' own (u, v) sampling, the solver before session 30), ``depth_views`` value (``inf``: the
+plain blend, the solver before session 43) and ``smooth_c_resampled`` value (0.5: the solver before
+session 44).
 
 Prints per session and setting: the disparity per view step the solver measured (median over
 the pairs), the (u, v) level it stopped at, the median per-pair translation and rotation errors
@@ -17,7 +20,8 @@ the seeds and the ratio of each setting's ATE to the last one's (measured in the
 Usage::
 
     .venv/bin/python benchmarks/bench_arrays.py [--rigs webcam3x3 mock5x5] [--seeds 3 11 12 13]
-        [--frames 9] [--thresholds 0.75 inf] [--depth-views 0.25] [--uv-step 1] [--keep DIR]
+        [--frames 9] [--thresholds 0.75 inf] [--depth-views 0.25] [--smooth-c-resampled 0 0.5]
+        [--uv-step 1] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -42,13 +46,15 @@ from polycam.synth import synth_session  # noqa: E402
 from resample.stream import SessionLightField  # noqa: E402
 
 
-def solve(session: Path, threshold: float, uv_step: float, depth_views: float = MotionOptions.depth_views) -> dict:
-    """Errors, chosen level and time of the default solver with ``max_view_disparity=threshold`` and
-    ``depth_views``."""
+def solve(session: Path, threshold: float, uv_step: float, depth_views: float = MotionOptions.depth_views,
+          smooth_c_resampled: float = MotionOptions.smooth_c_resampled) -> dict:
+    """Errors, chosen level and time of the default solver with ``max_view_disparity=threshold``,
+    ``depth_views`` and ``smooth_c_resampled``."""
     lf = SessionLightField(session, uv_step_px=uv_step)
     t0 = time.perf_counter()
     traj, results = estimate_trajectory(lf, options=MotionOptions(max_view_disparity=threshold,
-                                                                  depth_views=depth_views))
+                                                                  depth_views=depth_views,
+                                                                  smooth_c_resampled=smooth_c_resampled))
     seconds = time.perf_counter() - t0 - lf.seconds_frames
     truth = lf.groundtruth()
     err = pair_errors(traj, truth)
@@ -83,13 +89,16 @@ def main() -> None:
     ap.add_argument("--depth-views", nargs="+", type=float, default=[MotionOptions.depth_views],
                     help="depth_views values to compare (with each threshold; the last pair is the ratios' "
                          "baseline)")
+    ap.add_argument("--smooth-c-resampled", nargs="+", type=float, default=[MotionOptions.smooth_c_resampled],
+                    help="smooth_c_resampled values to compare (with each threshold and depth_views)")
     ap.add_argument("--uv-step", type=float, default=1.0, help="direction spacing of the grid in camera pixels")
     add_keep_option(ap)
     args = ap.parse_args()
     root, tmp = sessions_root(args.keep, "bench_arrays_")
     rows = []
-    settings = [(thr, dv) for thr in args.thresholds for dv in args.depth_views]
-    print("| rig | seed | max_view_disparity / depth_views | disparity [samples / view step] | level | translation "
+    settings = [(thr, dv, sc) for thr in args.thresholds for dv in args.depth_views for sc in args.smooth_c_resampled]
+    label = "max_view_disparity / depth_views / smooth_c_resampled"
+    print(f"| rig | seed | {label} | disparity [samples / view step] | level | translation "
           "| rotation | ATE [mm] | solve s / pair | failed |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.rigs:
@@ -98,22 +107,22 @@ def main() -> None:
             session = root / f"{name}_seed{seed}_f{args.frames}"
             if not (session / "groundtruth.tum").exists():
                 synth_session(rig, session, frames=args.frames, seed=seed, scene="room", overwrite=True)
-            for thr, dv in settings:
-                r = solve(session, thr, args.uv_step, dv)
-                rows.append((name, seed, (thr, dv), r))
-                print(f"| {name} | {seed} | {thr:g} / {dv:g} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
+            for thr, dv, sc in settings:
+                r = solve(session, thr, args.uv_step, dv, sc)
+                rows.append((name, seed, (thr, dv, sc), r))
+                print(f"| {name} | {seed} | {thr:g} / {dv:g} / {sc:g} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
                       f"| {100 * r['w']:.2f} % | {1e3 * r['ate']:.3f} | {r['seconds']:.2f} | {r['failed']} |",
                       flush=True)
-    print("\nmedian over the seeds; ATE ratio against max_view_disparity / depth_views = "
-          f"{settings[-1][0]:g} / {settings[-1][1]:g} (the same sessions, this run):\n")
-    print("| rig | max_view_disparity / depth_views | translation | rotation | ATE [mm] | ATE ratio (per seed) |")
+    print(f"\nmedian over the seeds; ATE ratio against {label} = "
+          f"{' / '.join(f'{q:g}' for q in settings[-1])} (the same sessions, this run):\n")
+    print(f"| rig | {label} | translation | rotation | ATE [mm] | ATE ratio (per seed) |")
     print("|---|---|---|---|---|---|")
     for name in args.rigs:
         base = {s: r["ate"] for n, s, t, r in rows if n == name and t == settings[-1]}
-        for thr, dv in settings:
-            sel = [(s, r) for n, s, t, r in rows if n == name and t == (thr, dv)]
+        for setting in settings:
+            sel = [(s, r) for n, s, t, r in rows if n == name and t == setting]
             ratios = [r["ate"] / base[s] for s, r in sel if base.get(s)]
-            print(f"| {name} | {thr:g} / {dv:g} | {100 * np.median([r['t'] for _, r in sel]):.2f} % "
+            print(f"| {name} | {' / '.join(f'{q:g}' for q in setting)} | {100 * np.median([r['t'] for _, r in sel]):.2f} % "
                   f"| {100 * np.median([r['w'] for _, r in sel]):.2f} % | {1e3 * np.median([r['ate'] for _, r in sel]):.3f} "
                   f"| {np.median(ratios):.2f} ({', '.join(f'{q:.2f}' for q in ratios)}) |")
     if tmp is not None:

@@ -8,7 +8,8 @@ rig's noise (grey-level std 0.004), true calibration (the same models for both m
 - **plenoptic**: ``resample.stream.SessionLightField`` on the grid ``polycam run``
   chooses (``resample.auto_grid``, about one view per camera: ``--xy-oversample 1``;
   ``--uv-step 2``) + :func:`polycam.motion.estimate_trajectory` with ``polycam run``'s
-  solver setting (``smooth_c`` = ``polycam.run.RunOptions.smooth_c``).
+  solver setting (the default options; on these resampled frames the discontinuity weight's
+  constant is ``MotionOptions.smooth_c_resampled``, ``--smooth-c``).
 - **pycolmap**: per frame, OpenCV SIFT on every camera image; per pair, each camera's
   features matched to the same camera's features in the next frame (ratio test 0.8),
   then ``pycolmap.estimate_generalized_relative_pose`` (RANSAC, max error 1 px) with the
@@ -46,13 +47,14 @@ sys.path.insert(0, str(REPO))
 
 from polycam.evaluate import ate_rmse, pair_errors  # noqa: E402
 from polycam.geometry import T_inverse  # noqa: E402
+from polycam.motion_options import MotionOptions  # noqa: E402
 from polycam.rig import load_rig  # noqa: E402
 from polycam.run import RunOptions  # noqa: E402
 from polycam.synth import synth_session  # noqa: E402
 from polycam.trajectory import Trajectory  # noqa: E402
 
 
-def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c: float,
+def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c_resampled: float,
               scale_selection: bool = False) -> tuple[Trajectory, dict]:
     """(trajectory, timing): timing in seconds per pair: ``total``, ``read`` (PNG decoding),
     ``image`` (resampling), ``pair`` (solve), and ``geometry`` (once per session)."""
@@ -65,7 +67,7 @@ def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c: float
     lf = SessionLightField(session, models=models,
                            grid=auto_grid(models, uv_step_px=uv_step, xy_oversample=xy_oversample))
     t0, c0 = time.perf_counter(), time.process_time()
-    traj, _ = estimate_trajectory(lf, smooth_c=smooth_c, scale_selection=scale_selection)
+    traj, _ = estimate_trajectory(lf, smooth_c_resampled=smooth_c_resampled, scale_selection=scale_selection)
     total, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = len(lf) - 1
     t0 = time.perf_counter()                 # the decoding share of lf.seconds_frames, measured apart
@@ -195,8 +197,9 @@ def main() -> int:
                     help="plenoptic: compare several settings in one run, e.g. 1:off 1:on 2:off 2:on "
                          "(overrides --xy-oversample and --scale-selection)")
     ap.add_argument("--skip-colmap", action="store_true", help="plenoptic rows only")
-    ap.add_argument("--smooth-c", type=float, default=RunOptions.smooth_c,
-                    help="plenoptic: the solver's discontinuity-weight constant (default: polycam run's)")
+    ap.add_argument("--smooth-c", type=float, default=MotionOptions.smooth_c_resampled,
+                    help="plenoptic: the solver's discontinuity-weight constant on these resampled frames "
+                         "(MotionOptions.smooth_c_resampled; default: polycam run's)")
     ap.add_argument("--repeat", type=int, default=2, help="runs per method and session; the fastest counts")
     ap.add_argument("--rig", default=str(REPO / "rigs" / "mock5x5.toml"))
     ap.add_argument("--perturbed", action="store_true",
