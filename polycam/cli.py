@@ -263,11 +263,17 @@ def _noise_line(results, preset: str, confidences: bool = False) -> str:
     noise options when the defaults ran on frames with a grey level or more and without
     confidences W ('' without estimates). The noise options assume noise independent from
     sample to sample; on resampled frames (W; viewpoints interpolated between the cameras) they
-    measured no better or worse (docs/motion.md, "Which preset"), so there is no hint."""
+    measured no better or worse (docs/motion.md, "Which preset"), so there is no hint. There the
+    estimate (second differences across the views) also reads the scene's parallax between the
+    cameras, off by up to 2x either way from the samples' noise (docs/motion_log.md, session 44),
+    and the line says so instead of calling it the sensor noise."""
     vals = [255.0 * r.noise_sigma for r in results if math.isfinite(r.noise_sigma)]
     if not vals:
         return ""
     med = statistics.median(vals)
+    if confidences:
+        return (f"  noise estimate {med:.2f} grey levels (of 255, median over the pairs; across the views, which on a "
+                "resampled camera array also see the scene's parallax between the cameras: not their sensor noise)")
     line = f"  sensor noise {med:.2f} grey levels (of 255, median over the pairs)"
     if preset == "default" and med >= NOISY_HINT_GREY and not confidences:
         line += ("; with a grey level or more, --preset noisy came closer to the noise bound on six-face "

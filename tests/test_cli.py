@@ -217,8 +217,8 @@ def test_motion_on_a_lightfield_with_report(tmp_path, selection):
 def test_motion_points_to_the_noise_options_on_noisy_frames():
     """After a run with the default preset on frames with a grey level of noise or more, the
     command says so and names --preset noisy; not below, not with that preset, not on frames
-    with confidences W (resampled: the noise options measured no better there), not without
-    estimates."""
+    with confidences W (resampled: the noise options measured no better there, and the estimate
+    is not the cameras' sensor noise: the line says so), not without estimates."""
     from types import SimpleNamespace
 
     from polycam.cli import _noise_line
@@ -227,7 +227,9 @@ def test_motion_points_to_the_noise_options_on_noisy_frames():
     line = _noise_line(pairs, "default")
     assert "1.10 grey levels" in line and "--preset noisy" in line
     assert "--preset noisy" not in _noise_line(pairs, "noisy")
-    assert "--preset noisy" not in _noise_line(pairs, "default", confidences=True)     # resampled frames
+    resampled = _noise_line(pairs, "default", confidences=True)
+    assert "--preset noisy" not in resampled and not resampled.startswith("  sensor noise")
+    assert "noise estimate 1.10 grey levels" in resampled and "parallax" in resampled
     assert "--preset noisy" not in _noise_line([SimpleNamespace(noise_sigma=0.5 / 255.0)], "default")
     assert _noise_line([SimpleNamespace(noise_sigma=float("nan"))], "default") == ""
 
