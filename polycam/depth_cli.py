@@ -30,10 +30,11 @@ def add_source_options(p: argparse.ArgumentParser) -> None:
                    help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
     p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
                    help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
-    p.add_argument("--xy-oversample", type=_positive_int, default=2, metavar="N",
-                   help="sessions: viewpoints of the automatic grid per camera spacing (default 2: one "
-                        "between neighbouring cameras; more for arrays whose cameras are far apart for "
-                        "the scene, docs/motion.md \"Camera arrays\")")
+    p.add_argument("--xy-oversample", type=_positive_int, default=None, metavar="N",
+                   help="sessions: viewpoints of the automatic grid per camera spacing (default: 2, one "
+                        "between neighbouring cameras, or 4 where 2 gives fewer than 5 views along x or y, "
+                        "as polycam run: a row of cameras, a stereo pair; more for arrays whose cameras are "
+                        "far apart for the scene, docs/motion.md \"Camera arrays\")")
 
 
 def add_solver_options(p: argparse.ArgumentParser) -> None:
@@ -99,20 +100,30 @@ def add_parsers(sub) -> None:
     p.set_defaults(func=cmd_depth)
 
 
-def open_source(source: str | Path, *, calib: str | None = None, uv_step: float = 1.0, xy_oversample: int = 2):
+def open_source(source: str | Path, *, calib: str | None = None, uv_step: float = 1.0,
+                xy_oversample: int | None = None):
     """A light-field store, or a session resampled on the fly (resample.stream.SessionLightField,
     on the automatic grid of ``uv_step`` camera pixels and ``xy_oversample`` viewpoints per camera
-    spacing): anything with ``grid``, ``timestamps_ns``, ``frame(i)``, ``weights(i)``,
-    ``groundtruth()``."""
+    spacing; None: :func:`polycam.run.session_grid`'s rule, as ``polycam run``): anything with
+    ``grid``, ``timestamps_ns``, ``frame(i)``, ``weights(i)``, ``groundtruth()``."""
     from .errors import InputError
 
     src = Path(source)
     if (src / "session.toml").exists():
         if calib is not None and not Path(calib).is_dir():
             raise InputError(f"{calib}: no such calibration folder")
-        from resample.stream import SessionLightField   # the CLI layer may import stages
+        from resample.pipeline import open_calibration   # the CLI layer may import stages
+        from resample.stream import SessionLightField
 
-        return SessionLightField(src, calib_dir=calib, uv_step_px=uv_step, xy_oversample=xy_oversample)
+        from .run import session_grid
+        from .session import open_session
+
+        session = open_session(src)
+        if len(session) == 0:
+            raise InputError(f"{session.path}: the session has no frames")
+        models = open_calibration(session, calib)
+        grid, _ = session_grid(models, uv_step, xy_oversample)
+        return SessionLightField(src, models=models, grid=grid)
     if calib is not None:
         raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
     if not src.exists():

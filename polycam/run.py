@@ -537,15 +537,23 @@ def write_ply(path: str | os.PathLike, points, values=None) -> None:
 
 def run_grid(models: dict, opts: RunOptions):
     """(grid, views per camera spacing) of ``polycam run``'s light field for cameras ``models``:
-    ``resample.auto_grid`` with ``opts.uv_step_px`` and ``opts.xy_oversample`` (None: 2, or 4 when
-    2 gives fewer than :data:`MIN_VIEWS` views along x or y)."""
+    :func:`session_grid` with ``opts.uv_step_px`` and ``opts.xy_oversample``."""
+    return session_grid(models, opts.uv_step_px, opts.xy_oversample)
+
+
+def session_grid(models: dict, uv_step_px: float, xy_oversample: int | None = None):
+    """(grid, views per camera spacing) of a session's light field for cameras ``models`` (as
+    ``polycam run``, ``polycam motion SESSION`` and ``polycam depth SESSION`` resample it):
+    ``resample.auto_grid`` with ``uv_step_px`` and ``xy_oversample`` viewpoints per camera spacing
+    (None: 2, or 4 when 2 gives fewer than :data:`MIN_VIEWS` views along x or y: a row of cameras,
+    a stereo pair)."""
     from resample.grid import auto_grid
 
-    every = opts.xy_oversample or 2
-    grid = auto_grid(models, uv_step_px=opts.uv_step_px, xy_oversample=every)
-    if opts.xy_oversample is None and min(grid.x.count, grid.y.count) < MIN_VIEWS:
+    every = xy_oversample or 2
+    grid = auto_grid(models, uv_step_px=uv_step_px, xy_oversample=every)
+    if xy_oversample is None and min(grid.x.count, grid.y.count) < MIN_VIEWS:
         every = 4
-        grid = auto_grid(models, uv_step_px=opts.uv_step_px, xy_oversample=every)
+        grid = auto_grid(models, uv_step_px=uv_step_px, xy_oversample=every)
     return grid, every
 
 

@@ -148,7 +148,8 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     """Two cameras (a stereo pair, resampled onto views between them): the motion is solved, and
     the depth of the middle view (no captured data of its own) comes from matching the two
     cameras' samples (polycam.depth_refine). Without that refinement (`polycam depth --refine
-    off`) the views between hold no captured data and the verb says so."""
+    off`) the views between hold no captured data and the verb says so. `polycam motion` on the
+    session resamples it on the run's grid (4 views per camera spacing, not 2)."""
     import tomllib
 
     (tmp_path / "rig.toml").write_text(mock_grid_rig_text("pair", 160, 120, rows=1, cols=2, pitch=0.05))
@@ -163,6 +164,18 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     assert d["points"] > 1000 and d["median_rel_error"] < E2E_RUN_PAIR_DEPTH_REL
     depth = [line for line in cap.out.splitlines() if line.startswith("depth")]
     assert len(depth) == 1 and "refined on 2 camera views" in depth[0], cap.out
+    # the motion verb on the session takes the run's grid rule: 4 views per camera spacing here (with 2
+    # the pair has 3 views along x, too few for the solver)
+    code = main(["motion", str(out / "session"), "--calib", str(out / "calib"), "--uv-step", "2",
+                 "--out", str(tmp_path / "m.tum")])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    wrote = next(line for line in cap.out.splitlines() if line.startswith("wrote"))
+    assert "2 frame pairs" in wrote and "failed" not in wrote, cap.out
+    from polycam.depth_cli import open_source
+
+    assert open_source(out / "session", calib=str(out / "calib"), uv_step=2).grid.x.count == 5
+    assert open_source(out / "session", calib=str(out / "calib"), uv_step=2, xy_oversample=2).grid.x.count == 3
     code = main(["depth", str(out / "lightfield.zarr"), "--traj", str(out / "trajectory.tum"),
                  "--out", str(tmp_path / "depth")])
     cap = capsys.readouterr()
