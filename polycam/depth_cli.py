@@ -123,7 +123,7 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
             raise InputError(f"{session.path}: the session has no frames")
         models = open_calibration(session, calib)
         grid, _ = session_grid(models, uv_step, xy_oversample)
-        return SessionLightField(src, models=models, grid=grid)
+        return SessionLightField(session, models=models, grid=grid)     # (opened and validated once)
     if calib is not None:
         raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
     if not src.exists():

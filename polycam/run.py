@@ -48,7 +48,7 @@ from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
 
 __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
-           "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS"]
+           "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS", "run_grid", "session_grid"]
 
 _REPO = Path(__file__).resolve().parents[1]
 DEFAULT_RIG = _REPO / "rigs" / "mock5x5.toml"

@@ -23,6 +23,7 @@ import numpy as np
 
 from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
+from polycam.session import Session, open_session
 
 __all__ = ["SessionLightField"]
 
@@ -30,8 +31,9 @@ log = logging.getLogger(__name__)
 
 
 class SessionLightField:
-    """The light field of session ``session_path`` with calibration ``calib_dir``
-    (default ``SESSION/calib``), frame by frame.
+    """The light field of session ``session_path`` (a folder, or a session already opened with
+    :func:`polycam.session.open_session`) with calibration ``calib_dir`` (default
+    ``SESSION/calib``), frame by frame.
 
     grid: the two-plane grid (default :func:`resample.grid.auto_grid` of the models
         with ``uv_step_px`` and ``xy_oversample``); options: :class:`resample.resampler.ResampleOptions`;
@@ -39,16 +41,14 @@ class SessionLightField:
     Raises InputError for a session without frames or without a calibration.
     """
 
-    def __init__(self, session_path: str | os.PathLike, *, calib_dir: str | os.PathLike | None = None,
+    def __init__(self, session_path: str | os.PathLike | Session, *, calib_dir: str | os.PathLike | None = None,
                  grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, xy_oversample: int = 2,
                  options=None, models: dict | None = None):
-        from polycam.session import open_session
-
         from .grid import auto_grid
         from .pipeline import _channels_of, open_calibration
         from .resampler import Resampler
 
-        self.session = open_session(session_path)
+        self.session = session_path if isinstance(session_path, Session) else open_session(session_path)
         if len(self.session) == 0:
             raise InputError(f"{self.session.path}: the session has no frames")
         self.models = dict(models) if models is not None else open_calibration(self.session, calib_dir)
