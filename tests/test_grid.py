@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,11 +177,36 @@ def test_perturbed_array_keeps_cameras_on_viewpoints(rng):
     for axis in (0, 1):
         s = gridrules.column_spacing(c[:, axis], nn)
         assert s == pytest.approx(pitch, rel=0.1)
-        a = gridrules.axis_from_range(c[:, axis].min(), c[:, axis].max(), s, 1)
+        a = gridrules.axis_through_columns(c[:, axis], nn, 1)
         assert a.count == 5
         off = np.abs((c[:, axis] - a.min) / a.step - np.round((c[:, axis] - a.min) / a.step))
         assert off.max() < 0.3
     assert gridrules.column_spacing(np.array([0.0]), 0.02) == 0.02
+
+
+def test_axis_through_columns_is_not_stretched_by_the_extreme_cameras(rng):
+    """Many cameras per column (the nested cube pools 18 per outer column over its faces): the
+    range of the extreme cameras stretches the axis by their position errors, each view then
+    holding a camera that sits nearer the centre than the view (on `polycam run`'s cube the motion's
+    translation came out 2 % long); the least-squares fit through the columns does not. A regular
+    array's axis stays its exact range, and a single column one view at its middle."""
+    from polycam import gridrules
+
+    pitch, sigma = 0.03, 0.001
+    x = np.repeat(np.array([-pitch, 0.0, pitch]), 18) + rng.normal(scale=sigma, size=54)
+    nn = 0.5 * pitch
+    fit = gridrules.axis_through_columns(x, nn, 2)
+    old = gridrules.axis_from_range(x.min(), x.max(), gridrules.column_spacing(x, nn), 2)
+    assert fit.count == old.count == 5
+    assert old.step > 1.04 * pitch / 2                        # the stretch this rule is for
+    assert fit.step == pytest.approx(pitch / 2, rel=0.01)
+    node = fit.min + 2 * fit.step * np.repeat([0, 1, 2], 18)   # each camera's viewpoint
+    assert abs(np.mean(x - node)) < 0.2 * sigma
+    for col in range(3):                                      # no column is pulled off its cameras
+        assert abs(np.mean((x - node)[18 * col:18 * col + 18])) < 0.8 * sigma
+    exact = np.repeat(np.array([-0.02, 0.0, 0.02, 0.04]), 3)
+    assert gridrules.axis_through_columns(exact, 0.02, 2) == Axis(-0.02, 0.04, 7)
+    assert gridrules.axis_through_columns(np.array([0.001, 0.003]), 0.02, 2) == Axis(0.002, 0.002, 1)
 
 
 def test_finite_frame_masks_only_samples_without_data():
@@ -203,3 +229,30 @@ def test_finite_frame_masks_only_samples_without_data():
     out = finite_frame("frame 4", colour, W)
     assert out.shape == colour.shape and np.isfinite(out).all()
 
+
+
+def test_cameras_grazing_a_face_edge_do_not_widen_its_directions():
+    """The nested cube's cameras see 90 deg across and 74 deg down: their side edges lie on the
+    faces' 45-deg edges, so mounting errors of 0.3 deg tip a strip of rays onto the next face.
+    That strip must not stretch every face's v to ±45 deg (a third more directions, none with
+    data); a camera that really looks across an edge (turned by 10 deg) still widens it."""
+    from polycam.cameras import nominal_cameramodel
+    from polycam.geometry import R_from_r
+    from polycam.rig import load_rig
+    from polycam.synth import true_cameramodels
+    from resample import grid as rgrid
+
+    rig = load_rig(Path(__file__).resolve().parents[1] / "rigs" / "cube6x3x3.toml")
+    exact = rgrid.auto_grid(true_cameramodels(rig), uv_step_px=4, rays_stride=8)
+    tilted = rgrid.auto_grid(true_cameramodels(rig, seed=6, perturb_rotation_deg=0.3), uv_step_px=4,
+                             rays_stride=8)
+    f = exact.faces[0].f
+    assert exact.v.max == pytest.approx(0.75 * f, abs=1) and exact.u.max == pytest.approx(f, abs=1)
+    assert tilted.v.max < 0.8 * f and tilted.v.min > -0.8 * f          # not ±f
+    cam = rig.cameras[0]                                               # +z, turned 10 deg about x
+    T = cam.T_rig_cam.copy()
+    T[:3, :3] = T[:3, :3] @ R_from_r(np.array([np.radians(10.0), 0.0, 0.0]))
+    models = true_cameramodels(rig)
+    models[cam.id] = nominal_cameramodel(cam, T)
+    wide = rgrid.auto_grid(models, uv_step_px=4, rays_stride=8)
+    assert max(wide.v.max, -wide.v.min) > 0.95 * f
