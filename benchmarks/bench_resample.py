@@ -31,7 +31,10 @@ the machine is shared, so wall time depends on the other jobs), against a scipy
 ``cKDTree`` inverse-distance baseline on the same frame (tree over the scattered
 samples in grid-step units, 8 nearest samples per cell, weights 1/d², both cores),
 with the PSNR of both against the direct render per region (where the cameras
-measured, holes in the camera views, views between cameras, everything). Also the whole ``resample_session``
+measured, holes in the camera views, views between cameras, everything). The default (camera views
+re-centred onto their grid views, ``ViewFillOptions.recentre``) is also run without re-centring: the
+PSNR at the cameras, the time per frame and the motion, which differ only with
+``--perturb-position-mm`` (cameras on their views need no re-centring). Also the whole ``resample_session``
 (PNG reading, zarr writing) in-process and on a local dask cluster of 2 workers, on
 a longer session (the rendered frames repeated).
 
@@ -164,7 +167,7 @@ def quality_and_speed(args, work: Path) -> dict:
     from polycam.rig import load_rig
     from polycam.session import open_session
     from polycam.synth import LightFieldRenderer, scene_for_rig, synth_session
-    from resample import ResampleOptions, Resampler, auto_grid, resample_session
+    from resample import ResampleOptions, Resampler, ViewFillOptions, auto_grid, resample_session
 
     rig = load_rig(_rig_file(work))
     frames = 3 if args.quick else 4
@@ -186,6 +189,9 @@ def quality_and_speed(args, work: Path) -> dict:
     t_geo = time.perf_counter() - t
     geo = rs.geometry
     rs_pp = Resampler(models, grid, options=ResampleOptions(view_fill="pushpull"), geometry=geo)
+    rs_nr = Resampler(models, grid, options=ResampleOptions(fill=ViewFillOptions(recentre=False)), geometry=geo)
+    n_rc = len(rs.fill_plan().recentre) if rs.fill_plan().recentre is not None else 0
+    print(f"camera views re-centred onto their grid views (ViewFillOptions.recentre): {n_rc}")
     print(f"geometry: {t_geo:.1f} s, {geo.num_samples / 1e6:.2f} M samples, {geo.nnz / 1e6:.1f} M weights, "
           f"{100 * geo.linear_fraction:.1f}% local-linear cells")
 
@@ -208,17 +214,19 @@ def quality_and_speed(args, work: Path) -> dict:
     print(f"first frame (numba's compiled kernels loaded from its cache, or compiled on a first run): default "
           f"{t_cold:.1f} s, then pull-push alone {t_cold_pp:.1f} s")
     rows = []
-    resampled, resampled_pp = [], []
+    resampled, resampled_pp, resampled_nr = [], [], []
     for i in range(frames):
         r = rs.resample(s.read_frame(i))
         r_pp = rs_pp.resample(s.read_frame(i))
+        r_nr = rs_nr.resample(s.read_frame(i))
         resampled.append(r)
         resampled_pp.append(r_pp)
+        resampled_nr.append(r_nr)
         ref = direct[i]
         at_cam = np.zeros(grid.shape, bool)
         at_cam[:, ::2, ::2] = True
         good = at_cam & (r.W > 0.5)
-        row = {"cam": _psnr(r.L, ref, good), "cam_cov": good.sum() / at_cam.sum()}
+        row = {"cam": _psnr(r.L, ref, good), "cam_cov": good.sum() / at_cam.sum(), "cam_nr": _psnr(r_nr.L, ref, good)}
         for name, sl_a, sl_m, sl_b in [
             ("mid-x", (slice(None), slice(0, None, 2), slice(0, -1, 2)), (slice(None), slice(0, None, 2), slice(1, None, 2)),
              (slice(None), slice(0, None, 2), slice(2, None, 2))),
@@ -239,10 +247,11 @@ def quality_and_speed(args, work: Path) -> dict:
 
     print("\nQuality vs the direct render (PSNR [dB]; between cameras: resampled (default, depth-aware fill) / "
           "linear interpolation of the direct neighbours / resampled with the pull-push alone)")
-    print("| frame | at cameras, W > 0.5 (share of samples) | half-way along x | half-way along y | centre of 4 |")
-    print("| --- | --- | --- | --- | --- |")
+    print("| frame | at cameras, W > 0.5 (share of samples) | the same without re-centring | half-way along x | "
+          "half-way along y | centre of 4 |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for i, row in enumerate(rows):
-        print(f"| {i} | {row['cam']:.2f} ({100 * row['cam_cov']:.0f}%) | "
+        print(f"| {i} | {row['cam']:.2f} ({100 * row['cam_cov']:.0f}%) | {row['cam_nr']:.2f} | "
               + " | ".join(f"{row[k][0]:.2f} / {row[k][1]:.2f} / {row[k][2]:.2f}" for k in ("mid-x", "mid-y", "centre"))
               + " |")
     cam_min = min(r["cam"] for r in rows)
@@ -260,7 +269,7 @@ def quality_and_speed(args, work: Path) -> dict:
     load0 = os.getloadavg()[0]
     speed = {}
     for th in sorted({1, nmax}):
-        for name, r_ in (("default", rs), ("pushpull", rs_pp)):
+        for name, r_ in (("default", rs), ("norecentre", rs_nr), ("pushpull", rs_pp)):
             speed[name, th] = _time_frames(r_, fr, args.repeat, th)
     numba.set_num_threads(nmax)
     load1 = os.getloadavg()[0]
@@ -280,7 +289,8 @@ def quality_and_speed(args, work: Path) -> dict:
     print("| method | threads | wall s best / median | CPU s best | M input rays / s: wall best / median | "
           "M rays / CPU-second |")
     print("| --- | --- | --- | --- | --- | --- |")
-    labels = {"default": "polycam default (push-pull + depth-aware view fill)", "pushpull": "polycam push-pull alone"}
+    labels = {"default": "polycam default (push-pull + depth-aware view fill, camera views re-centred)",
+              "norecentre": "the same without re-centring the camera views", "pushpull": "polycam push-pull alone"}
     for (name, th), (times, cpu) in speed.items():
         b, m = min(times), float(np.median(times))
         print(f"| {labels[name]} | {th} | {b:.3f} / {m:.3f} | {min(cpu):.3f} | {rays / b / 1e6:.1f} / "
@@ -327,6 +337,9 @@ def quality_and_speed(args, work: Path) -> dict:
     motion_rows = [("9x9 views, default (depth-aware fill; resample_session, store)", lf, direct_store),
                    ("9x9 views, pull-push alone (depth-free)",
                     _Direct(grid, [r.L for r in resampled_pp], s.timestamps_ns, [r.W for r in resampled_pp]),
+                    direct_store),
+                   ("9x9 views, without re-centring the camera views",
+                    _Direct(grid, [r.L for r in resampled_nr], s.timestamps_ns, [r.W for r in resampled_nr]),
                     direct_store)]
     grid_c = auto_grid(models, xy_oversample=1)
     rs_c = Resampler(models, grid_c)

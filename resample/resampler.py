@@ -30,7 +30,8 @@ from polycam.lightfield import LightFieldGrid
 
 from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
 from .pushpull import SCHEDULES, PushPull, weighted_views
-from .viewfill import ViewFillOptions, ViewFillPlan, camera_positions, fill_views, plan_view_fill
+from .viewfill import (ViewFillOptions, ViewFillPlan, _camera_geometry, data_positions, fill_views,
+                       plan_view_fill)
 
 VIEW_FILLS = ("depth", "pushpull")
 """How views no camera measured are filled: along the disparity found by a plane sweep
@@ -189,8 +190,9 @@ class Resampler:
             if len(self._plans) > self.options.geometry_cache + 1:
                 self._plans.clear()
             if self.cameras_on_focal_plane():
+                pos, height = self._centres(geo.layout.ids)
                 plan = plan_view_fill(self.grid, self._clamped(geo), self.options.fill,
-                                      camera_positions=self.camera_positions(geo.layout.ids))
+                                      camera_positions=pos, camera_heights=height)
             else:
                 log.warning("resample: the cameras are not on the focal plane z_pi (a grid view is then a "
                             "patchwork of several cameras): the views between them are filled by the "
@@ -199,18 +201,29 @@ class Resampler:
             self._plans[key] = plan
         return plan
 
-    def camera_positions(self, ids=None) -> np.ndarray | None:
-        """(F, Ny, Nx, 2) float64: the centres (iy, ix) of cameras ``ids`` (default: all) in
-        fractional grid indices at the views that hold their data, NaN elsewhere
-        (:func:`resample.viewfill.camera_positions`); None when the cameras are not on the focal
-        plane (:meth:`cameras_on_focal_plane`: a grid view is then no one camera's view). Written
-        to the store as its ``camera_positions`` attribute (docs/formats.md)."""
-        if not self.cameras_on_focal_plane():
-            return None
+    def _centres(self, ids=None) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (F, Ny, Nx, 2), heights (F, Ny, Nx)) of cameras ``ids`` (default: all):
+        :func:`resample.viewfill.camera_positions` and :func:`~resample.viewfill.camera_heights`."""
         from polycam.cameras import T_rig_cam_of
 
         T = np.stack([T_rig_cam_of(self.models[c]) for c in (ids or self.cameras)])
-        return camera_positions(self.grid, T[:, :3, 3], T[:, :3, 2])
+        return _camera_geometry(self.grid, T[:, :3, 3], T[:, :3, 2])
+
+    def camera_positions(self, ids=None) -> np.ndarray | None:
+        """(F, Ny, Nx, 2) float64: where the data of cameras ``ids`` (default: all) are, at the
+        views that hold them, NaN elsewhere: (iy, ix) in fractional grid indices. The camera
+        centres (:func:`resample.viewfill.camera_positions`), except for the camera views the depth
+        fill re-centres onto their grid views (``ViewFillOptions.recentre``, the default): those
+        are at their integer indices. None when the cameras are not on the focal plane
+        (:meth:`cameras_on_focal_plane`: a grid view is then no one camera's view). Written to the
+        store as its ``camera_positions`` attribute (docs/formats.md)."""
+        if not self.cameras_on_focal_plane():
+            return None
+        pos = self._centres(ids)[0]
+        if self.options.view_fill != "depth":
+            return pos
+        geo = self.geometry if ids is None else self._geometry_for(tuple(ids))
+        return data_positions(self.fill_plan(geo), pos)
 
     def cameras_on_focal_plane(self, tolerance: float = 0.25) -> bool:
         """Whether the camera centres lie on the focal plane of the face their optical axis

@@ -38,6 +38,16 @@ disparity, each source weighted by ``1 / distance²`` times its confidence there
 The confidence ``W`` of filled samples stays the pull-push one (interpolated, not
 measured: ``≤ attenuation``).
 
+**Re-centring** (``ViewFillOptions.recentre``, with the cameras' positions). A camera view
+holds the rays from the camera centre, which on a real rig is off its grid view by ``Δi`` and
+off the focal plane by a height ``h``: its ray of direction ``(u, v)`` crosses the plane at
+``(x, y) − h (u, v) / f``, so its offset from the view varies over the view,
+``Δix(u) = Δix − h tan_u / step_x``. Before the other targets are filled, each such camera view
+gets the sweep's disparity (matched against the nearest measured views, at offsets from its own
+centre, itself as a source at offset 0) and is moved onto its view:
+``L(view)(iv, iu) ≈ L(camera)(iv − δ r_y Δiy(v), iu − δ Δix(u))``; the other targets are then
+filled from the grid views. A camera on its view and on the plane is left as it is.
+
 Grey and colour frames are matched on the mean over channels and blended per channel.
 No file I/O.
 
@@ -61,7 +71,8 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["camera_views", "camera_positions", "far_sources", "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
+__all__ = ["camera_views", "camera_positions", "camera_heights", "data_positions", "far_sources", "ViewFillOptions",
+           "ViewFillPlan", "plan_view_fill", "fill_views"]
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +112,13 @@ class ViewFillOptions:
     holes: bool = False
     """Also re-fill the holes (``W <= 0.5``) of the measured views, from the measured views
     around them (the pull-push fills them depth-free from the neighbouring views)."""
+    recentre: bool = True
+    """Move each camera's view onto its grid view along the disparity before the views between
+    the cameras are filled from them (where the plan is given the cameras' positions): a camera view holds
+    the rays from the camera centre, which on a real rig sits off its view in (x, y) and off the
+    focal plane (each of its directions then crosses the plane at another (x, y)); the motion's
+    derivatives across the views read those offsets as regressor errors, which shorten the
+    translation (docs/resample.md, step 5). False: camera views keep their data as measured."""
 
     def __post_init__(self) -> None:
         if not (self.min_depth > 0 and self.disparity_step > 0 and self.window >= 0 and self.max_radius >= 1):
@@ -128,6 +146,16 @@ class ViewFillPlan:
     """Per face: v-steps per y-step for one u-step per x-step (``(step_y / step_x)(step_u / step_v)``)."""
     holes_only: tuple[bool, ...] = ()
     """Per target: a measured view of which only the holes (``W <= 0.5``) are re-filled."""
+    shifts: tuple[np.ndarray, ...] = ()
+    """Per target of a re-centring plan (:attr:`recentre`): (3,) float64 ``(Δiy, Δix, h)``, the
+    camera centre minus its grid view [view steps] and its height above the focal plane [m]."""
+    recentre: "ViewFillPlan | None" = None
+    """The camera views re-centred onto their grid views before this plan's targets are filled
+    from them (a plan whose first source per target is the camera view itself, at offset 0), or None."""
+    tan_steps: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    """Per face of a re-centring plan: ``(tan_u / step_x (Nu,), tan_v / step_y (Nv,))`` [1/m], the
+    directions' tangents over the view steps (a height ``h`` moves direction u's crossing of the
+    plane by ``−h tan_u / step_x`` views)."""
     _arrays: dict = field(default_factory=dict, repr=False, compare=False)
     """The plan packed into arrays for the kernels (:func:`_packed`; built on first use)."""
 
@@ -138,18 +166,18 @@ class ViewFillPlan:
 def far_sources(plan: "ViewFillPlan", steps: float = 1.5) -> bool:
     """Whether some target of ``plan`` has its nearest source more than ``steps`` view steps away
     (Chebyshev distance; ``ViewFillOptions.refine``'s default: the half-way view of a grid with 4
-    views per camera spacing is 2 steps from its cameras, give or take their offsets)."""
-    return any(len(o) and float(np.min(np.max(np.abs(o), axis=1))) > steps for o in plan.offsets)
+    views per camera spacing is 2 steps from its cameras, give or take their offsets). A re-centring
+    plan's first source is the target itself (:attr:`ViewFillPlan.recentre`): its nearest other one counts."""
+    k = 1 if plan.shifts else 0
+    return any(len(o) > k and float(np.min(np.max(np.abs(o[k:]), axis=1))) > steps for o in plan.offsets)
 
 
-def camera_positions(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
-    """(F, Ny, Nx, 2) float64: at the grid view nearest each camera centre (on the face its
-    optical axis points into), that centre's position (iy, ix) in fractional grid indices;
-    NaN at the other views. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and
-    optical axes in the rig frame. Offsets below 1e-6 view steps are rounded away (a camera
-    on a grid view is exactly there)."""
+def _camera_geometry(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray):
+    """(positions (F, Ny, Nx, 2), heights (F, Ny, Nx)) of :func:`camera_positions` and
+    :func:`camera_heights`."""
     F, Ny, Nx = grid.shape[:3]
     out = np.full((F, Ny, Nx, 2), np.nan)
+    height = np.full((F, Ny, Nx), np.nan)
     normals = np.stack([np.asarray(fc.R_rig_face, float)[:, 2] for fc in grid.faces])
     for c, a in zip(np.asarray(centres_rig, float), np.asarray(axes_rig, float)):
         k = int(np.argmax(normals @ a))
@@ -161,6 +189,36 @@ def camera_positions(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np
             pos = np.array([fy, fx])
             snap = np.abs(pos - np.round(pos)) < 1e-6
             out[k, iy, ix] = np.where(snap, np.round(pos), pos)
+            h = float(p[2] - grid.faces[k].z_pi)
+            height[k, iy, ix] = h if abs(h) >= 1e-9 else 0.0
+    return out, height
+
+
+def camera_positions(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx, 2) float64: at the grid view nearest each camera centre (on the face its
+    optical axis points into), that centre's position (iy, ix) in fractional grid indices;
+    NaN at the other views. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and
+    optical axes in the rig frame. Offsets below 1e-6 view steps are rounded away (a camera
+    on a grid view is exactly there)."""
+    return _camera_geometry(grid, centres_rig, axes_rig)[0]
+
+
+def camera_heights(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
+    """(F, Ny, Nx) float64 [m]: at the grid view nearest each camera centre (as
+    :func:`camera_positions`), the centre's height above the focal plane along the face's normal
+    (``z`` in face coordinates minus ``z_pi``; below 1 nm: 0); NaN at the other views. A camera
+    off the plane sees along each direction from another point of the plane: its ray of direction
+    ``(u, v)`` crosses it at ``(x, y) − h (u, v) / f``."""
+    return _camera_geometry(grid, centres_rig, axes_rig)[1]
+
+
+def data_positions(plan: "ViewFillPlan", positions: np.ndarray) -> np.ndarray:
+    """Where the camera views' data are after ``plan`` is applied: ``positions`` (F, Ny, Nx, 2),
+    as :func:`camera_positions`, with the views the plan re-centres at their grid indices."""
+    out = np.array(positions, float, copy=True)
+    if plan.recentre is not None:
+        for f, j, i in plan.recentre.targets:
+            out[f, j, i] = (j, i)
     return out
 
 
@@ -171,9 +229,20 @@ def camera_views(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.nda
     return ~np.isnan(camera_positions(grid, centres_rig, axes_rig)[..., 0])
 
 
+def _neighbours(others: np.ndarray, j: int, i: int, max_radius: int, need: int):
+    """(jj, ii) of the views set in ``others`` (Ny, Nx) within the smallest square ring around
+    (j, i) (Chebyshev radius 1 .. ``max_radius``) that holds at least ``need``; None if none does."""
+    for r in range(1, max_radius + 1):
+        jj, ii = np.nonzero(others[max(0, j - r):j + r + 1, max(0, i - r):i + r + 1])
+        if jj.size >= need:
+            return jj + max(0, j - r), ii + max(0, i - r)
+    return None
+
+
 def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
                    options: ViewFillOptions | None = None, camera_views: np.ndarray | None = None,
-                   camera_positions: np.ndarray | None = None) -> ViewFillPlan:
+                   camera_positions: np.ndarray | None = None,
+                   camera_heights: np.ndarray | None = None) -> ViewFillPlan:
     """The fill plan for ``grid`` given the clamped splat weights ``w_clamped``
     (F, Ny, Nx, Nv, Nu) in [0, 1] (1 = measured). ``camera_views``: optional (F, Ny, Nx)
     bool, the views nearest a camera centre (:func:`camera_views`); the others count as
@@ -182,7 +251,13 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     copy of that camera's view at the wrong viewpoint). ``camera_positions``: optional
     (F, Ny, Nx, 2) from :func:`camera_positions` (implies ``camera_views``): the offsets
     and weights of a source are measured from its camera centre (and those of a measured
-    view whose holes are re-filled from its own), not from its grid index."""
+    view whose holes are re-filled from its own), not from its grid index.
+    ``camera_heights``: optional (F, Ny, Nx) [m] from :func:`camera_heights` (None: 0).
+
+    With positions and ``options.recentre``, each measured camera view off its grid view (or off
+    the focal plane) is re-centred onto its view first (:attr:`ViewFillPlan.recentre`: the sweep
+    matches it against the nearest measured views, at offsets from its centre), and the other
+    targets are filled from the re-centred views, at their grid views."""
     opts = options or ViewFillOptions()
     F, Ny, Nx, Nv, Nu = grid.shape
     cov = np.mean(np.asarray(w_clamped) >= 1.0, axis=(3, 4))             # (F, Ny, Nx)
@@ -194,8 +269,48 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
         camera_views = ~np.isnan(pos[..., 0]) if camera_views is None else camera_views
     if camera_views is not None:
         cov = np.where(np.asarray(camera_views, bool), cov, 0.0)
+    height = np.zeros((F, Ny, Nx)) if camera_heights is None else np.nan_to_num(np.asarray(camera_heights, float))
+    if height.shape != (F, Ny, Nx):
+        raise ValueError(f"camera_heights must be (F, Ny, Nx) = {(F, Ny, Nx)}")
     sx = grid.x.step if grid.x.count > 1 else 0.0
     sy = grid.y.step if grid.y.count > 1 else 0.0
+
+    def weights_of(off):
+        d2 = (off[:, 0] * sy) ** 2 + (off[:, 1] * sx) ** 2
+        return 1.0 / np.maximum(d2, 1e-30)
+
+    # the camera views re-centred first: sources the camera view itself (offset 0) and the measured
+    # views around it, at offsets from its centre
+    rc = ([], [], [], [], [])
+    if pos is not None and opts.recentre:
+        for f in range(F):
+            src = cov[f] >= opts.source_coverage
+            for j, i in zip(*np.nonzero(src)):
+                if np.isnan(pos[f, j, i, 0]):
+                    continue
+                shift = np.array([pos[f, j, i, 0] - j, pos[f, j, i, 1] - i, height[f, j, i]])
+                if not np.any(shift != 0.0):
+                    continue                                  # on its view and on the plane
+                others = src.copy()
+                others[j, i] = False
+                nb = _neighbours(others, j, i, max(Ny, Nx), 1)     # the nearest, however far (4 views per spacing)
+                if nb is None:
+                    continue
+                jj, ii = nb
+                p_src = np.where(np.isnan(pos[f, jj, ii]), np.stack([jj, ii], axis=1), pos[f, jj, ii])
+                off = np.concatenate([np.zeros((1, 2)), p_src - pos[f, j, i]])
+                w = weights_of(off)
+                w[0] = w[1:].max()                            # the view itself weighs as its nearest neighbour
+                rc[0].append((f, int(j), int(i)))
+                rc[1].append(np.concatenate([[[j, i]], np.stack([jj, ii], axis=1)]).astype(np.int64))
+                rc[2].append(off)
+                rc[3].append((w / w.sum()).astype(np.float32))
+                rc[4].append(shift)
+        if rc[0]:
+            pos = pos.copy()
+            for f, j, i in rc[0]:
+                pos[f, j, i] = (j, i)                         # their data are at the views from now on
+
     targets, sources, offsets, weights, holes_only = [], [], [], [], []
     for f in range(F):
         src = cov[f] >= opts.source_coverage
@@ -208,21 +323,16 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
                     continue
                 others = src.copy()
                 others[j, i] = False
-                for r in range(1, opts.max_radius + 1):
-                    jj, ii = np.nonzero(others[max(0, j - r):j + r + 1, max(0, i - r):i + r + 1])
-                    if jj.size >= 2:
-                        break
-                if jj.size < 2:
+                nb = _neighbours(others, j, i, opts.max_radius, 2)
+                if nb is None:
                     continue
-                jj = jj + max(0, j - r)
-                ii = ii + max(0, i - r)
+                jj, ii = nb
                 off = np.stack([jj - j, ii - i], axis=1).astype(np.float64)
                 if pos is not None:         # from the camera centres (the target: its own, if any)
                     p_src = np.where(np.isnan(pos[f, jj, ii]), np.stack([jj, ii], axis=1), pos[f, jj, ii])
                     p_tgt = pos[f, j, i] if own and not np.isnan(pos[f, j, i, 0]) else np.array([j, i], float)
                     off = p_src - p_tgt
-                d2 = (off[:, 0] * sy) ** 2 + (off[:, 1] * sx) ** 2
-                w = 1.0 / np.maximum(d2, 1e-30)
+                w = weights_of(off)
                 targets.append((f, j, i))
                 holes_only.append(own)
                 sources.append(np.stack([jj, ii], axis=1).astype(np.int64))
@@ -247,10 +357,16 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
         step = dmax / _MAX_CANDIDATES
     n = int(math.ceil(dmax / step)) + 1
     disp = np.arange(-1, n + 1) * step                          # one step beyond each end for the refinement
+    recentre = None
+    if rc[0]:
+        tan_steps = tuple((grid.u.values / fc.f / sx if sx > 0 else np.zeros(Nu),
+                           grid.v.values / fc.f / sy if sy > 0 else np.zeros(Nv)) for fc in grid.faces)
+        recentre = ViewFillPlan(tuple(rc[0]), tuple(rc[1]), tuple(rc[2]), tuple(rc[3]), disp, tuple(r_y),
+                                (False,) * len(rc[0]), tuple(rc[4]), tan_steps=tan_steps)
     plan = ViewFillPlan(tuple(targets), tuple(sources), tuple(offsets), tuple(weights), disp, tuple(r_y),
-                        tuple(holes_only))
-    log.info("view fill: %d views filled from their neighbours over %d disparities (0..%.2f u-steps per x-step)",
-             len(plan), disp.size, dmax)
+                        tuple(holes_only), recentre=recentre)
+    log.info("view fill: %d views filled from their neighbours, %d camera views re-centred, over %d disparities "
+             "(0..%.2f u-steps per x-step)", len(plan), len(recentre) if recentre else 0, disp.size, dmax)
     return plan
 
 
@@ -723,6 +839,27 @@ def _blend_grey(Xf, Af, src, S, dy, dx, sw, r_y, d, out, scratch):
                 orow[u] = acc[u] / tw[u]
 
 
+@numba.njit(cache=True, fastmath=True)
+def _shift_view(X, d, dy0, dx0, h, ax, ay, r_y, out):
+    """out[v, u, :] = X(v − d r_y (dy0 − h ay[v]), u − d (dx0 − h ax[u]), :) (bilinear, clamped to
+    the view): a camera view X (Nv, Nu, C) seen from its centre, moved onto its grid view along the
+    per-sample disparity d (Nv, Nu) [u-steps per x-step]; (dy0, dx0) [view steps] the centre minus
+    the view, h [m] its height above the focal plane, ax (Nu,), ay (Nv,) [1/m] the tangents per view
+    step (:attr:`ViewFillPlan.tan_steps`)."""
+    Nv, Nu, C = X.shape
+    for v in range(Nv):
+        kyv = r_y * (dy0 - h * ay[v])
+        for u in range(Nu):
+            dd = d[v, u]
+            xx = min(max(u - dd * (dx0 - h * ax[u]), 0.0), Nu - 1.0)
+            yy = min(max(v - dd * kyv, 0.0), Nv - 1.0)
+            y0, x0, y1, x1, fy, fx = _corners(yy, xx, Nv, Nu)
+            for c in range(C):
+                a = X[y0, x0, c] + fx * (X[y0, x1, c] - X[y0, x0, c])
+                b = X[y1, x0, c] + fx * (X[y1, x1, c] - X[y1, x0, c])
+                out[v, u, c] = a + fy * (b - a)
+
+
 @numba.njit(cache=True)
 def _blend_scratch(Nu):
     """Row scratch of :func:`_blend_grey`: (7, Nu) float32."""
@@ -731,13 +868,15 @@ def _blend_scratch(Nu):
 
 @numba.njit(cache=True, parallel=True)
 def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws, nsrc, r_y, coarse, k_down, fine, window,
-              disp_out):
+              disp_out, shifts, ax, ay):
     """Fill every target view of L (F, Ny, Nx, Nv, Nu, C) in place from the source views of
     Lsrc (L itself when no target is a source), their grey values grey (F, Ny, Nx, Nv, Nu) and
     k_down x k_down averages of those grey_c (F, Ny, Nx, Mv, Mu); disp_out (T, Nv, Nu) receives
     the disparities (or (0, Nv, Nu): not kept). A target
     with holes[t] keeps its samples with W > 0.5. With C = 1, L_grey is L's (F, Ny, Nx, Nv, Nu)
-    view, grey Lsrc's, and the blend runs on those."""
+    view, grey Lsrc's, and the blend runs on those. shifts (T, 3) (a re-centring pass; (0, 3)
+    otherwise): each target is its own first source, moved onto its view along the disparity
+    (:func:`_shift_view`, with ax (F, Nu), ay (F, Nv)) instead of blended from the sources."""
     F, Ny, Nx, Nv, Nu, C = L.shape
     Mv, Mu = (Nv + k_down - 1) // k_down, (Nu + k_down - 1) // k_down
     T = targets.shape[0]
@@ -761,6 +900,9 @@ def _fill_all(grey, grey_c, Lsrc, L, L_grey, W, targets, holes, srcs, offs, sws,
                 G[s] = grey[f, src[s, 0], src[s, 1]]
             base = d.copy()
             _sweep(G, S, dy, dx, sw, base, fine, 1.0, ry, window, d)
+        if shifts.shape[0] > 0:     # re-centre the camera view (its own first source)
+            _shift_view(Lsrc[f, j, i], d, shifts[t, 0], shifts[t, 1], shifts[t, 2], ax[f], ay[f], ry, L[f, j, i])
+            continue
         if C == 1:              # grey: L_grey is L without its channel axis, grey the sources
             scratch = _blend_scratch(Nu)
             if holes[t]:
@@ -824,11 +966,19 @@ def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFi
         at each filled sample [u-steps per x-step] (for diagnostics).
     """
     opts = options or ViewFillOptions()
-    T = len(plan)
-    if not T:
-        return
     if L.ndim != 6 or L.dtype != np.float32 or not L.flags.c_contiguous or L.shape[:5] != W.shape:
         raise ValueError("L must be C-contiguous float32 (F, Ny, Nx, Nv, Nu, C) and W (F, Ny, Nx, Nv, Nu)")
+    if plan.recentre is not None and len(plan.recentre):       # first: the fill reads the re-centred views
+        _fill_pass(L, W, plan.recentre, opts, disparity_out, recentre=True)
+    if len(plan):
+        _fill_pass(L, W, plan, opts, disparity_out)
+
+
+def _fill_pass(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, opts: ViewFillOptions,
+               disparity_out: np.ndarray | None, recentre: bool = False) -> None:
+    """One parallel pass of :func:`fill_views` over ``plan``'s targets (a re-centring plan with
+    ``recentre``)."""
+    T = len(plan)
     Nv, Nu = L.shape[3:5]
     targets, srcs, offs, sws, nsrc, views, holes, r_y = _packed(plan)
     disp = np.empty((T if disparity_out is not None else 0, Nv, Nu), np.float32)    # (else per target)
@@ -837,15 +987,22 @@ def fill_views(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, options: ViewFi
     d_max = plan.disparities[-1]
     coarse = np.arange(-1, int(math.ceil(d_max / (k * step))) + 1) * (k * step)   # same step at 1/k resolution
     refine = far_sources(plan) if opts.refine is None else bool(opts.refine)
+    if recentre:
+        shifts = np.array(plan.shifts, np.float64).reshape(T, 3)
+        ax = np.stack([a for a, _ in plan.tan_steps]).astype(np.float64)
+        ay = np.stack([b for _, b in plan.tan_steps]).astype(np.float64)
+    else:
+        shifts = np.zeros((0, 3))
+        ax, ay = np.zeros((0, Nu)), np.zeros((0, Nv))
     fine = np.array([-step, 0.0, step]) if refine else np.zeros(1)
-    Lsrc = L.copy() if holes.any() else L          # sources are re-filled too: read a snapshot
+    Lsrc = L.copy() if (holes.any() or recentre) else L          # sources are re-filled too: read a snapshot
     grey = Lsrc.mean(axis=5) if L.shape[5] > 1 else Lsrc.reshape(L.shape[:5])     # (a view for grey frames)
     Mv, Mu = (Nv + k - 1) // k, (Nu + k - 1) // k
     grey_c = np.empty((*L.shape[:3], Mv, Mu), np.float32)    # only the source views are set
     _shrink_views(grey, views, k, grey_c)
     L_grey = L.reshape(L.shape[:5]) if L.shape[5] == 1 else grey                 # (unused for colour)
     _fill_all(grey, grey_c, Lsrc, L, L_grey, np.ascontiguousarray(W, np.float32), targets, holes, srcs,
-              offs, sws, nsrc, r_y, coarse, k, fine, int(opts.window), disp)
+              offs, sws, nsrc, r_y, coarse, k, fine, int(opts.window), disp, shifts, ax, ay)
     if disparity_out is not None:
         for t, (f, j, i) in enumerate(plan.targets):
             disparity_out[f, j, i] = disp[t]

@@ -359,7 +359,7 @@ def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
     tail gives the views beside a camera full weight from its pixels, but only the view
     nearest each camera counts as measured; all the others are filled from depth."""
     from resample import ViewFillOptions
-    from resample.viewfill import camera_positions, camera_views
+    from resample.viewfill import camera_heights, camera_positions, camera_views, far_sources
 
     rig = _grid_rig(tmp_path)
     models = true_cameramodels(rig, seed=4, perturb_position_m=0.0015, perturb_rotation_deg=2.0,
@@ -377,9 +377,26 @@ def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
     assert leaked.max() > ViewFillOptions().target_coverage     # without camera_views some would be kept
     plan = rs.fill_plan()
     assert sorted(plan.targets) == [(0, j, i) for j in range(5) for i in range(5) if j % 2 or i % 2]
-    # the sources' offsets are measured from their camera centres (0.15 view steps off)
     pos = camera_positions(grid, T[:, :3, 3], T[:, :3, 2])
     np.testing.assert_array_equal(~np.isnan(pos[..., 0]), expected)
+    # by default the camera views are re-centred onto their views first (each matched against the
+    # camera views around it, from its centre), and the views between are filled from the grid views
+    assert sorted(plan.recentre.targets) == [(0, j, i) for j in range(0, 5, 2) for i in range(0, 5, 2)]
+    assert far_sources(plan.recentre)                   # its nearest other camera is 2 views away
+    heights = camera_heights(grid, T[:, :3, 3], T[:, :3, 2])
+    for (f, j, i), src, off, shift in zip(plan.recentre.targets, plan.recentre.sources, plan.recentre.offsets,
+                                          plan.recentre.shifts):
+        assert tuple(src[0]) == (j, i) and np.all(off[0] == 0)
+        np.testing.assert_allclose(off[1:], pos[f, src[1:, 0], src[1:, 1]] - pos[f, j, i])
+        np.testing.assert_allclose(shift, [*(pos[f, j, i] - [j, i]), heights[f, j, i]])
+    for (f, j, i), src, off in zip(plan.targets, plan.sources, plan.offsets):
+        np.testing.assert_array_equal(off, src - [j, i])
+    np.testing.assert_array_equal(rs.camera_positions(), np.where(expected[..., None], np.indices((5, 5)).transpose(1, 2, 0)[None], np.nan))
+    # without re-centring, the sources' offsets are measured from their camera centres (0.15 view steps off)
+    rs_keep = Resampler(models, grid, options=ResampleOptions(fill=ViewFillOptions(recentre=False)))
+    plan = rs_keep.fill_plan()
+    assert plan.recentre is None
+    np.testing.assert_array_equal(rs_keep.camera_positions(), pos)
     off_grid = []
     for (f, j, i), src, off in zip(plan.targets, plan.sources, plan.offsets):
         np.testing.assert_allclose(off, pos[f, src[:, 0], src[:, 1]] - [j, i])
@@ -489,7 +506,7 @@ def test_view_fill_from_cameras_off_the_views():
         for i in range(0, 5, 2):
             L[0, j, i] = plane_view(*pos[0, j, i])
     W = np.where(cam, 1.0, 0.25).astype(np.float32)
-    opts = ViewFillOptions(min_depth=0.4)
+    opts = ViewFillOptions(min_depth=0.4, recentre=False)
     inner = np.zeros(grid.shape, bool)
     inner[..., 8:-8, 8:-8] = True
     rms = {}
@@ -505,6 +522,54 @@ def test_view_fill_from_cameras_off_the_views():
                 np.testing.assert_allclose(off, pos[f, src[:, 0], src[:, 1]] - [j, i])
     assert rms["centres"] <= RESAMPLE_VIEWFILL_RMS, rms
     assert rms["indices"] >= RESAMPLE_VIEWFILL_OFFGRID_GAIN * rms["centres"], rms
+
+
+def test_view_fill_recentres_cameras_off_their_views_and_off_the_plane():
+    """Cameras ~0.15 view steps off their grid views and ~1 mm off the focal plane (a real rig):
+    a camera view holds the plane seen from the camera centre, each direction (u, v) crossing the
+    focal plane at (x, y) − h (u, v) / f. Re-centred along the sweep's disparity (the default with
+    positions), the camera views match the plane at their grid views, and so do the views filled
+    from them; kept as measured, the camera views are off by the disparity times the offset."""
+    from resample import ViewFillOptions, fill_views, plan_view_fill
+    from resample.viewfill import data_positions
+
+    axis = Axis(0.0, 0.04, 5)
+    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=axis, y=axis, u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    delta = 1.7
+    rng = np.random.default_rng(12)
+    cam = np.zeros(grid.shape, bool)
+    cam[:, ::2, ::2] = True
+    pos = np.full((1, 5, 5, 2), np.nan)
+    height = np.full((1, 5, 5), np.nan)
+    truth = _plane_lightfield(grid, delta)
+    L = truth.copy()
+    iv, iu = np.meshgrid(np.arange(80), np.arange(96), indexing="ij")
+    tan_u, tan_v = grid.u.values[iu] / 100.0, grid.v.values[iv] / 100.0
+    for j in range(0, 5, 2):
+        for i in range(0, 5, 2):
+            pos[0, j, i] = (j, i) + rng.normal(scale=0.15, size=2)
+            height[0, j, i] = rng.normal(scale=0.001)
+            px = pos[0, j, i, 1] - height[0, j, i] * tan_u / axis.step       # where each ray crosses the plane
+            py = pos[0, j, i, 0] - height[0, j, i] * tan_v / axis.step
+            a, b = iu + delta * px, iv + delta * py
+            L[0, j, i] = 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+    W = np.where(cam, 1.0, 0.25).astype(np.float32)
+    inner = np.zeros(grid.shape, bool)
+    inner[..., 8:-8, 8:-8] = True
+    rms_cam, rms_fill = {}, {}
+    for recentre in (True, False):
+        opts = ViewFillOptions(min_depth=0.4, recentre=recentre)
+        plan = plan_view_fill(grid, cam.astype(np.float32), opts, camera_positions=pos, camera_heights=height)
+        assert len(plan) == 16 and (len(plan.recentre) == 9 if recentre else plan.recentre is None)
+        L6 = L[..., None].copy()
+        fill_views(L6, W, plan, opts)
+        rms_cam[recentre] = float(np.sqrt(np.mean((L6[..., 0] - truth)[inner & cam] ** 2)))
+        rms_fill[recentre] = float(np.sqrt(np.mean((L6[..., 0] - truth)[inner & ~cam] ** 2)))
+        moved = data_positions(plan, pos)
+        np.testing.assert_array_equal(moved[cam[..., 0, 0]], np.argwhere(cam[0, ..., 0, 0]) if recentre
+                                      else pos[cam[..., 0, 0]])
+    assert rms_cam[True] <= RESAMPLE_VIEWFILL_RMS and rms_fill[True] <= RESAMPLE_VIEWFILL_RMS, (rms_cam, rms_fill)
+    assert rms_cam[False] >= RESAMPLE_VIEWFILL_OFFGRID_GAIN * rms_cam[True], rms_cam
 
 
 def test_view_fill_options_and_colour(tmp_path):
