@@ -71,11 +71,16 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["camera_views", "camera_positions", "camera_heights", "data_positions", "far_sources", "ViewFillOptions",
-           "ViewFillPlan", "plan_view_fill", "fill_views"]
+__all__ = ["RECENTRE_SOURCES", "camera_views", "camera_positions", "camera_heights", "data_positions", "far_sources",
+           "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
 
 log = logging.getLogger(__name__)
 
+
+RECENTRE_SOURCES = 4
+"""Camera views a camera view is matched against when it is re-centred (the nearest; up to 8 lie
+in the ring of a 2-D array's inner camera): the sweep's time grows with them, its disparity hardly
+(docs/resample.md, step 6)."""
 
 _MAX_CANDIDATES = 64
 """Most disparity candidates swept at full resolution (a larger range gets a coarser step)."""
@@ -166,10 +171,8 @@ class ViewFillPlan:
 def far_sources(plan: "ViewFillPlan", steps: float = 1.5) -> bool:
     """Whether some target of ``plan`` has its nearest source more than ``steps`` view steps away
     (Chebyshev distance; ``ViewFillOptions.refine``'s default: the half-way view of a grid with 4
-    views per camera spacing is 2 steps from its cameras, give or take their offsets). A re-centring
-    plan's first source is the target itself (:attr:`ViewFillPlan.recentre`): its nearest other one counts."""
-    k = 1 if plan.shifts else 0
-    return any(len(o) > k and float(np.min(np.max(np.abs(o[k:]), axis=1))) > steps for o in plan.offsets)
+    views per camera spacing is 2 steps from its cameras, give or take their offsets)."""
+    return any(len(o) and float(np.min(np.max(np.abs(o), axis=1))) > steps for o in plan.offsets)
 
 
 def _camera_geometry(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray):
@@ -297,6 +300,8 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
                 if nb is None:
                     continue
                 jj, ii = nb
+                near = np.lexsort((np.hypot(jj - j, ii - i), np.maximum(abs(jj - j), abs(ii - i))))
+                jj, ii = jj[near[:RECENTRE_SOURCES]], ii[near[:RECENTRE_SOURCES]]
                 p_src = np.where(np.isnan(pos[f, jj, ii]), np.stack([jj, ii], axis=1), pos[f, jj, ii])
                 off = np.concatenate([np.zeros((1, 2)), p_src - pos[f, j, i]])
                 w = weights_of(off)
@@ -986,7 +991,9 @@ def _fill_pass(L: np.ndarray, W: np.ndarray, plan: ViewFillPlan, opts: ViewFillO
     k = int(opts.downsample)
     d_max = plan.disparities[-1]
     coarse = np.arange(-1, int(math.ceil(d_max / (k * step))) + 1) * (k * step)   # same step at 1/k resolution
-    refine = far_sources(plan) if opts.refine is None else bool(opts.refine)
+    # the re-centring's shifts are a fraction of a view step: the coarse sweep is enough there
+    # (refined: 2x its time for no gain on the example rigs at 1 mm, docs/resample.md step 6)
+    refine = bool(opts.refine) if recentre else (far_sources(plan) if opts.refine is None else bool(opts.refine))
     if recentre:
         shifts = np.array(plan.shifts, np.float64).reshape(T, 3)
         ax = np.stack([a for a, _ in plan.tan_steps]).astype(np.float64)

@@ -359,7 +359,7 @@ def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
     tail gives the views beside a camera full weight from its pixels, but only the view
     nearest each camera counts as measured; all the others are filled from depth."""
     from resample import ViewFillOptions
-    from resample.viewfill import camera_heights, camera_positions, camera_views, far_sources
+    from resample.viewfill import RECENTRE_SOURCES, camera_heights, camera_positions, camera_views
 
     rig = _grid_rig(tmp_path)
     models = true_cameramodels(rig, seed=4, perturb_position_m=0.0015, perturb_rotation_deg=2.0,
@@ -382,7 +382,7 @@ def test_view_fill_plan_with_cameras_off_the_views(tmp_path):
     # by default the camera views are re-centred onto their views first (each matched against the
     # camera views around it, from its centre), and the views between are filled from the grid views
     assert sorted(plan.recentre.targets) == [(0, j, i) for j in range(0, 5, 2) for i in range(0, 5, 2)]
-    assert far_sources(plan.recentre)                   # its nearest other camera is 2 views away
+    assert max(len(src) for src in plan.recentre.sources) == 1 + RECENTRE_SOURCES     # itself and the nearest
     heights = camera_heights(grid, T[:, :3, 3], T[:, :3, 2])
     for (f, j, i), src, off, shift in zip(plan.recentre.targets, plan.recentre.sources, plan.recentre.offsets,
                                           plan.recentre.shifts):
@@ -475,6 +475,16 @@ def test_view_fill_refines_where_the_sources_are_two_view_steps_away():
     assert derr[None] < derr[False] / 2 and err[None] < 1.1 * err[False], (err, derr)
 
 
+def _plane_grid_with_cameras():
+    """The plane tests' grid (5 x 5 views 1 cm apart, f = 100, 80 x 96 directions) and the
+    (F, Ny, Nx, Nv, Nu) mask of its camera views (every second view)."""
+    axis = Axis(0.0, 0.04, 5)
+    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=axis, y=axis, u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    cam = np.zeros(grid.shape, bool)
+    cam[:, ::2, ::2] = True
+    return grid, cam
+
+
 def test_view_fill_from_cameras_off_the_views():
     """Cameras ~0.15 view steps off their grid views (a real rig): each camera view holds
     the plane seen from the camera centre. Measured from the centres
@@ -483,12 +493,9 @@ def test_view_fill_from_cameras_off_the_views():
     off by the disparity times the offset."""
     from resample import ViewFillOptions, fill_views, plan_view_fill
 
-    axis = Axis(0.0, 0.04, 5)
-    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=axis, y=axis, u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    grid, cam = _plane_grid_with_cameras()
     delta = 1.7
     rng = np.random.default_rng(11)
-    cam = np.zeros(grid.shape, bool)
-    cam[:, ::2, ::2] = True
     pos = np.full((1, 5, 5, 2), np.nan)
     for j in range(0, 5, 2):
         for i in range(0, 5, 2):
@@ -533,12 +540,10 @@ def test_view_fill_recentres_cameras_off_their_views_and_off_the_plane():
     from resample import ViewFillOptions, fill_views, plan_view_fill
     from resample.viewfill import data_positions
 
-    axis = Axis(0.0, 0.04, 5)
-    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=axis, y=axis, u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    grid, cam = _plane_grid_with_cameras()
+    axis = grid.x
     delta = 1.7
     rng = np.random.default_rng(12)
-    cam = np.zeros(grid.shape, bool)
-    cam[:, ::2, ::2] = True
     pos = np.full((1, 5, 5, 2), np.nan)
     height = np.full((1, 5, 5), np.nan)
     truth = _plane_lightfield(grid, delta)
