@@ -198,8 +198,9 @@ def refine_depth(g: np.ndarray, grid: LightFieldGrid, Z0: np.ndarray, *, sources
     read at the targets only, NaN where unknown: those rays start from their view's median).
     ``sources``: (F, Ny, Nx, 2) the viewpoint (iy, ix), in fractional grid indices, of the data
     held at each source view, NaN at views that are not sources (:func:`grid_positions`, or the
-    camera centres a resampled store records: a camera's view holds its image *from its centre*,
-    a little off the grid view on a real array). ``targets``: (F, Ny, Nx) bool. ``W``: the light
+    positions a resampled store records: a camera's image seen *from its centre*, a little off the
+    grid view on a real array, or the grid view once the resampler re-centred it). ``targets``:
+    (F, Ny, Nx) bool. ``W``: the light
     field's confidence, dims of ``g`` (None: every sample has data); a source's sample counts with
     weight W where ``W > MIN_W``. ``window``: the (u, v) neighbourhood, as the depth fusion's.
     ``noise_var``: the sensor noise's variance per sample (0: the confidence counts the misfit

@@ -260,7 +260,9 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     With positions and ``options.recentre``, each measured camera view off its grid view (or off
     the focal plane) is re-centred onto its view first (:attr:`ViewFillPlan.recentre`: the sweep
     matches it against the nearest measured views, at offsets from its centre), and the other
-    targets are filled from the re-centred views, at their grid views."""
+    targets are filled from the re-centred views, at their grid views. Not on a grid with one view
+    along x or y (a row of cameras): its offsets across the row cannot be moved, and moving the
+    others alone did not help (docs/resample.md, step 6)."""
     opts = options or ViewFillOptions()
     F, Ny, Nx, Nv, Nu = grid.shape
     cov = np.mean(np.asarray(w_clamped) >= 1.0, axis=(3, 4))             # (F, Ny, Nx)
@@ -285,7 +287,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     # the camera views re-centred first: sources the camera view itself (offset 0) and the measured
     # views around it, at offsets from its centre
     rc = ([], [], [], [], [])
-    if pos is not None and opts.recentre:
+    if pos is not None and opts.recentre and Nx > 1 and Ny > 1:     # (not a row or column of views)
         for f in range(F):
             src = cov[f] >= opts.source_coverage
             for j, i in zip(*np.nonzero(src)):

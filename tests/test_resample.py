@@ -575,6 +575,14 @@ def test_view_fill_recentres_cameras_off_their_views_and_off_the_plane():
                                       else pos[cam[..., 0, 0]])
     assert rms_cam[True] <= RESAMPLE_VIEWFILL_RMS and rms_fill[True] <= RESAMPLE_VIEWFILL_RMS, (rms_cam, rms_fill)
     assert rms_cam[False] >= RESAMPLE_VIEWFILL_OFFGRID_GAIN * rms_cam[True], rms_cam
+    # a row of cameras (one view along y) is not re-centred: its offsets across the row cannot move
+    row = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=Axis(0.0, 0.08, 9), y=Axis(0.0, 0.0, 1), u=grid.u, v=grid.v)
+    on_row = np.zeros(row.shape, bool)
+    on_row[:, :, ::4] = True
+    pos_row = np.full((1, 1, 9, 2), np.nan)
+    pos_row[0, 0, ::4] = [[0.0, 0.1], [0.0, 3.9], [0.0, 8.2]]
+    plan = plan_view_fill(row, on_row.astype(np.float32), ViewFillOptions(min_depth=0.4), camera_positions=pos_row)
+    assert len(plan) == 6 and plan.recentre is None
 
 
 def test_view_fill_options_and_colour(tmp_path):
