@@ -123,7 +123,7 @@ class ViewFillOptions:
     the rays from the camera centre, which on a real rig sits off its view in (x, y) and off the
     focal plane (each of its directions then crosses the plane at another (x, y)); the motion's
     derivatives across the views read those offsets as regressor errors, which shorten the
-    translation (docs/resample.md, step 5). False: camera views keep their data as measured."""
+    translation (docs/resample.md, step 6). False: camera views keep their data as measured."""
 
     def __post_init__(self) -> None:
         if not (self.min_depth > 0 and self.disparity_step > 0 and self.window >= 0 and self.max_radius >= 1):
