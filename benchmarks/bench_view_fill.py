@@ -1,6 +1,7 @@
 """Benchmark: the motion solver on camera-array sessions against how the views between the cameras
-are filled (``resample.viewfill``; docs/resample.md, step 5): 2 or 4 views per camera spacing, the
-plane sweep's disparity refined at full resolution or not (``ViewFillOptions.refine``).
+are filled (``resample.viewfill``; docs/resample.md, steps 5 and 6): 2 or 4 views per camera spacing,
+the plane sweep's disparity refined at full resolution or not (``ViewFillOptions.refine``), the camera
+views re-centred onto their grid views or not (``ViewFillOptions.recentre``).
 
 Data: ``polycam synth session`` of each rig (its ``[mock]`` table: the textured room, smooth motion
 of 5 mm and 0.2 deg per frame, its noise), one session per seed, the true cameras perturbed as
@@ -15,7 +16,7 @@ then per rig the ratio of each variant's median translation error to the first v
 Usage::
 
     .venv/bin/python benchmarks/bench_view_fill.py [--rigs webcam3x3 mock5x5 oak_array mock1x5 oak_d_lite]
-        [--seeds 3 11 12 13] [--frames 6] [--variants 2:off 2:on 4:off 4:on] [--uv-step 2] [--keep DIR]
+        [--seeds 3 11 12 13] [--frames 6] [--variants 2:off 2:on 4:off 4:on 2:auto:keep] [--uv-step 2] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -43,11 +44,11 @@ from resample.viewfill import ViewFillOptions  # noqa: E402
 from bench_arrays import add_keep_option, sessions_root  # noqa: E402  (this folder)
 
 
-def solve(session: Path, xy: int, refine: bool | None, uv_step: float) -> dict:
+def solve(session: Path, xy: int, refine: bool | None, uv_step: float, recentre: bool = True) -> dict:
     """Per-pair errors and along-ratios of the default solver on the session resampled with ``xy``
-    views per camera spacing and ``ViewFillOptions(refine=refine)``."""
+    views per camera spacing and ``ViewFillOptions(refine=refine, recentre=recentre)``."""
     lf = SessionLightField(session, uv_step_px=uv_step, xy_oversample=xy,
-                           options=ResampleOptions(fill=ViewFillOptions(refine=refine)))
+                           options=ResampleOptions(fill=ViewFillOptions(refine=refine, recentre=recentre)))
     traj, _ = estimate_trajectory(lf)
     truth = lf.groundtruth()
     err = pair_errors(traj, truth)
@@ -67,8 +68,8 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[3, 11, 12, 13])
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--variants", nargs="+", default=["2:off", "2:on", "4:off", "4:on"],
-                    help="XY:REFINE items: views per camera spacing and the fill's refine (on, off, auto); "
-                         "the first is the ratios' baseline")
+                    help="XY:REFINE[:keep] items: views per camera spacing, the fill's refine (on, off, auto), "
+                         "and keep: the camera views not re-centred; the first is the ratios' baseline")
     ap.add_argument("--uv-step", type=float, default=2.0, help="direction spacing of the grid in camera pixels")
     add_keep_option(ap)
     args = ap.parse_args()
@@ -76,15 +77,15 @@ def main() -> None:
     opts = RunOptions()
     variants = []
     for item in args.variants:
-        xy, refine = item.split(":")
-        variants.append((item, int(xy), {"on": True, "off": False, "auto": None}[refine]))
+        xy, refine, *keep = item.split(":")
+        variants.append((item, int(xy), {"on": True, "off": False, "auto": None}[refine], keep != ["keep"]))
     rows = {}
     print("| rig | views per camera spacing : refine | pairs | translation median (mean) | rotation median (mean) "
           "| along-ratio median | resample s / frame |")
     print("|---|---|---|---|---|---|---|")
     for name in args.rigs:
         rig = load_rig(REPO / "rigs" / f"{name}.toml")
-        for label, xy, refine in variants:
+        for label, xy, refine, recentre in variants:
             acc = {"t": [], "w": [], "along": [], "resample_s": []}
             for seed in args.seeds:
                 session = root / f"{name}_seed{seed}_f{args.frames}"
@@ -93,7 +94,7 @@ def main() -> None:
                                   perturb_position_m=opts.perturb_position_m,
                                   perturb_rotation_deg=opts.perturb_rotation_deg,
                                   perturb_focal_frac=opts.perturb_focal_frac)
-                r = solve(session, xy, refine, args.uv_step)
+                r = solve(session, xy, refine, args.uv_step, recentre)
                 for k in acc:
                     acc[k] += r[k] if isinstance(r[k], list) else [r[k]]
             rows[(name, label)] = acc

@@ -613,6 +613,18 @@ def test_view_fill_options_and_colour(tmp_path):
     assert np.abs(rh.L - r.L)[cam & (r.W <= 0.5)].max() > 1e-3
     for k in range(3):
         assert np.mean(np.abs(rh3.L[..., k] - rh.L) > RESAMPLE_CONSTANT_ATOL) < 1e-3
+    # cameras 1.5 mm off their views: re-centred (the default), grey and colour agree, and the camera
+    # views move; with recentre=False they stay as the push-pull left them
+    rig = _grid_rig(tmp_path)
+    moved = true_cameramodels(rig, seed=4, perturb_position_m=0.0015, perturb_rotation_deg=2.0, perturb_focal_frac=0.01)
+    g_moved = auto_grid(moved)
+    rc, rc3 = Resampler(moved, g_moved).resample(frame), Resampler(moved, g_moved, channels=3).resample(frame)
+    kept = Resampler(moved, g_moved, options=ResampleOptions(fill=ViewFillOptions(recentre=False))).resample(frame)
+    pp = Resampler(moved, g_moved, options=ResampleOptions(view_fill="pushpull")).resample(frame)
+    np.testing.assert_array_equal(kept.L[cam], pp.L[cam])
+    assert np.abs(rc.L - kept.L)[cam & (rc.W > 0.5)].max() > 1e-3
+    for k in range(3):
+        assert np.mean(np.abs(rc3.L[..., k] - rc.L) > RESAMPLE_CONSTANT_ATOL) < 1e-3
     with pytest.raises(ValueError):
         ResampleOptions(view_fill="bogus")
 
