@@ -6,8 +6,10 @@ textured room, smooth motion of ~5 mm and ~0.2 deg per frame, 8-bit images with 
 rig's noise (grey-level std 0.004), true calibration (the same models for both methods).
 
 - **plenoptic**: ``resample.stream.SessionLightField`` on the grid ``polycam run``
-  chooses (``resample.auto_grid``, about one view per camera: ``--xy-oversample 1``;
-  ``--uv-step 2``) + :func:`polycam.motion.estimate_trajectory` with ``polycam run``'s
+  chooses (:func:`polycam.run.session_grid`: 2 views per camera spacing, one between
+  neighbouring cameras, or 4 for a row of cameras; ``--uv-step 2``; until session 45 this
+  benchmark took one view per camera by mistake, ``--xy-oversample 1``) +
+  :func:`polycam.motion.estimate_trajectory` with ``polycam run``'s
   solver setting (the default options; on these resampled frames the discontinuity weight's
   constant is ``MotionOptions.smooth_c_resampled``, ``--smooth-c``).
 - **pycolmap**: per frame, OpenCV SIFT on every camera image; per pair, each camera's
@@ -54,18 +56,19 @@ from polycam.synth import synth_session  # noqa: E402
 from polycam.trajectory import Trajectory  # noqa: E402
 
 
-def plenoptic(session: Path, uv_step: float, xy_oversample: int, smooth_c_resampled: float,
+def plenoptic(session: Path, uv_step: float, xy_oversample: int | None, smooth_c_resampled: float,
               scale_selection: bool = False) -> tuple[Trajectory, dict]:
     """(trajectory, timing): timing in seconds per pair: ``total``, ``read`` (PNG decoding),
-    ``image`` (resampling), ``pair`` (solve), and ``geometry`` (once per session)."""
+    ``image`` (resampling), ``pair`` (solve), and ``geometry`` (once per session).
+    ``xy_oversample``: views per camera spacing (None: ``polycam run``'s rule,
+    :func:`polycam.run.session_grid`)."""
     from polycam.motion import estimate_trajectory
+    from polycam.run import session_grid
     from polycam.session import open_session
-    from resample.grid import auto_grid
     from resample.stream import SessionLightField
 
     models = open_session(session).calibration()
-    lf = SessionLightField(session, models=models,
-                           grid=auto_grid(models, uv_step_px=uv_step, xy_oversample=xy_oversample))
+    lf = SessionLightField(session, models=models, grid=session_grid(models, uv_step, xy_oversample)[0])
     t0, c0 = time.perf_counter(), time.process_time()
     traj, _ = estimate_trajectory(lf, smooth_c_resampled=smooth_c_resampled, scale_selection=scale_selection)
     total, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -188,8 +191,9 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--uv-step", type=float, default=2.0)
-    ap.add_argument("--xy-oversample", type=int, default=RunOptions.xy_oversample or 1,
-                    help="plenoptic: light-field views per camera spacing (default: polycam run's)")
+    ap.add_argument("--xy-oversample", type=int, default=RunOptions.xy_oversample,
+                    help="plenoptic: light-field views per camera spacing (default: polycam run's rule, 2, or 4 "
+                         "for a row of cameras; until session 45 this default was 1 by mistake)")
     ap.add_argument("--scale-selection", choices=("on", "off"),
                     default="on" if RunOptions.scale_selection else "off",
                     help="plenoptic: (u, v) scale selection of paper Sect. 4.1 (default: polycam run's)")
@@ -211,12 +215,12 @@ def main() -> int:
     ap.add_argument("--neighbours", action="store_true",
                     help="pycolmap: also match each camera to its 4-neighbours in the next frame (slow)")
     args = ap.parse_args()
-    settings = args.settings or [f"{args.xy_oversample}:{args.scale_selection}"]
+    settings = args.settings or [f"{args.xy_oversample or 'run'}:{args.scale_selection}"]
     try:
-        settings = [(int(a), b == "on") for a, b in (x.split(":") for x in settings)]
+        settings = [(None if a == "run" else int(a), b == "on") for a, b in (x.split(":") for x in settings)]
     except ValueError:
-        ap.error("--settings: expected OVERSAMPLE:on|off items, e.g. 2:on")
-    methods = [(f"plenoptic xy{ov} sel {'on' if sel else 'off'}",
+        ap.error("--settings: expected OVERSAMPLE:on|off items (OVERSAMPLE a number or run), e.g. 2:on")
+    methods = [(f"plenoptic xy{ov or 'run'} sel {'on' if sel else 'off'}",
                 (lambda ov=ov, sel=sel: lambda sess: plenoptic(sess, args.uv_step, ov, args.smooth_c, sel))())
                for ov, sel in settings]
     if not args.skip_colmap:
