@@ -30,7 +30,7 @@ from polycam.lightfield import LightFieldGrid
 
 from .geometry import KernelOptions, SplatGeometry, build_geometry, splat
 from .pushpull import SCHEDULES, PushPull, weighted_views
-from .viewfill import (ViewFillOptions, ViewFillPlan, _camera_geometry, data_positions, fill_views,
+from .viewfill import (ViewFillOptions, ViewFillPlan, camera_heights, camera_positions, data_positions, fill_views,
                        plan_view_fill)
 
 VIEW_FILLS = ("depth", "pushpull")
@@ -201,17 +201,18 @@ class Resampler:
             self._plans[key] = plan
         return plan
 
-    def _centres(self, ids=None) -> tuple[np.ndarray, np.ndarray]:
-        """(positions (F, Ny, Nx, 2), heights (F, Ny, Nx)) of cameras ``ids`` (default: all):
+    def _centres(self, ids) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (F, Ny, Nx, 2), heights (F, Ny, Nx)) of cameras ``ids``:
         :func:`resample.viewfill.camera_positions` and :func:`~resample.viewfill.camera_heights`."""
         from polycam.cameras import T_rig_cam_of
 
-        T = np.stack([T_rig_cam_of(self.models[c]) for c in (ids or self.cameras)])
-        return _camera_geometry(self.grid, T[:, :3, 3], T[:, :3, 2])
+        T = np.stack([T_rig_cam_of(self.models[c]) for c in ids])
+        return (camera_positions(self.grid, T[:, :3, 3], T[:, :3, 2]),
+                camera_heights(self.grid, T[:, :3, 3], T[:, :3, 2]))
 
-    def camera_positions(self, ids=None) -> np.ndarray | None:
-        """(F, Ny, Nx, 2) float64: where the data of cameras ``ids`` (default: all) are, at the
-        views that hold them, NaN elsewhere: (iy, ix) in fractional grid indices. The camera
+    def camera_positions(self) -> np.ndarray | None:
+        """(F, Ny, Nx, 2) float64: where the cameras' data are, at the views that hold them, NaN
+        elsewhere: (iy, ix) in fractional grid indices. The camera
         centres (:func:`resample.viewfill.camera_positions`), except for the camera views the depth
         fill re-centres onto their grid views (``ViewFillOptions.recentre``, the default): those
         are at their integer indices. None when the cameras are not on the focal plane
@@ -219,11 +220,10 @@ class Resampler:
         store as its ``camera_positions`` attribute (docs/formats.md)."""
         if not self.cameras_on_focal_plane():
             return None
-        pos = self._centres(ids)[0]
+        pos = self._centres(self.cameras)[0]
         if self.options.view_fill != "depth":
             return pos
-        geo = self.geometry if ids is None else self._geometry_for(tuple(ids))
-        return data_positions(self.fill_plan(geo), pos)
+        return data_positions(self.fill_plan(), pos)
 
     def cameras_on_focal_plane(self, tolerance: float = 0.25) -> bool:
         """Whether the camera centres lie on the focal plane of the face their optical axis
