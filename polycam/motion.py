@@ -68,7 +68,11 @@ no single depth explains is left out (it has no regressor to keep); the warp ext
 ray the motion moves off the axis from the views by Eq. 6 with the views' mean ρ̄ per direction
 (its gaps filled from their neighbours, :func:`polycam.warp._filled_view_mean`), however far (the
 first warp of the coarsest level, before any ρ̂, keeps the rays on the axis). The symmetric warp
-does not extrapolate so: with it such a pair fails with that reason. Measured (docs/motion.md,
+does not extrapolate so: with it such a pair fails with that reason. ρ̂ is divided by the gain
+of the derivative filter across the views at each ray's frequencies
+(:func:`polycam.filter_response.linear_rho_gain`): fs3 reads L_x, so ρ̂, up to a few per cent high
+where the views are a sizeable fraction of a sample apart, and the warp's extrapolation with that
+ρ̄ converged with the translation along the single-view axis short by as much. Measured (docs/motion.md,
 "Linear arrays"): the middle row or column of the paper set-up's 9 x 9 array errs 1.7–34x as much
 as the whole array without noise (t 0.4–1.1 %), 1.3–7x with 2 grey levels (benchmarks/bench_linear.py);
 a row of five mock cameras about as much as the 5 x 5 rig (2.8 / 0.9 % against 2.7 / 0.8 %). The disparity per view step of camera
@@ -174,6 +178,7 @@ from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _
                   _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights,
                   _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
 from .errors import InputError
+from .filter_response import divide_rho_by_gain, window_rms_frequency
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
 from .lightfield import Axis, LightFieldGrid, finite_frame
 from .motion_options import MotionOptions
@@ -522,6 +527,7 @@ class _Solver:
         # a linear array's single-view axis ("x" or "y"; "": none): its regressor is always ρ̂ L_u
         # (or ρ̂ L_v), at every level (LightFieldGrid.single_view_axis)
         self.linear = g.single_view_axis
+        self.omega: np.ndarray | None = None     # its rays' frequencies (_linear_rho_gain), per level
         self.radius = {k: (fp.radius if self.pairs[k] is not None else 0) for k, fp in filters.items()}
         self.vals = [np.ascontiguousarray(a.values, dtype=np.float64) for a in (g.x, g.y, g.u, g.v)]
         self.zs = np.array([face.z_pi for face in g.faces], float)
@@ -812,11 +818,26 @@ class _Solver:
                                      near, self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc,
                                      return_mix=True, pool_views=self.opts.depth_pool_views,   # out1: read by now
                                      linear=self.linear)
+        if self.linear:
+            self._linear_rho_gain()
         if near is not None:
             self.rho_bar = _view_mean(self.rho, self.rho_sc)
             self.rho_bar_handed = False
             _fill_rho(self.rho, self.rho_sc, near, self.base, self.rho_bar, self.box, self.vo)
         return var_dr
+
+    def _linear_rho_gain(self) -> None:
+        """A linear array's ρ̂ divided by the view filter's gain at each ray's frequencies
+        (:mod:`polycam.filter_response`): fs3 across views a sizeable fraction of a sample apart
+        reads L_x, so ρ̂, high, and the warp's extrapolation with that ρ̄ converged with the
+        translation along the single-view axis short by as much. The frequencies are the level
+        frame's, measured once per level over the rays with base weights (ρ̂'s windows)."""
+        g = self.lev.grid
+        view = "x" if self.linear == "y" else "y"
+        if self.omega is None:
+            self.omega = window_rms_frequency(self.lev.L0, self.base > 0, self.vo, self.cshape[1:3], self.filters, view)
+        steps = (g.x.step, g.u.step) if view == "x" else (g.y.step, g.v.step)
+        divide_rho_by_gain(self.rho, self.rho_sc, self.omega, steps, self.filters[view])
 
     def warp_change(self, M_a: np.ndarray, M_b: np.ndarray) -> float:
         """Largest first-order displacement of a ray of this level's grid between the warps of

@@ -41,6 +41,10 @@ DERIV_SINE_REL_FS5 = 0.01     # fs5 derivative of a 0.5 rad/sample sinusoid, rel
 MOTION_MODEL_WEIGHT_ATOL = 0.02  # model-validity weight in a patch of 3 s model error vs s² / (s² + 8.5 s²) (pooled noise: ~±0.01)
 MOTION_MODEL_BUMP_GAIN = 0.6   # error with / without model_weight, model-error bump (measured 0.47)
 MOTION_DEPTH_MEDIAN_REL = 0.02  # median relative depth error (Eq. 6-7) on confident rays, room sphere
+FILTER_GAIN_ATOL = 1e-12     # derivative_gain of a filter pair vs its closed form
+LINEAR_RHO_FS3_BIAS_MIN = 0.025  # median ρ̂ / ρ - 1 of a linear array without the gain, sinusoid of 1 rad/sample seen 0.72 samples apart view to view (fs3 / fs5 predicts 4.0 %)
+LINEAR_RHO_GAIN_ATOL = 0.003  # median ρ̂ / ρ vs its prediction (fs3 / fs5 without the gain, 1 / fs5 with it) on that sinusoid
+LINEAR_RHO_INT16_RTOL = 1e-4  # the solver's int16 ρ̂ divided by the gain (table, re-quantised) vs the float division (1 / 32767 of a view's max, R tabled to 1e-6)
 # capture (tests/test_capture_*.py)
 CAPTURE_JITTER_STD_REL = 0.15  # measured timestamp-jitter std of the mock vs [mock] jitter_ms (1200 draws)
 # calibration (tests/test_calib*.py; small rendered / synthetic board sessions)
