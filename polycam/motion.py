@@ -818,7 +818,7 @@ class _Solver:
                                      near, self.vo, self.dsc, scratch=self.out1[0], out_scale=self.rho_sc,
                                      return_mix=True, pool_views=self.opts.depth_pool_views,   # out1: read by now
                                      linear=self.linear)
-        if self.linear:
+        if self.linear and self.opts.linear_gain:
             self._linear_rho_gain()
         if near is not None:
             self.rho_bar = _view_mean(self.rho, self.rho_sc)

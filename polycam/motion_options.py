@@ -60,6 +60,14 @@ class MotionOptions:
     0.49 %), hence the threshold; a row of five cameras at 0.28 gains (1.4 → 1.0 %). Not with
     ``symmetric`` (whose warps have no ρ̄). ``inf``: never. Not measured (fewer than 3 views along x or y, ``max_view_disparity`` inf):
     never."""
+    linear_gain: bool = True
+    """On a linear array (one viewpoint along x or y), divide each ray's ρ̂ by the gain of the
+    derivative filter across the views at its window's frequencies
+    (:mod:`polycam.filter_response`): fs3 reads L_x, so ρ̂, up to a few per cent high where the
+    views are a sizeable fraction of a sample apart, and the warp's Eq. 6 extrapolation with that
+    ρ̄ converged with the translation along the single-view axis short by as much (OAK-D Lite
+    sessions 2.3 → 1.2 % per pair; docs/motion.md, "The view filter's gain"). False: the solver
+    before session 46."""
     pyramid_xy: bool = False
     """Also halve the (x, y) sampling at coarse levels when there are enough viewpoints."""
     iterations: int = 4

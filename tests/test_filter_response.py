@@ -11,6 +11,7 @@ from polycam.derivatives import FILTERS, plenoptic_derivatives
 from polycam.eq5 import _rho_store, _scaled_views, depth_rho, rho_values
 from polycam.filter_response import derivative_gain, divide_rho_by_gain, linear_rho_gain, window_rms_frequency
 from polycam.lightfield import Axis, LightFieldGrid
+from polycam.motion_options import MotionOptions
 
 from tolerances import FILTER_GAIN_ATOL, LINEAR_RHO_FS3_BIAS_MIN, LINEAR_RHO_GAIN_ATOL, LINEAR_RHO_INT16_RTOL
 
@@ -109,8 +110,8 @@ def test_linear_rho_gain_removes_the_view_filters_share(column):
 
 def test_solver_divides_a_linear_arrays_rho_by_the_gain(monkeypatch):
     """The solver's ρ̂ on a linear array (recorded after _Solver._depth_rho) is the kernel's divided
-    by the gain: on the sinusoid above it reads within fs5's share of ρ, where without the gain it
-    read fs3's 3.4 % high."""
+    by the gain: on the sinusoid above it reads within fs5's share of ρ, where without the gain
+    (``MotionOptions.linear_gain`` False) it reads fs3's 3.4 % high."""
     grid = _row()
     L = _sine_plane(grid, 0.5, 1.0, False)
     seen = {}
@@ -127,8 +128,7 @@ def test_solver_divides_a_linear_arrays_rho_by_the_gain(monkeypatch):
     fs5 = float(derivative_gain(FILTERS["fs5"], np.array(1.0)))
     pm.estimate_motion(L, L, grid)
     with_gain = np.nanmedian(seen["rho"]) / rho
-    monkeypatch.setattr(pm._Solver, "_linear_rho_gain", lambda self: None)
-    pm.estimate_motion(L, L, grid)
+    pm.estimate_motion(L, L, grid, options=MotionOptions(linear_gain=False))
     without = np.nanmedian(seen["rho"]) / rho
     assert with_gain == pytest.approx(1.0 / fs5, abs=LINEAR_RHO_GAIN_ATOL)
     assert without - 1 > LINEAR_RHO_FS3_BIAS_MIN
