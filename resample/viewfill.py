@@ -46,7 +46,9 @@ off the focal plane by a height ``h``: its ray of direction ``(u, v)`` crosses t
 gets the sweep's disparity (matched against the nearest measured views, at offsets from its own
 centre, itself as a source at offset 0) and is moved onto its view:
 ``L(view)(iv, iu) ≈ L(camera)(iv − δ r_y Δiy(v), iu − δ Δix(u))``; the other targets are then
-filled from the grid views. A camera on its view and on the plane is left as it is.
+filled from the grid views. A camera on its view and on the plane is left as it is. On a row
+(or column) of views the offset across it is in steps along it (:func:`view_steps`): the
+disparity per metre is the same in both directions.
 
 Grey and colour frames are matched on the mean over channels and blended per channel.
 No file I/O.
@@ -71,7 +73,7 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["RECENTRE_SOURCES", "camera_views", "camera_positions", "camera_heights", "data_positions", "far_sources",
+__all__ = ["RECENTRE_SOURCES", "camera_views", "camera_positions", "view_steps", "camera_heights", "data_positions", "far_sources",
            "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
 
 log = logging.getLogger(__name__)
@@ -153,7 +155,8 @@ class ViewFillPlan:
     """Per target: a measured view of which only the holes (``W <= 0.5``) are re-filled."""
     shifts: tuple[np.ndarray, ...] = ()
     """Per target of a re-centring plan (:attr:`recentre`): (3,) float64 ``(Δiy, Δix, h)``, the
-    camera centre minus its grid view [view steps] and its height above the focal plane [m]."""
+    camera centre minus its grid view [view steps; along a single-view axis, the other axis's] and
+    its height above the focal plane [m]."""
     recentre: "ViewFillPlan | None" = None
     """The camera views re-centred onto their grid views before this plan's targets are filled
     from them (a plan whose first source per target is the camera view itself, at offset 0), or None."""
@@ -182,12 +185,14 @@ def _camera_geometry(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np
     out = np.full((F, Ny, Nx, 2), np.nan)
     height = np.full((F, Ny, Nx), np.nan)
     normals = np.stack([np.asarray(fc.R_rig_face, float)[:, 2] for fc in grid.faces])
+    sx, sy = view_steps(grid)
     for c, a in zip(np.asarray(centres_rig, float), np.asarray(axes_rig, float)):
         k = int(np.argmax(normals @ a))
         p = np.asarray(grid.faces[k].R_rig_face, float).T @ c
-        fx = (p[0] - grid.x.min) / grid.x.step if grid.x.count > 1 else 0.0
-        fy = (p[1] - grid.y.min) / grid.y.step if grid.y.count > 1 else 0.0
-        ix, iy = int(round(fx)), int(round(fy))
+        fx = (p[0] - grid.x.min) / sx if sx > 0 else 0.0
+        fy = (p[1] - grid.y.min) / sy if sy > 0 else 0.0
+        ix = int(round(fx)) if grid.x.count > 1 else 0       # a single-view axis: its one view
+        iy = int(round(fy)) if grid.y.count > 1 else 0
         if 0 <= ix < Nx and 0 <= iy < Ny:
             pos = np.array([fy, fx])
             snap = np.abs(pos - np.round(pos)) < 1e-6
@@ -197,12 +202,23 @@ def _camera_geometry(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np
     return out, height
 
 
+def view_steps(grid: LightFieldGrid) -> tuple[float, float]:
+    """(step_x, step_y) [m]: the grid's view steps, a single-view axis taking the other axis's (the
+    unit in which :func:`camera_positions` gives offsets across a row or column of views; 0 for a
+    single view)."""
+    sx = grid.x.step if grid.x.count > 1 else 0.0
+    sy = grid.y.step if grid.y.count > 1 else 0.0
+    return (sx if sx > 0 else sy), (sy if sy > 0 else sx)
+
+
 def camera_positions(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.ndarray) -> np.ndarray:
     """(F, Ny, Nx, 2) float64: at the grid view nearest each camera centre (on the face its
     optical axis points into), that centre's position (iy, ix) in fractional grid indices;
     NaN at the other views. ``centres_rig``, ``axes_rig``: (N, 3) camera centres [m] and
     optical axes in the rig frame. Offsets below 1e-6 view steps are rounded away (a camera
-    on a grid view is exactly there)."""
+    on a grid view is exactly there). Along a single-view axis (a row or column of views) the
+    position is the centre's offset from that one view in steps of the other axis
+    (:func:`view_steps`): the re-centring moves the camera views across the row too."""
     return _camera_geometry(grid, centres_rig, axes_rig)[0]
 
 
@@ -260,9 +276,9 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     With positions and ``options.recentre``, each measured camera view off its grid view (or off
     the focal plane) is re-centred onto its view first (:attr:`ViewFillPlan.recentre`: the sweep
     matches it against the nearest measured views, at offsets from its centre), and the other
-    targets are filled from the re-centred views, at their grid views. Not on a grid with one view
-    along x or y (a row of cameras): its offsets across the row cannot be moved, and moving the
-    others alone did not help (docs/resample.md, step 6)."""
+    targets are filled from the re-centred views, at their grid views. A row or column of views too:
+    its offsets across the row are in steps along it (:func:`view_steps`), moved along the same
+    disparity (docs/resample.md, step 6)."""
     opts = options or ViewFillOptions()
     F, Ny, Nx, Nv, Nu = grid.shape
     cov = np.mean(np.asarray(w_clamped) >= 1.0, axis=(3, 4))             # (F, Ny, Nx)
@@ -287,7 +303,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     # the camera views re-centred first: sources the camera view itself (offset 0) and the measured
     # views around it, at offsets from its centre
     rc = ([], [], [], [], [])
-    if pos is not None and opts.recentre and Nx > 1 and Ny > 1:     # (not a row or column of views)
+    if pos is not None and opts.recentre and (Nx > 1 or Ny > 1):
         for f in range(F):
             src = cov[f] >= opts.source_coverage
             for j, i in zip(*np.nonzero(src)):
@@ -351,8 +367,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     for fc in grid.faces:
         su = grid.u.step if grid.u.count > 1 else 1.0
         sv = grid.v.step if grid.v.count > 1 else 1.0
-        step_x = sx if sx > 0 else sy
-        step_y = sy if sy > 0 else sx
+        step_x, step_y = view_steps(grid)
         r_y.append((step_y / step_x) * (su / sv) if step_x > 0 else 1.0)
         if step_x > 0:
             dmax = max(dmax, fc.f * step_x / (su * opts.min_depth))
@@ -366,8 +381,8 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     disp = np.arange(-1, n + 1) * step                          # one step beyond each end for the refinement
     recentre = None
     if rc[0]:
-        tan_steps = tuple((grid.u.values / fc.f / sx if sx > 0 else np.zeros(Nu),
-                           grid.v.values / fc.f / sy if sy > 0 else np.zeros(Nv)) for fc in grid.faces)
+        ux, uy = view_steps(grid)                     # a single-view axis: in the other's steps
+        tan_steps = tuple((grid.u.values / fc.f / ux, grid.v.values / fc.f / uy) for fc in grid.faces)
         recentre = ViewFillPlan(tuple(rc[0]), tuple(rc[1]), tuple(rc[2]), tuple(rc[3]), disp, tuple(r_y),
                                 (False,) * len(rc[0]), tuple(rc[4]), tan_steps=tan_steps)
     plan = ViewFillPlan(tuple(targets), tuple(sources), tuple(offsets), tuple(weights), disp, tuple(r_y),

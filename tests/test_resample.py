@@ -22,7 +22,7 @@ from resample import (KernelOptions, ResampleOptions, Resampler, auto_grid, buil
 from resample.geometry import camera_layout
 from resample.pushpull import pyramid_schedule
 from tolerances import (RESAMPLE_CONSTANT_ATOL, RESAMPLE_LINEAR_ATOL, RESAMPLE_PUSHPULL_ATOL, RESAMPLE_VIEWFILL_DISPARITY_ATOL,
-                        RESAMPLE_VIEWFILL_OFFGRID_GAIN, RESAMPLE_VIEWFILL_RMS)
+                        RESAMPLE_VIEWFILL_OFFGRID_GAIN, RESAMPLE_VIEWFILL_RMS, RESAMPLE_ROW_ACROSS_GAIN)
 
 
 def _lens(tmp_path: Path) -> Path:
@@ -575,14 +575,56 @@ def test_view_fill_recentres_cameras_off_their_views_and_off_the_plane():
                                       else pos[cam[..., 0, 0]])
     assert rms_cam[True] <= RESAMPLE_VIEWFILL_RMS and rms_fill[True] <= RESAMPLE_VIEWFILL_RMS, (rms_cam, rms_fill)
     assert rms_cam[False] >= RESAMPLE_VIEWFILL_OFFGRID_GAIN * rms_cam[True], rms_cam
-    # a row of cameras (one view along y) is not re-centred: its offsets across the row cannot move
-    row = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=Axis(0.0, 0.08, 9), y=Axis(0.0, 0.0, 1), u=grid.u, v=grid.v)
-    on_row = np.zeros(row.shape, bool)
-    on_row[:, :, ::4] = True
-    pos_row = np.full((1, 1, 9, 2), np.nan)
-    pos_row[0, 0, ::4] = [[0.0, 0.1], [0.0, 3.9], [0.0, 8.2]]
-    plan = plan_view_fill(row, on_row.astype(np.float32), ViewFillOptions(min_depth=0.4), camera_positions=pos_row)
-    assert len(plan) == 6 and plan.recentre is None
+
+
+def test_view_fill_recentres_a_row_of_cameras_across_the_row():
+    """A row of cameras (one view along y) ~0.15 view steps off their views along the row and across
+    it, ~1 mm off the focal plane: the offsets across the row count in steps along it
+    (``view_steps``), and the re-centring moves the camera views across the row too, onto the row's
+    views; kept as measured they are off by the disparity times the offsets."""
+    from resample import ViewFillOptions, fill_views, plan_view_fill
+    from resample.viewfill import camera_positions, view_steps
+
+    g2, _ = _plane_grid_with_cameras()
+    row = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=Axis(0.0, 0.08, 9), y=Axis(0.0, 0.0, 1), u=g2.u, v=g2.v)
+    assert view_steps(row) == (0.01, 0.01)
+    # a centre 2 mm across the row is 0.2 steps off the row's one view
+    at = camera_positions(row, np.array([[0.041, 0.002, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+    np.testing.assert_allclose(at[0, 0, 4], [0.2, 4.1])
+    delta = 1.7
+    truth = _plane_lightfield(row, delta)            # the row's views at y = 0
+    rng = np.random.default_rng(5)
+    cam = np.zeros(row.shape, bool)
+    cam[:, :, ::4] = True
+    pos = np.full((1, 1, 9, 2), np.nan)
+    height = np.full((1, 1, 9), np.nan)
+    L = truth.copy()
+    iv, iu = np.meshgrid(np.arange(80), np.arange(96), indexing="ij")
+    tan_u, tan_v = row.u.values[iu] / 100.0, row.v.values[iv] / 100.0
+    r_y = row.u.step / row.v.step
+    for i in (0, 4, 8):
+        pos[0, 0, i] = (0.0, i) + rng.normal(scale=0.15, size=2)
+        height[0, 0, i] = rng.normal(scale=0.001)
+        px = pos[0, 0, i, 1] - height[0, 0, i] * tan_u / 0.01
+        py = pos[0, 0, i, 0] - height[0, 0, i] * tan_v / 0.01
+        a, b = iu + delta * px, iv + delta * r_y * py
+        L[0, 0, i] = 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+    W = np.where(cam, 1.0, 0.25).astype(np.float32)
+    inner = np.zeros(row.shape, bool)
+    inner[..., 8:-8, 8:-8] = True
+    on_row = pos.copy()
+    on_row[..., 0] = np.where(np.isnan(pos[..., 0]), np.nan, 0.0)      # the offsets across the row dropped
+    rms = {}
+    for name, recentre, p in (("recentred", True, pos), ("kept", False, pos), ("along the row only", True, on_row)):
+        opts = ViewFillOptions(min_depth=0.4, recentre=recentre)
+        plan = plan_view_fill(row, cam.astype(np.float32), opts, camera_positions=p, camera_heights=height)
+        assert len(plan) == 6 and (len(plan.recentre) == 3 if recentre else plan.recentre is None)
+        L6 = L[..., None].copy()
+        fill_views(L6, W, plan, opts)
+        rms[name] = float(np.sqrt(np.mean((L6[..., 0] - truth)[inner & cam] ** 2)))
+    assert rms["recentred"] <= RESAMPLE_VIEWFILL_RMS, rms
+    assert rms["kept"] >= RESAMPLE_VIEWFILL_OFFGRID_GAIN * rms["recentred"], rms
+    assert rms["along the row only"] >= RESAMPLE_ROW_ACROSS_GAIN * rms["recentred"], rms
 
 
 def test_view_fill_options_and_colour(tmp_path):

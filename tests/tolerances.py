@@ -124,6 +124,7 @@ MOTION_WARP_SOURCE_UNITS = 1.0   # warp of the int16 warp source vs the float32 
 MOTION_SCALED_VIEWS_RTOL = 1.6e-5  # int16 scaled views (polycam.eq5): rounding error relative to the view's max |value| (half a step of 1/32767, plus float32 rounding)
 MOTION_INT16_WEIGHTS_REL = 1e-4  # normal sums with int16 base weights (units of 1/32767) vs float32 weights, relative to the largest |sum| (measured: see the test)
 RESAMPLE_VIEWFILL_OFFGRID_GAIN = 2.0   # view fill from cameras ~0.15 view steps off their views (textured plane): RMS error with offsets from the grid indices / from the camera centres, at least (measured 0.0142 / 0.0046 = 3.1)
+RESAMPLE_ROW_ACROSS_GAIN = 1.5     # a row of cameras re-centred along the row only / across it too: RMS of the camera views (textured plane, 0.15-step offsets; measured 0.0099 / 0.0049 = 2.0)
 MOTION_NOISE_SIGMA_REL = 0.05  # sensor-noise sigma from second differences of 3x3 or 5x5 cameras x 32x32 directions (two frames; 0.5-1.5 % expected)
 DERIV_NOISE_VAR_REL = 0.05     # predicted vs measured variance of the derivatives of white noise (9x9x64x64 per frame; measured within 1.6 %)
 # ρ̂ pooled over the views (tests/test_rho_pool.py, synthetic ρ fields)
