@@ -326,8 +326,23 @@ def _plane_lightfield(grid, delta):
     iy, ix, iv, iu = np.meshgrid(np.arange(Ny), np.arange(Nx), np.arange(Nv), np.arange(Nu), indexing="ij")
     a = iu + delta * ix
     b = iv + delta * r_y * iy
-    g = 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
-    return g[None].astype(np.float32)
+    return _plane_texture(a, b)[None].astype(np.float32)
+
+
+def _plane_texture(a, b):
+    """The plane tests' texture at (a, b) [u-steps, v-steps of the reference view]."""
+    return 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+
+
+def _plane_seen_from(grid, delta, pos, height, step):
+    """(Nv, Nu): the plane of :func:`_plane_lightfield` seen from a camera centre at fractional view
+    position ``pos`` (iy, ix) [view steps of ``step`` m] and ``height`` [m] above the focal plane:
+    each direction (u, v) crosses the plane at pos − height (tan_v, tan_u) / step."""
+    iv, iu = np.meshgrid(np.arange(grid.v.count), np.arange(grid.u.count), indexing="ij")
+    f = grid.faces[0].f
+    px = pos[1] - height * grid.u.values[iu] / f / step
+    py = pos[0] - height * grid.v.values[iv] / f / step
+    return _plane_texture(iu + delta * px, iv + delta * (grid.u.step / grid.v.step) * py)
 
 
 def test_view_fill_plan_on_an_auto_grid(tmp_path):
@@ -503,9 +518,7 @@ def test_view_fill_from_cameras_off_the_views():
     iv, iu = np.meshgrid(np.arange(80), np.arange(96), indexing="ij")
 
     def plane_view(py, px):     # the plane of _plane_lightfield seen from fractional view (py, px)
-        a = iu + delta * px
-        b = iv + delta * py
-        return 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+        return _plane_texture(iu + delta * px, iv + delta * py)
 
     truth = _plane_lightfield(grid, delta)
     L = truth.copy()
@@ -548,16 +561,11 @@ def test_view_fill_recentres_cameras_off_their_views_and_off_the_plane():
     height = np.full((1, 5, 5), np.nan)
     truth = _plane_lightfield(grid, delta)
     L = truth.copy()
-    iv, iu = np.meshgrid(np.arange(80), np.arange(96), indexing="ij")
-    tan_u, tan_v = grid.u.values[iu] / 100.0, grid.v.values[iv] / 100.0
     for j in range(0, 5, 2):
         for i in range(0, 5, 2):
             pos[0, j, i] = (j, i) + rng.normal(scale=0.15, size=2)
             height[0, j, i] = rng.normal(scale=0.001)
-            px = pos[0, j, i, 1] - height[0, j, i] * tan_u / axis.step       # where each ray crosses the plane
-            py = pos[0, j, i, 0] - height[0, j, i] * tan_v / axis.step
-            a, b = iu + delta * px, iv + delta * py
-            L[0, j, i] = 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+            L[0, j, i] = _plane_seen_from(grid, delta, pos[0, j, i], height[0, j, i], axis.step)
     W = np.where(cam, 1.0, 0.25).astype(np.float32)
     inner = np.zeros(grid.shape, bool)
     inner[..., 8:-8, 8:-8] = True
@@ -599,16 +607,10 @@ def test_view_fill_recentres_a_row_of_cameras_across_the_row():
     pos = np.full((1, 1, 9, 2), np.nan)
     height = np.full((1, 1, 9), np.nan)
     L = truth.copy()
-    iv, iu = np.meshgrid(np.arange(80), np.arange(96), indexing="ij")
-    tan_u, tan_v = row.u.values[iu] / 100.0, row.v.values[iv] / 100.0
-    r_y = row.u.step / row.v.step
     for i in (0, 4, 8):
         pos[0, 0, i] = (0.0, i) + rng.normal(scale=0.15, size=2)
         height[0, 0, i] = rng.normal(scale=0.001)
-        px = pos[0, 0, i, 1] - height[0, 0, i] * tan_u / 0.01
-        py = pos[0, 0, i, 0] - height[0, 0, i] * tan_v / 0.01
-        a, b = iu + delta * px, iv + delta * r_y * py
-        L[0, 0, i] = 0.5 + 0.2 * np.sin(0.55 * a + 0.21 * b) + 0.15 * np.sin(0.43 * b - 0.17 * a + 1.0)
+        L[0, 0, i] = _plane_seen_from(row, delta, pos[0, 0, i], height[0, 0, i], 0.01)
     W = np.where(cam, 1.0, 0.25).astype(np.float32)
     inner = np.zeros(row.shape, bool)
     inner[..., 8:-8, 8:-8] = True
