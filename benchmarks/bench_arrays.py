@@ -129,7 +129,7 @@ def main() -> None:
             for thr, dv, sc, lg in settings:
                 r = solve(session, thr, args.uv_step, dv, sc, lg == "on", args.run_grid)
                 rows.append((name, seed, (thr, dv, sc, lg), r))
-                print(f"| {name} | {seed} | {thr:g} / {dv:g} / {sc:g} / {lg} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
+                print(f"| {name} | {seed} | {setting_text((thr, dv, sc, lg))} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
                       f"| {100 * r['w']:.2f} % | {1e3 * r['ate']:.3f} | {r['seconds']:.2f} | {r['failed']} |",
                       flush=True)
     print(f"\nmedian over the seeds; ATE ratio against {label} = "
