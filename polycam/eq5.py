@@ -154,6 +154,13 @@ def _put_rho_view(a, q, v_lo, v_hi, u_lo, u_hi):
     return m / np.float32(_QMAX)
 
 
+def rho_window_taps() -> tuple[np.ndarray, np.ndarray]:
+    """(t9, t3) float32: the taps of ρ̂'s window (:func:`depth_rho`), t9 = fs5 ∗ fs5 along v and u,
+    t3 = fs3's prefilter across the views."""
+    t5 = FILTERS["fs5"].prefilter
+    return np.convolve(t5, t5).astype(np.float32), FILTERS["fs3"].prefilter.astype(np.float32)
+
+
 def rho_values(rho: np.ndarray, scales: np.ndarray) -> np.ndarray:
     """float32 ρ̂ (NaN where the measured regressors are kept) of the solver's int16 ρ̂
     (F, ny, nx, Nv, Nu) with its scales (F, ny, nx) (:func:`depth_rho`)."""
@@ -1578,9 +1585,7 @@ def depth_rho(der: list, base: np.ndarray, box: np.ndarray, var: np.ndarray, out
     without the single axis's terms), every ray whose window one depth explains (misfit within
     the noise or at most ``_LINEAR_MISFIT`` of its energy) gets it, whatever the noise test."""
     Lx, Ly, Lu, Lv = der[:4]
-    t5 = FILTERS["fs5"].prefilter
-    t9 = np.convolve(t5, t5).astype(np.float32)
-    t3 = FILTERS["fs3"].prefilter.astype(np.float32)
+    t9, t3 = rho_window_taps()
     F = Lx.shape[0]
     vo = _view_origin(*Lx.shape[1:3]) if vo is None else np.asarray(vo, np.int64)
     dsc = _unit_scales(Lx.shape) if dsc is None else dsc

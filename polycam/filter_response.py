@@ -42,8 +42,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .derivatives import FILTERS, FilterPair, correlate_axis
-from .eq5 import _QMAX, _RHO_NONE
+from .derivatives import FilterPair, correlate_axis
+from .eq5 import _QMAX, _RHO_NONE, rho_window_taps
 
 __all__ = ["derivative_gain", "window_rms_frequency", "linear_rho_gain", "divide_rho_by_gain"]
 
@@ -96,9 +96,7 @@ def window_rms_frequency(L: np.ndarray, mask: np.ndarray, vo: np.ndarray, views:
     Lu = correlate_axis(a, f_dir.derivative, ax_dir)
     Luu = correlate_axis(Lu, f_dir.derivative, ax_dir, out=a)
     Lu = correlate_axis(Lu, f_dir.prefilter, ax_dir)     # smoothed as L_uu is: their ratio is ω R_u(ω)
-    t5 = FILTERS["fs5"].prefilter
-    t9 = np.convolve(t5, t5)                    # ρ̂'s window (polycam.eq5.depth_rho): t9 ⊗ t9 over (v, u),
-    t3 = FILTERS["fs3"].prefilter               # fs3's prefilter across the views
+    t9, t3 = rho_window_taps()
 
     def window(p: np.ndarray) -> np.ndarray:
         p *= m

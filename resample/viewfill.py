@@ -364,10 +364,10 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     # candidate disparities: 0 (infinity) up to the nearest depth, on the face with the largest f
     r_y = []
     dmax = 0.0
+    step_x, step_y = view_steps(grid)
+    su = grid.u.step if grid.u.count > 1 else 1.0
+    sv = grid.v.step if grid.v.count > 1 else 1.0
     for fc in grid.faces:
-        su = grid.u.step if grid.u.count > 1 else 1.0
-        sv = grid.v.step if grid.v.count > 1 else 1.0
-        step_x, step_y = view_steps(grid)
         r_y.append((step_y / step_x) * (su / sv) if step_x > 0 else 1.0)
         if step_x > 0:
             dmax = max(dmax, fc.f * step_x / (su * opts.min_depth))
@@ -381,8 +381,8 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
     disp = np.arange(-1, n + 1) * step                          # one step beyond each end for the refinement
     recentre = None
     if rc[0]:
-        ux, uy = view_steps(grid)                     # a single-view axis: in the other's steps
-        tan_steps = tuple((grid.u.values / fc.f / ux, grid.v.values / fc.f / uy) for fc in grid.faces)
+        tan_steps = tuple((grid.u.values / fc.f / step_x, grid.v.values / fc.f / step_y)   # view_steps': a
+                          for fc in grid.faces)                                           # single axis in the other's
         recentre = ViewFillPlan(tuple(rc[0]), tuple(rc[1]), tuple(rc[2]), tuple(rc[3]), disp, tuple(r_y),
                                 (False,) * len(rc[0]), tuple(rc[4]), tan_steps=tan_steps)
     plan = ViewFillPlan(tuple(targets), tuple(sources), tuple(offsets), tuple(weights), disp, tuple(r_y),
