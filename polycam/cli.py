@@ -182,7 +182,11 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if hasattr(store, "seconds_frames"):
         print(f"  resampled {store.frames_resampled} frames in {store.seconds_frames:.1f} s; "
               f"mean confidence W {store.mean_W:.2f}")
-    noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)))
+    cameras = None
+    if hasattr(store, "camera_noise_sigma"):          # a session: the cameras' own noise
+        n = sum(math.isfinite(v) for v in store.camera_noise.values())
+        cameras = (store.camera_noise_sigma, n, store.sample_noise_sigma())
+    noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)), cameras)
     if noise:
         print(noise)
     levels = _level_line(results)
@@ -258,15 +262,25 @@ def _info_calibration(path: Path) -> None:
         print("  report: " + ", ".join(parts))
 
 
-def _noise_line(results, preset: str, confidences: bool = False) -> str:
+def _noise_line(results, preset: str, confidences: bool = False, cameras: tuple[float, int, float] | None = None) -> str:
     """The frames' sensor noise in grey levels of 255 (median over the pairs), with a hint to the
     noise options when the defaults ran on frames with a grey level or more and without
     confidences W ('' without estimates). The noise options assume noise independent from
     sample to sample; on resampled frames (W; viewpoints interpolated between the cameras) they
     measured no better or worse (docs/motion.md, "Which preset"), so there is no hint. There the
-    estimate (second differences across the views) also reads the scene's parallax between the
-    cameras, off by up to 2x either way from the samples' noise (docs/motion_log.md, session 44),
-    and the line says so instead of calling it the sensor noise."""
+    solver's estimate (second differences across the views) also reads the scene's parallax between
+    the cameras, off by up to 2x either way from the samples' noise (docs/motion_log.md, session 44):
+    with ``cameras`` (a session resampled on the fly: the cameras' sensor noise estimated from their
+    images, how many images, and the noise a resampled sample carries, all in [0, 1] units;
+    :class:`resample.stream.SessionLightField`) the line gives those instead, else it says
+    "noise estimate" instead of calling it the sensor noise."""
+    if cameras is not None and math.isfinite(cameras[0]):
+        sigma, n, per_sample = cameras
+        line = (f"  sensor noise {255.0 * sigma:.2f} grey levels in the cameras' images (of 255, median over "
+                f"{n} image{'s' if n != 1 else ''}")
+        if math.isfinite(per_sample):
+            line += f"; {255.0 * per_sample:.2f} per resampled sample, push-pull averages the pixels"
+        return line + ")"
     vals = [255.0 * r.noise_sigma for r in results if math.isfinite(r.noise_sigma)]
     if not vals:
         return ""
@@ -275,7 +289,7 @@ def _noise_line(results, preset: str, confidences: bool = False) -> str:
         return (f"  noise estimate {med:.2f} grey levels (of 255, median over the pairs; across the views, which on a "
                 "resampled camera array also see the scene's parallax between the cameras: not their sensor noise)")
     line = f"  sensor noise {med:.2f} grey levels (of 255, median over the pairs)"
-    if preset == "default" and med >= NOISY_HINT_GREY and not confidences:
+    if preset == "default" and med >= NOISY_HINT_GREY:
         line += ("; with a grey level or more, --preset noisy came closer to the noise bound on six-face "
                  "frames of finely integrated pixels, at about twice the time: try it on your frames "
                  "(docs/motion.md, \"Which preset\")")

@@ -8,6 +8,12 @@ session's images of frame i are read and pushed through one
 the last resampled frame is kept (``frame(i)`` then ``weights(i)`` cost one
 resampling), so memory does not grow with the session's length.
 
+Each resampled frame also estimates the sensor noise of up to ``NOISE_CAMERAS_PER_FRAME`` of its
+camera images (:func:`polycam.image_noise.image_noise_sigma`, cycling through the cameras from
+frame to frame; ~17 ms per 640 x 480 image): :attr:`SessionLightField.camera_noise_sigma`.
+:meth:`SessionLightField.sample_noise_sigma` turns it into the std of the noise each resampled
+sample carries (push-pull averages the cameras' pixels).
+
 The result is the same light field that ``polycam resample`` writes (same grid,
 same resampler), without the store in between.
 """
@@ -15,6 +21,7 @@ same resampler), without the store in between.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 from pathlib import Path
@@ -25,9 +32,17 @@ from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
 from polycam.session import Session, open_session
 
-__all__ = ["SessionLightField"]
+__all__ = ["SessionLightField", "NOISE_CAMERAS_PER_FRAME", "NOISE_PROBE", "NOISE_PROBE_SEED"]
 
 log = logging.getLogger(__name__)
+
+NOISE_CAMERAS_PER_FRAME = 3
+"""Camera images per resampled frame whose sensor noise is estimated (the next ones each frame)."""
+NOISE_PROBE = 1e-3
+"""Std (in [0, 1] units, 0.26 grey levels of 255) of the white noise added to a frame's images to
+see what resampling does to noise (:meth:`SessionLightField.sample_noise_sigma`): small against
+the images' texture, so the view fill's plane sweep picks the disparities it picks without it."""
+NOISE_PROBE_SEED = 20261206
 
 
 class SessionLightField:
@@ -70,6 +85,10 @@ class SessionLightField:
         """Frame index → mean confidence W of that frame (filled as frames are resampled)."""
         self.cameras_present: dict[int, int] = {}
         """Frame index → number of calibrated cameras that had an image."""
+        self.camera_noise: dict[tuple[int, str], float] = {}
+        """(frame index, camera id) → the sensor noise's std of that camera image, in [0, 1] units as
+        the images are resampled (:func:`polycam.image_noise.image_noise_sigma`; NaN: no estimate)."""
+        self._noise_gain: float | None = None
         self._cached: tuple[int, np.ndarray, np.ndarray] | None = None
 
     @property
@@ -102,6 +121,7 @@ class SessionLightField:
             W = np.zeros(shape, np.float32)
             self.cameras_present[t] = 0
         else:
+            self._estimate_camera_noise(t, images)
             r = self.resampler.resample(images)
             L, W = r.L, r.W
             self.cameras_present[t] = len(r.cameras)
@@ -110,6 +130,61 @@ class SessionLightField:
         self.w_sums[t] = float(np.mean(W, dtype=np.float64))
         self._cached = (t, L, W)
         return L, W
+
+    def _estimate_camera_noise(self, t: int, images: dict) -> None:
+        """The sensor noise of the next ``NOISE_CAMERAS_PER_FRAME`` cameras (in the session's camera
+        order, from frame t's position in that cycle) among frame t's images, as resampled."""
+        from polycam.image_noise import image_noise_sigma
+
+        from .resampler import normalise_image
+
+        cams = [c for c in self.resampler.cameras if images.get(c) is not None]
+        if not cams:
+            return
+        k = min(NOISE_CAMERAS_PER_FRAME, len(cams))
+        start = (t * k) % len(cams)
+        for c in (cams[(start + j) % len(cams)] for j in range(k)):
+            self.camera_noise[(t, c)] = image_noise_sigma(normalise_image(images[c], self.channels))
+
+    @property
+    def camera_noise_sigma(self) -> float:
+        """Median over the camera images estimated so far of their sensor noise's std, in [0, 1] units
+        (:attr:`camera_noise`; NaN before any estimate)."""
+        vals = [v for v in self.camera_noise.values() if np.isfinite(v)]
+        return float(np.median(vals)) if vals else float("nan")
+
+    def sample_noise_sigma(self) -> float:
+        """The std of the noise a resampled sample carries, in [0, 1] units: :attr:`camera_noise_sigma`
+        times the RMS, over the samples with data (W > 0), of white noise of unit std in the cameras'
+        images after resampling (push-pull averages pixels; colour channels averaged, as the motion
+        solver takes them). That factor is measured once per session, on the last frame resampled:
+        its images with white noise of std ``NOISE_PROBE`` added are resampled again, and the
+        difference from the frame, divided by ``NOISE_PROBE``, is the resampled unit noise (the
+        resampling is linear in the images except for the view fill's choice of disparity, which the
+        small probe leaves as it was). Costs one more frame's resampling; NaN before any frame."""
+        if self._noise_gain is None:
+            if not self.w_sums:
+                return float("nan")
+            from .resampler import normalise_image
+
+            t = self._cached[0] if self._cached is not None else min(self.w_sums)   # no new resampling
+            images = {c: img for c, img in self.session.read_frame(t).items()
+                      if c in self.models and img is not None}
+            L, W = self._resample(t)
+            L, W = L.copy(), W.copy()
+            rng = np.random.default_rng(NOISE_PROBE_SEED)
+            probed = {}
+            for c, img in images.items():
+                a = normalise_image(img, self.channels)
+                a += rng.normal(0.0, NOISE_PROBE, a.shape).astype(np.float32)
+                probed[c] = a[:, :, 0] if self.channels == 1 else a
+            r = self.resampler.resample(probed)
+            N = (r.L - L) / np.float32(NOISE_PROBE)
+            if N.ndim == 6:                       # colour: the solver averages the channels
+                N = N.mean(axis=-1)
+            has = W > 0
+            self._noise_gain = float(np.sqrt(np.mean(np.square(N[has], dtype=np.float64)))) if has.any() else math.nan
+        return self.camera_noise_sigma * self._noise_gain
 
     def frame(self, t: int) -> np.ndarray:
         """(F, Ny, Nx, Nv, Nu) (or with a colour axis) float32 intensities of frame t."""

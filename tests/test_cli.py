@@ -232,6 +232,12 @@ def test_motion_points_to_the_noise_options_on_noisy_frames():
     assert "noise estimate 1.10 grey levels" in resampled and "parallax" in resampled
     assert "--preset noisy" not in _noise_line([SimpleNamespace(noise_sigma=0.5 / 255.0)], "default")
     assert _noise_line([SimpleNamespace(noise_sigma=float("nan"))], "default") == ""
+    # a session: the cameras' own noise and the resampled samples' instead of the solver's estimate
+    cams = _noise_line(pairs, "default", confidences=True, cameras=(2.0 / 255.0, 27, 0.4 / 255.0))
+    assert "sensor noise 2.00 grey levels in the cameras' images" in cams and "27 images" in cams
+    assert "0.40 per resampled sample" in cams and "noise estimate" not in cams
+    assert "per resampled" not in _noise_line(pairs, "default", True, (2.0 / 255.0, 1, float("nan")))
+    assert "noise estimate" in _noise_line(pairs, "default", True, (float("nan"), 0, float("nan")))
 
 
 def test_level_line_names_the_coarse_levels():

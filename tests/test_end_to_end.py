@@ -52,10 +52,13 @@ def test_session_lightfield_equals_resampled_store(session, tmp_path):
 def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys):
     assert main(["resample", str(session), "--out", str(tmp_path / "lf.zarr"), "--workers", "0"]) == 0
     assert main(["motion", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "via_store.tum")]) == 0
+    assert "noise estimate" in capsys.readouterr().out      # a store keeps no camera images
     assert main(["motion", str(session), "--out", str(tmp_path / "direct.tum"), "--calib", str(session / "calib"),
                  "--report", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
     assert "resampling" in out and "against" in out
+    assert "grey levels in the cameras' images" in out and "per resampled sample" in out   # not the solver's estimate
+    assert "noise estimate" not in out
     a, b = read_tum(tmp_path / "direct.tum"), read_tum(tmp_path / "via_store.tum")
     np.testing.assert_array_equal(a.timestamps_ns, b.timestamps_ns)
     np.testing.assert_allclose(a.T_world_rig, b.T_world_rig, atol=1e-6)
