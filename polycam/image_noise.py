@@ -6,19 +6,23 @@ array that reads the scene's parallax between the cameras too, and the resampled
 less noise than the cameras' pixels (push-pull averages them), so neither figure is the
 cameras' sensor noise. This module estimates that from each camera image on its own.
 
-Method (after Immerkær, *Fast noise variance estimation*, CVIU 1996, restricted to weakly
-textured blocks as Liu, Tanaka and Okutomi do for their patch-based estimator, 2013): the
-image's response to the separable second-difference mask ``N = a aᵀ``, ``a = [1, −2, 1]``,
-has variance ``36 σ²`` for white noise of std σ and removes linear intensity ramps. Texture
-adds to it, so the response's mean square is taken over ``block`` x ``block`` blocks, and only
-over the ``fraction`` of blocks whose gradient (Sobel, after a Gaussian of σ = 2 pixels, which
-leaves little of the noise in it) is lowest; blocks with a pixel at the image's own minimum or
-maximum value are left out first (clipped, saturated or black regions carry no noise). The
-estimate includes quantisation (8-bit rounding alone: 0.29 grey levels) and the weak texture
-that is left in the chosen blocks (measured on this project's rendered camera images:
-0.15–0.6 grey levels without noise; 1.03–1.16 at 1 grey level, within 2 % from 2 grey levels on;
-on real photos with 1 / 2 / 4 grey levels added within 5.3 / 2.7 / 1.5 % of their own estimate
-combined with it: tests/test_image_noise.py, docs/motion.md "The cameras' sensor noise").
+Method (after Immerkær, *Fast noise variance estimation*, CVIU 1996, with a higher-order mask and
+restricted to weakly textured blocks as Liu, Tanaka and Okutomi do for their patch-based
+estimator, 2013): the image's response to the separable mask ``N = a aᵀ``, ``a = [1, −4, 6, −4, 1]``
+(the fourth difference; Immerkær's is the second, [1, −2, 1]), has variance ``70² σ²`` for white
+noise of std σ and removes intensity polynomials up to the third degree, so texture of low and
+middle frequencies adds less than to the second difference (on the densely textured 160 x 120
+images of a small test rig the noise-free floor 1.06 → 0.71 grey levels). Texture still adds, so
+the response's mean square is taken over ``block`` x ``block`` blocks, and only over the
+``fraction`` of blocks whose gradient (Sobel, after a Gaussian of σ = 2 pixels, which leaves little
+of the noise in it) is lowest; blocks with a pixel at the image's own minimum or maximum value are
+left out first (clipped, saturated or black regions carry no noise). The estimate includes
+quantisation (8-bit rounding alone: 0.29 grey levels) and the weak texture left in the chosen
+blocks. Measured on this project's rendered camera images (8-bit; docs/motion.md "The cameras'
+sensor noise"): 0.14–0.53 grey levels without noise on 320 x 240 and 640 x 480 images, 0.71 on
+160 x 120; 1.02–1.13 at 1 grey level (1.23 on 160 x 120); within 2.5 % from 2 grey levels on; on
+real photos with 1 / 2 / 4 grey levels added within 5.7 / 3.2 / 2.1 % of their own estimate combined
+with it (tests/test_image_noise.py).
 
 Dims: ``image`` (H, W) or (H, W, C) in its own units (8-bit grey levels, or values in [0, 1] as
 :func:`resample.resampler.normalise_image` gives them); the estimate is in the same units, the
@@ -40,8 +44,8 @@ NOISE_FRACTION = 0.1
 """Fraction of the unclipped blocks, those with the weakest gradient, that the estimate averages."""
 _SMOOTH_SIGMA = 2.0          # [pixels] Gaussian before the gradient that ranks the blocks
 _MIN_BLOCKS = 4              # the fewest blocks averaged (fewer unclipped ones: no estimate, NaN)
-_MASK = np.array([1.0, -2.0, 1.0])
-_MASK_ENERGY = 36.0          # Σ N² = (Σ a²)²: the response's variance per unit noise variance
+_MASK = np.array([1.0, -4.0, 6.0, -4.0, 1.0])   # a: the fourth difference
+_MASK_ENERGY = 70.0 ** 2     # Σ N² = (Σ a²)²: the response's variance per unit noise variance
 
 
 def _channel_variance(img: np.ndarray, block: int, fraction: float) -> tuple[float, int]:
