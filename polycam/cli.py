@@ -183,9 +183,11 @@ def cmd_motion(args: argparse.Namespace) -> int:
         print(f"  resampled {store.frames_resampled} frames in {store.seconds_frames:.1f} s; "
               f"mean confidence W {store.mean_W:.2f}")
     cameras = None
-    if hasattr(store, "camera_noise_sigma"):          # a session: the cameras' own noise
+    if hasattr(store, "sample_noise_sigma"):          # a session: the cameras' own noise
         n = sum(math.isfinite(v) for v in store.camera_noise.values())
         cameras = (store.camera_noise_sigma, n, store.sample_noise_sigma())
+    elif math.isfinite(getattr(store, "camera_noise_sigma", math.nan)):   # as polycam resample measured it
+        cameras = (store.camera_noise_sigma, store.camera_noise_images, math.nan)
     noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)), cameras)
     if noise:
         print(noise)
@@ -270,10 +272,11 @@ def _noise_line(results, preset: str, confidences: bool = False, cameras: tuple[
     measured no better or worse (docs/motion.md, "Which preset"), so there is no hint. There the
     solver's estimate (second differences across the views) also reads the scene's parallax between
     the cameras, off by up to 2x either way from the samples' noise (docs/motion_log.md, session 44):
-    with ``cameras`` (a session resampled on the fly: the cameras' sensor noise estimated from their
-    images, how many images, and the noise a resampled sample carries, all in [0, 1] units;
-    :class:`resample.stream.SessionLightField`) the line gives those instead, else it says
-    "noise estimate" instead of calling it the sensor noise."""
+    with ``cameras`` (the cameras' sensor noise estimated from their images, how many images, and the
+    noise a resampled sample carries, all in [0, 1] units: a session resampled on the fly,
+    :class:`resample.stream.SessionLightField`, or the first two from a store ``polycam resample``
+    wrote, the third NaN) the line gives those instead, else it says "noise estimate" instead of
+    calling it the sensor noise."""
     if cameras is not None and math.isfinite(cameras[0]):
         sigma, n, per_sample = cameras
         line = (f"  sensor noise {255.0 * sigma:.2f} grey levels in the cameras' images (of 255, median over "
@@ -344,7 +347,9 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(f"  x [{lf.grid.x.min:g}, {lf.grid.x.max:g}] y [{lf.grid.y.min:g}, {lf.grid.y.max:g}] m; "
               f"u [{lf.grid.u.min:g}, {lf.grid.u.max:g}] v [{lf.grid.v.min:g}, {lf.grid.v.max:g}]; "
               f"f {lf.grid.faces[0].f:g}, z_pi {lf.grid.faces[0].z_pi:g} m")
-        print(f"  ground truth: {'yes' if lf.groundtruth() is not None else 'no'}")
+        noise = (f"; the cameras' sensor noise {255.0 * lf.camera_noise_sigma:.2f} grey levels (of 255, median over "
+                 f"{lf.camera_noise_images} images)" if lf.camera_noise_images else "")
+        print(f"  ground truth: {'yes' if lf.groundtruth() is not None else 'no'}{noise}")
     return 0
 
 

@@ -8,6 +8,7 @@ Registered through polycam/cli.py's STAGE_CLIS; imports nothing heavy at module 
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from .cliargs import check_output_folder
@@ -243,6 +244,9 @@ def cmd_depth(args: argparse.Namespace) -> int:
             **({"keep": float(args.keep)} if args.max_std is None else {"max_rel_std": float(args.max_std)}),
             "scale_selection": mode, "sensor_noise_sigma": float(np.sqrt(noise_var)), "refined_on_views": sources,
             **motion, **scale_info}
+    camera_noise = float(getattr(store, "camera_noise_sigma", math.nan))   # a session, or a store that records it
+    if math.isfinite(camera_noise):
+        meta["camera_noise_sigma"] = camera_noise
     summary = write_depth_folder(args.out, grid, dm, intensity=L0a, mask=mask, views=views, meta=meta,
                                  binary_ply=not args.ascii_ply)
     out = Path(args.out)

@@ -18,6 +18,9 @@ Contents:
   the focal plane): ``[[face, iy, ix], ...]``, one per camera, its centre's position in
   fractional grid indices; the camera's data are at the view ``(round(iy), round(ix))`` (Python's round)
   (:func:`camera_positions_attr`, :attr:`LightFieldStore.camera_positions`).
+* attribute ``camera_noise`` (optional; written by ``polycam resample``): ``{"sigma", "images"}``,
+  the median sensor noise's std of the cameras' images ([0, 1] units, as ``L``) and how many
+  images it was estimated from (:attr:`LightFieldStore.camera_noise_sigma`).
 * file ``groundtruth.tum`` (optional): ``T_world_rig`` per frame.
 
 Both arrays are chunked one chunk per (frame, face): a frame is written or read
@@ -293,6 +296,22 @@ def _parse_camera_positions(p: Path, value: Any, grid: LightFieldGrid) -> np.nda
     return out
 
 
+def _parse_camera_noise(p: Path, value: Any) -> tuple[float, int]:
+    """(sigma, images) from the ``camera_noise`` attribute ((NaN, 0) when absent); FormatError for
+    anything else than a table with a finite sigma >= 0 and a positive integer count."""
+    if value is None:
+        return float("nan"), 0
+    field = "attrs.camera_noise"
+    if not isinstance(value, dict) or set(value) != {"sigma", "images"}:
+        raise FormatError(p, f"expected a table with keys sigma and images, got {value!r}", field)
+    sigma, images = value["sigma"], value["images"]
+    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not np.isfinite(sigma) or sigma < 0:
+        raise FormatError(p, f"sigma: expected a finite number >= 0, got {sigma!r}", field)
+    if not _is_int(images) or images < 1:
+        raise FormatError(p, f"images: expected a positive integer, got {images!r}", field)
+    return float(sigma), int(images)
+
+
 def _array_member(group, name: str):
     """The zarr array ``name`` of ``group``, or None if there is none (or it is a group)."""
     zarr = _zarr()
@@ -384,6 +403,9 @@ class LightFieldStore:
         self.camera_positions: np.ndarray | None = _parse_camera_positions(p, attrs.get("camera_positions"), self.grid)
         """(F, Ny, Nx, 2) float64: the camera centres (iy, ix) in fractional grid indices at the views
         holding their data, NaN elsewhere; None when the store does not record them (module docstring)."""
+        self.camera_noise_sigma, self.camera_noise_images = _parse_camera_noise(p, attrs.get("camera_noise"))
+        """The cameras' sensor noise (std, [0, 1] units) the resampling measured in their images, and
+        from how many images (NaN, 0: not recorded; module docstring)."""
 
     @property
     def num_frames(self) -> int:

@@ -254,17 +254,21 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
                               scheduler="sync", overwrite=True, progress=adv)
     s = time.perf_counter() - t0
     F, Ny, Nx, Nv, Nu = rs.grid.shape
+    from .lfstore import open_lightfield
+
+    noise_grey = 255.0 * open_lightfield(out / "lightfield.zarr").camera_noise_sigma   # NaN: no estimate
     summary["resample"] = {"faces": F, "views": [Ny, Nx], "directions": [Nv, Nu], "mean_W": rs.mean_W,
-                           "missing_images": rs.missing_images, "seconds": s}
+                           "missing_images": rs.missing_images, "seconds": s,
+                           **({"camera_noise_grey": noise_grey} if math.isfinite(noise_grey) else {})}
+    noise = f", the cameras' sensor noise {noise_grey:.2f} grey levels" if math.isfinite(noise_grey) else ""
     echo(f"resample  {out / 'lightfield.zarr'}: {F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions, "
-         f"mean confidence W {rs.mean_W:.2f}, {rs.missing_images} missing images ({s:.1f} s)")
+         f"mean confidence W {rs.mean_W:.2f}, {rs.missing_images} missing images{noise} ({s:.1f} s)")
     if not rs.mean_W >= UNUSABLE["resample_mean_W"]:
         raise _fail("resample", f"mean confidence W {rs.mean_W:.2f} below {UNUSABLE['resample_mean_W']}: "
                                 "the cameras do not cover the grid")
 
     # 5. motion
     from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
-    from .lfstore import open_lightfield
     from .motion import MotionOptions, estimate_trajectory
     from .motion_report import write_motion_report
     from .trajectory import write_tum
@@ -719,6 +723,8 @@ def _write_summary(report: Path, summary: dict, written: list[str]) -> None:
 
     atomic_write_text(report / "summary.toml", tomli_w.dumps(clean(summary)))
     c, r, m, d = summary["calibrate"], summary["resample"], summary["motion"], summary["depth"]
+    noise = (f", the cameras' sensor noise {r['camera_noise_grey']:.2f} grey levels" if "camera_noise_grey" in r
+             else "")
     cap = summary["capture"]
     md = f"""# polycam run: {summary['rig']} ({summary['cameras']} cameras)
 
@@ -727,7 +733,7 @@ def _write_summary(report: Path, summary: dict, written: list[str]) -> None:
 | board | {summary['board']['frames']} frames ({summary['board']['seconds']:.0f} s) |
 | calibrate | RMS {c['rms_px']:.3f} px, {c['views']} views, {c['outliers']} outliers; centres vs truth {1e3 * c['position_rms_m']:.2f} mm RMS, axes {c['rotation_rms_deg']:.3f} deg RMS ([calib/report.md](../calib/report.md)) |
 | capture | {cap['frames']} frames, {1e3 * cap['median_step_m']:.1f} mm and {cap['median_step_deg']:.2f} deg per frame |
-| resample | {r['faces']} face(s), {r['views'][0]}x{r['views'][1]} views, {r['directions'][0]}x{r['directions'][1]} directions, mean W {r['mean_W']:.2f} |
+| resample | {r['faces']} face(s), {r['views'][0]}x{r['views'][1]} views, {r['directions'][0]}x{r['directions'][1]} directions, mean W {r['mean_W']:.2f}{noise} |
 | motion | {m['pairs']} pairs, {m['failed']} failed; median error translation {100 * m['median_t_rel']:.1f}% ({1e3 * m['median_t_err_m']:.2f} mm), rotation {100 * m['median_w_rel']:.1f}% ({m['median_w_err_deg']:.4f} deg); ATE {1e3 * m['ate_m']:.2f} mm; {m['seconds_per_pair']:.1f} s per pair (median) |
 | depth | {100 * d['confident_fraction']:.0f}% of the central view confident, median {d['median_depth_m']:.2f} m, {d['points']} points; against the true depth (ray tracer) of the confident rays of the central {d['views']} views: median relative error {100 * d['median_rel_error']:.1f}%, 90th percentile {100 * d['p90_rel_error']:.1f}%, {100 * d['within_5pct']:.0f}% within 5% |
 

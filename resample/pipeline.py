@@ -155,6 +155,17 @@ def _check_faces_reached(geometry, session_path) -> None:
                     session_path, " ".join(empty))
 
 
+def _camera_noise_attr(sess, resampler) -> dict | None:
+    """The store's ``camera_noise`` attribute: the median sensor noise of the calibrated cameras'
+    images in the session's first frame (:func:`~resample.resampler.images_noise_sigma`, [0, 1]
+    units) and how many images gave an estimate; None when none did."""
+    from .resampler import images_noise_sigma
+
+    est = images_noise_sigma(sess.read_frame(0), resampler.cameras, resampler.channels)
+    vals = [v for v in est.values() if np.isfinite(v)]
+    return {"sigma": float(np.median(vals)), "images": len(vals)} if vals else None
+
+
 def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                      calib_dir: str | os.PathLike | None = None, grid: LightFieldGrid | None = None,
                      options=None, uv_step_px: float = 1.0, scheduler: str | None = None,
@@ -211,6 +222,9 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
         positions = resampler.camera_positions()
         if positions is not None:          # the depth refinement's sources (polycam.depth_refine)
             attrs["camera_positions"] = camera_positions_attr(positions)
+        noise = _camera_noise_attr(sess, resampler)
+        if noise is not None:
+            attrs["camera_noise"] = noise
         store = FrameStore(out, grid, sess.timestamps_ns, channels=channels if channels > 1 else None,
                            overwrite=overwrite, extra_attrs=attrs)
         t1 = time.perf_counter()

@@ -110,6 +110,17 @@ def normalise_image(image: np.ndarray, channels: int) -> np.ndarray:
     raise InputError(f"resample: images must be (H, W) grey or (H, W, 3) RGB, got {img.shape}")
 
 
+def images_noise_sigma(images: dict, cameras, channels: int) -> dict[str, float]:
+    """Camera id → the sensor noise's std of its image in ``images`` (id → image, None: no image),
+    for the ids in ``cameras`` that have one, in [0, 1] units as the images are resampled
+    (:func:`normalise_image` with ``channels``; :func:`polycam.image_noise.image_noise_sigma`, NaN
+    where it gives no estimate)."""
+    from polycam.image_noise import image_noise_sigma
+
+    return {c: image_noise_sigma(normalise_image(images[c], channels)) for c in cameras
+            if images.get(c) is not None}
+
+
 class Resampler:
     """Resample frames of cameras ``models`` (camera id → mrcal cameramodel, rig frame)
     onto ``grid``.

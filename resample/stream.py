@@ -134,17 +134,16 @@ class SessionLightField:
     def _estimate_camera_noise(self, t: int, images: dict) -> None:
         """The sensor noise of the next ``NOISE_CAMERAS_PER_FRAME`` cameras (in the session's camera
         order, from frame t's position in that cycle) among frame t's images, as resampled."""
-        from polycam.image_noise import image_noise_sigma
-
-        from .resampler import normalise_image
+        from .resampler import images_noise_sigma
 
         cams = [c for c in self.resampler.cameras if images.get(c) is not None]
         if not cams:
             return
         k = min(NOISE_CAMERAS_PER_FRAME, len(cams))
         start = (t * k) % len(cams)
-        for c in (cams[(start + j) % len(cams)] for j in range(k)):
-            self.camera_noise[(t, c)] = image_noise_sigma(normalise_image(images[c], self.channels))
+        chosen = [cams[(start + j) % len(cams)] for j in range(k)]
+        for c, sigma in images_noise_sigma(images, chosen, self.channels).items():
+            self.camera_noise[(t, c)] = sigma
 
     @property
     def camera_noise_sigma(self) -> float:

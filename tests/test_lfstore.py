@@ -265,6 +265,28 @@ def test_camera_positions_errors(store, value, substrings):
     _expect(store, *substrings)
 
 
+def test_camera_noise_attribute(store):
+    """Optional: the cameras' sensor noise polycam resample measured, and from how many images."""
+    lf = open_lightfield(store)
+    assert np.isnan(lf.camera_noise_sigma) and lf.camera_noise_images == 0
+    _set_attr(store, "camera_noise", {"sigma": 0.008, "images": 9})
+    lf = open_lightfield(store)
+    assert lf.camera_noise_sigma == 0.008 and lf.camera_noise_images == 9
+
+
+@pytest.mark.parametrize("value, substrings", [
+    (0.008, ["attrs.camera_noise", "keys sigma and images"]),
+    ({"sigma": 0.008}, ["attrs.camera_noise", "keys sigma and images"]),
+    ({"sigma": -0.1, "images": 3}, ["attrs.camera_noise", "sigma", ">= 0"]),
+    ({"sigma": "0.1", "images": 3}, ["sigma", "finite number"]),
+    ({"sigma": 0.1, "images": 0}, ["images", "positive integer"]),
+    ({"sigma": 0.1, "images": 2.5}, ["images", "positive integer"]),
+])
+def test_camera_noise_errors(store, value, substrings):
+    _set_attr(store, "camera_noise", value)
+    _expect(store, *substrings)
+
+
 def test_faces_count_mismatch(store):
     meta = json.loads((store / "zarr.json").read_text())
     meta["attributes"]["faces"] = meta["attributes"]["faces"][:1]

@@ -124,6 +124,11 @@ def test_session_to_store_in_process(session, tmp_path):
     assert at.sum() == 9 and at[0, ::2, ::2].all()
     iy, ix = np.nonzero(at[0])
     assert np.max(np.abs(pos[0, iy, ix] - np.stack([iy, ix], -1))) < 0.5
+    # the cameras' sensor noise in the first frame's images, as the session resampled on the fly has it
+    from resample.resampler import images_noise_sigma
+
+    est = images_noise_sigma(s.read_frame(0), rs.cameras, 1)
+    assert lf.camera_noise_images == 9 and lf.camera_noise_sigma == pytest.approx(np.median(list(est.values())))
     with pytest.raises(InputError, match="already exists"):
         resample_session(path, out, scheduler="sync")
 

@@ -4,13 +4,15 @@ chain stopping with `run: STAGE: reason` when a stage's output is unusable."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from polycam.cli import main
 from polycam.trajectory import read_tum
 from conftest import assert_one_line_error as _one_line_error
 from conftest import REPO, mock_grid_rig_text
-from tolerances import E2E_RUN_DEPTH_REL, E2E_RUN_MOTION_REL, E2E_RUN_PAIR_DEPTH_REL
+from tolerances import E2E_RUN_DEPTH_REL, E2E_RUN_MOTION_REL, E2E_RUN_PAIR_DEPTH_REL, IMAGE_NOISE_LOW_RTOL
 
 RUN_RIG_TEXT = mock_grid_rig_text("run3x3", 160, 120)
 
@@ -41,6 +43,10 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
     assert summary["motion"]["error_over_std_t"] > 0 and summary["motion"]["error_over_std_w"] > 0
     assert summary["calibrate"]["rms_px"] < 0.5
     assert summary["resample"]["mean_W"] > 0.3
+    # the rig's 1 grey level of noise (and the rounding), from the cameras' images: the image estimator's
+    # tolerance at 1 grey level (160 x 120 images), printed on the resample line too
+    assert abs(summary["resample"]["camera_noise_grey"] / math.hypot(1.02, 12 ** -0.5) - 1) < IMAGE_NOISE_LOW_RTOL
+    assert "the cameras' sensor noise" in next(l for l in cap.out.splitlines() if l.startswith("resample"))
     assert summary["depth"]["points"] > 1000
     assert summary["depth"]["truth_rays"] > 1000 and summary["depth"]["median_rel_error"] < E2E_RUN_DEPTH_REL
     assert summary["board"]["dropped"] == 0 and summary["capture"]["frames"] == 3
@@ -180,7 +186,10 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
                  "--out", str(tmp_path / "depth")])
     cap = capsys.readouterr()
     assert code == 0 and "0 points" not in cap.out, cap.out
-    assert tomllib.loads((tmp_path / "depth" / "depth.toml").read_text())["depth"]["refined_on_views"] == 2
+    doc = tomllib.loads((tmp_path / "depth" / "depth.toml").read_text())["depth"]
+    assert doc["refined_on_views"] == 2
+    # the cameras' noise the store records (1 grey level and the rounding), beside the solver's estimate
+    assert abs(255 * doc["camera_noise_sigma"] / math.hypot(1.02, 12 ** -0.5) - 1) < IMAGE_NOISE_LOW_RTOL
     code = main(["depth", str(out / "lightfield.zarr"), "--traj", str(out / "trajectory.tum"),
                  "--out", str(tmp_path / "depth_off"), "--refine", "off"])
     cap = capsys.readouterr()
