@@ -299,6 +299,25 @@ def _noise_line(results, preset: str, confidences: bool = False, cameras: tuple[
     return line
 
 
+def _session_noise_line(session) -> str:
+    """``polycam info`` of a session: the sensor noise of the first frame's images (median over the
+    cameras, grey levels of 255; :func:`resample.resampler.images_noise_sigma`), '' when no image
+    gives an estimate (too small, or none)."""
+    import numpy as np
+
+    from resample.resampler import images_noise_sigma   # the CLI layer may import stages
+
+    if len(session) == 0:
+        return ""
+    images = session.read_frame(0)
+    channels = 3 if any(img is not None and np.ndim(img) == 3 for img in images.values()) else 1
+    vals = [v for v in images_noise_sigma(images, session.cameras, channels).values() if math.isfinite(v)]
+    if not vals:
+        return ""
+    return (f"  sensor noise {255.0 * float(np.median(vals)):.2f} grey levels in the first frame's images (of 255, "
+            f"median over {len(vals)} camera{'s' if len(vals) != 1 else ''})")
+
+
 def _level_line(results) -> str:
     """When the views were too far apart for the scene in some pairs (``PairResult.uv_level`` >
     0, ``MotionOptions.max_view_disparity``): the median disparity per view step and the (u, v)
@@ -330,6 +349,9 @@ def cmd_info(args: argparse.Namespace) -> int:
             print(f"  {_camera_group(cams)}: {count} images of {w}x{h} each")
         print(f"  calibration: {'yes' if s.calibration() is not None else 'no'}; "
               f"ground truth: {'yes' if s.groundtruth() is not None else 'no'}")
+        noise = _session_noise_line(s)
+        if noise:
+            print(noise)
     elif path.is_dir() and any(path.glob("*.cameramodel")):
         _info_calibration(path)
     elif path.is_dir() and not any((path / n).exists() for n in ("zarr.json", ".zgroup")):

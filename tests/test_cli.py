@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tolerances import E2E_DEMO_MOTION_REL
+from tolerances import E2E_DEMO_MOTION_REL, IMAGE_NOISE_RTOL
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -121,6 +122,29 @@ def test_info_on_a_session(tmp_path):
     res = polycam("info", str(s))
     assert res.returncode == 0, res.stderr
     assert "2 cameras" in res.stdout and "3 frames" in res.stdout
+
+
+def test_info_on_a_session_gives_its_sensor_noise(tmp_path):
+    # two 160 x 120 cameras: a ramp with 3 grey levels of noise; the tiny session's 8 x 6 images give
+    # no estimate, and no line
+    from polycam.rig import load_rig
+    from polycam.session import SessionWriter
+
+    rig_file = tmp_path / "noisy.toml"
+    rig_file.write_text('[rig]\nname = "noisy"\n[defaults]\nwidth = 160\nheight = 120\n'
+                        '[grid]\nrows = 1\ncols = 2\npitch = 0.05\n')
+    rng = np.random.default_rng(4)
+    ramp = 60.0 + np.add.outer(0.3 * np.arange(120), 0.5 * np.arange(160))
+    with SessionWriter(tmp_path / "s", load_rig(rig_file)) as w:
+        w.add_frame(1_000, {c: np.clip(np.rint(ramp + rng.normal(0.0, 3.0, ramp.shape)), 0, 255).astype(np.uint8)
+                            for c in ("cam00", "cam01")})
+        w.close()
+    res = polycam("info", str(tmp_path / "s"))
+    assert res.returncode == 0, res.stderr
+    line = next(l for l in res.stdout.splitlines() if "sensor noise" in l)
+    sigma = float(line.split("sensor noise ")[1].split()[0])
+    assert abs(sigma / math.hypot(3.0, 12 ** -0.5) - 1) < IMAGE_NOISE_RTOL and "median over 2 cameras" in line
+    assert "sensor noise" not in polycam("info", str(_tiny_session(tmp_path / "tiny"))).stdout
 
 
 def test_info_names_a_missing_camera_folder(tmp_path):
