@@ -307,9 +307,14 @@ def _session_noise_line(session) -> str:
 
     from resample.resampler import images_noise_sigma   # the CLI layer may import stages
 
+    from .errors import PolycamError
+
     if len(session) == 0:
         return ""
-    images = session.read_frame(0)
+    try:
+        images = session.read_frame(0)
+    except PolycamError:            # an unreadable image: the summary stands without the figure
+        return ""
     channels = 3 if any(img is not None and np.ndim(img) == 3 for img in images.values()) else 1
     vals = [v for v in images_noise_sigma(images, session.cameras, channels).values() if math.isfinite(v)]
     if not vals:

@@ -43,6 +43,7 @@ NOISE_PROBE = 1e-3
 see what resampling does to noise (:meth:`SessionLightField.sample_noise_sigma`): small against
 the images' texture, so the view fill's plane sweep picks the disparities it picks without it."""
 NOISE_PROBE_SEED = 20261206
+"""Seed of that probe's noise (the same figure on every run of a session)."""
 
 
 class SessionLightField:
@@ -171,6 +172,8 @@ class SessionLightField:
                       if c in self.models and img is not None}
             L, W = self._resample(t)
             L, W = L.copy(), W.copy()
+            if not images:                        # a frame without images: no probe
+                return float("nan")
             rng = np.random.default_rng(NOISE_PROBE_SEED)
             probed = {}
             for c, img in images.items():

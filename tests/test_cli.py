@@ -145,6 +145,11 @@ def test_info_on_a_session_gives_its_sensor_noise(tmp_path):
     sigma = float(line.split("sensor noise ")[1].split()[0])
     assert abs(sigma / math.hypot(3.0, 12 ** -0.5) - 1) < IMAGE_NOISE_RTOL and "median over 2 cameras" in line
     assert "sensor noise" not in polycam("info", str(_tiny_session(tmp_path / "tiny"))).stdout
+    # a truncated first image (its header intact): the summary without the figure
+    png = sorted((tmp_path / "s" / "cam00").rglob("*.png"))[0]
+    png.write_bytes(png.read_bytes()[:120])
+    res = polycam("info", str(tmp_path / "s"))
+    assert res.returncode == 0 and "sensor noise" not in res.stdout and "2 cameras" in res.stdout, res.stderr
 
 
 def test_info_names_a_missing_camera_folder(tmp_path):
