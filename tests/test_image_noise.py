@@ -4,6 +4,7 @@ noise added, and a session's cameras and resampled samples (resample.stream.Sess
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -27,7 +28,7 @@ def radiance() -> dict[str, np.ndarray]:
     for name in ("mock5x5", "cube6x3x3"):
         rig = load_rig(REPO / "rigs" / f"{name}.toml")
         cam = rig.cameras[0]
-        sub = type(rig)(**{**rig.__dict__, "cameras": (cam,)})
+        sub = dataclasses.replace(rig, cameras=(cam,))
         renderer = CameraArrayRenderer(sub, {cam.id: nominal_cameramodel(cam)}, scene_for_rig(sub, seed=1), 2)
         T = trajectory_for_rig(sub, 2, seed=1).T_world_rig[1]
         out[name] = renderer.render(T)[cam.id]
