@@ -58,7 +58,7 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
         for sign, acc in ((1.0, plus), (-1.0, minus)):
             with _quiet("resample"):                  # its warnings repeat the nominal resampling's
                 lf = SessionLightField(session_path, models=drawn_models(models, cov, sign * z, factor), grid=grid,
-                                       options=resample_options)
+                                       options=resample_options, camera_noise=False)
                 _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
             acc.append(pair_vectors(results))
             if progress is not None:

@@ -53,13 +53,14 @@ class SessionLightField:
 
     grid: the two-plane grid (default :func:`resample.grid.auto_grid` of the models
         with ``uv_step_px`` and ``xy_oversample``); options: :class:`resample.resampler.ResampleOptions`;
-        models: camera id → mrcal cameramodel, overriding ``calib_dir``.
+        models: camera id → mrcal cameramodel, overriding ``calib_dir``; camera_noise: estimate the
+        cameras' sensor noise as frames are resampled (off for re-solves that do not report it).
     Raises InputError for a session without frames or without a calibration.
     """
 
     def __init__(self, session_path: str | os.PathLike | Session, *, calib_dir: str | os.PathLike | None = None,
                  grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, xy_oversample: int = 2,
-                 options=None, models: dict | None = None):
+                 options=None, models: dict | None = None, camera_noise: bool = True):
         from .grid import auto_grid
         from .pipeline import _channels_of, open_calibration
         from .resampler import Resampler
@@ -90,6 +91,7 @@ class SessionLightField:
         """(frame index, camera id) → the sensor noise's std of that camera image, in [0, 1] units as
         the images are resampled (:func:`polycam.image_noise.image_noise_sigma`; NaN: no estimate)."""
         self._noise_gain: float | None = None
+        self._estimate_noise = bool(camera_noise)
         self._cached: tuple[int, np.ndarray, np.ndarray] | None = None
 
     @property
@@ -122,7 +124,8 @@ class SessionLightField:
             W = np.zeros(shape, np.float32)
             self.cameras_present[t] = 0
         else:
-            self._estimate_camera_noise(t, images)
+            if self._estimate_noise:
+                self._estimate_camera_noise(t, images)
             r = self.resampler.resample(images)
             L, W = r.L, r.W
             self.cameras_present[t] = len(r.cameras)
@@ -161,7 +164,10 @@ class SessionLightField:
         its images with white noise of std ``NOISE_PROBE`` added are resampled again, and the
         difference from the frame, divided by ``NOISE_PROBE``, is the resampled unit noise (the
         resampling is linear in the images except for the view fill's choice of disparity, which the
-        small probe leaves as it was). Costs one more frame's resampling; NaN before any frame."""
+        small probe leaves as it was). Costs one more frame's resampling; NaN before any frame, and
+        without ``camera_noise``."""
+        if not self._estimate_noise:
+            return float("nan")
         if self._noise_gain is None:
             if not self.w_sums:
                 return float("nan")

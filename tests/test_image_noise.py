@@ -116,3 +116,6 @@ def test_session_cameras_and_resampled_samples(tmp_path):
     assert 0.1 * truth < measured < 0.9 * truth            # push-pull averages pixels
     assert abs(predicted / measured - 1.0) < IMAGE_NOISE_LOW_RTOL, (predicted * 255, measured * 255)
     assert noisy.frames_resampled == 2                       # the probe used the last frame, not counted
+    quiet = SessionLightField(tmp_path / "noisy", grid=noisy.grid, camera_noise=False)   # (the calibration draws')
+    quiet.frame(0)
+    assert not quiet.camera_noise and math.isnan(quiet.sample_noise_sigma())
