@@ -39,9 +39,9 @@ log = logging.getLogger(__name__)
 NOISE_CAMERAS_PER_FRAME = 3
 """Camera images per resampled frame whose sensor noise is estimated (the next ones each frame)."""
 NOISE_PROBE = 1e-3
-"""Std (in [0, 1] units, 0.26 grey levels of 255) of the white noise added to a frame's images to
-see what resampling does to noise (:meth:`SessionLightField.sample_noise_sigma`): small against
-the images' texture, so the view fill's plane sweep picks the disparities it picks without it."""
+"""Smallest std (in [0, 1] units, 0.26 grey levels of 255) of the white noise added to a frame's images
+to see what resampling does to noise (:meth:`SessionLightField.sample_noise_sigma`); the probe is
+the cameras' own noise when that is larger."""
 NOISE_PROBE_SEED = 20261206
 """Seed of that probe's noise (the same figure on every run of a session)."""
 
@@ -161,11 +161,11 @@ class SessionLightField:
         times the RMS, over the samples with data (W > 0), of white noise of unit std in the cameras'
         images after resampling (push-pull averages pixels; colour channels averaged, as the motion
         solver takes them). That factor is measured once per session, on the last frame resampled:
-        its images with white noise of std ``NOISE_PROBE`` added are resampled again, and the
-        difference from the frame, divided by ``NOISE_PROBE``, is the resampled unit noise (the
-        resampling is linear in the images except for the view fill's choice of disparity, which the
-        small probe leaves as it was). Costs one more frame's resampling; NaN before any frame, and
-        without ``camera_noise``."""
+        its images with white noise of the cameras' std (at least ``NOISE_PROBE``; the same in every
+        channel of a grey camera) added are resampled again, and the difference from the frame,
+        divided by that std, is the resampled unit noise (the resampling is linear in the images but
+        for the view fill's choice of disparity, which such a probe moves as the images' own noise
+        does). Costs one more frame's resampling; NaN before any frame, and without ``camera_noise``."""
         if not self._estimate_noise:
             return float("nan")
         if self._noise_gain is None:
@@ -180,14 +180,20 @@ class SessionLightField:
             L, W = L.copy(), W.copy()
             if not images:                        # a frame without images: no probe
                 return float("nan")
+            # the images' own noise level: the view fill's plane sweep is not linear in the images, and
+            # meets a probe of that size as it meets their noise (a much smaller one flips the sweep's
+            # near ties between disparities, whose differences divided by the probe dominate the RMS)
+            probe = self.camera_noise_sigma
+            probe = max(probe, NOISE_PROBE) if math.isfinite(probe) else NOISE_PROBE
             rng = np.random.default_rng(NOISE_PROBE_SEED)
             probed = {}
             for c, img in images.items():
                 a = normalise_image(img, self.channels)
-                a += rng.normal(0.0, NOISE_PROBE, a.shape).astype(np.float32)
+                grey = np.ndim(img) == 2 or np.shape(img)[2] == 1   # its noise is the same in every channel
+                a += rng.normal(0.0, probe, a.shape[:2] + (1 if grey else a.shape[2],)).astype(np.float32)
                 probed[c] = a[:, :, 0] if self.channels == 1 else a
             r = self.resampler.resample(probed)
-            N = (r.L - L) / np.float32(NOISE_PROBE)
+            N = (r.L - L) / np.float32(probe)
             if N.ndim == 6:                       # colour: the solver averages the channels
                 N = N.mean(axis=-1)
             has = W > 0
