@@ -183,11 +183,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
         print(f"  resampled {store.frames_resampled} frames in {store.seconds_frames:.1f} s; "
               f"mean confidence W {store.mean_W:.2f}")
     cameras = None
-    if hasattr(store, "sample_noise_sigma"):          # a session: the cameras' own noise
-        n = sum(math.isfinite(v) for v in store.camera_noise.values())
-        cameras = (store.camera_noise_sigma, n, store.sample_noise_sigma())
-    elif math.isfinite(getattr(store, "camera_noise_sigma", math.nan)):   # as polycam resample measured it
-        cameras = (store.camera_noise_sigma, store.camera_noise_images, math.nan)
+    if getattr(store, "camera_noise_images", 0):     # a session, or a store polycam resample wrote
+        per_sample = store.sample_noise_sigma() if hasattr(store, "sample_noise_sigma") else math.nan
+        cameras = (store.camera_noise_sigma, store.camera_noise_images, per_sample)
     noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)), cameras)
     if noise:
         print(noise)
@@ -305,7 +303,7 @@ def _session_noise_line(session) -> str:
     gives an estimate (too small, or none)."""
     import numpy as np
 
-    from resample.resampler import images_noise_sigma   # the CLI layer may import stages
+    from resample.resampler import images_noise_sigma, median_noise   # the CLI layer may import stages
 
     from .errors import PolycamError
 
@@ -316,11 +314,11 @@ def _session_noise_line(session) -> str:
     except PolycamError:            # an unreadable image: the summary stands without the figure
         return ""
     channels = 3 if any(img is not None and np.ndim(img) == 3 for img in images.values()) else 1
-    vals = [v for v in images_noise_sigma(images, session.cameras, channels).values() if math.isfinite(v)]
-    if not vals:
+    sigma, n = median_noise(images_noise_sigma(images, session.cameras, channels).values())
+    if not n:
         return ""
-    return (f"  sensor noise {255.0 * float(np.median(vals)):.2f} grey levels in the first frame's images (of 255, "
-            f"median over {len(vals)} camera{'s' if len(vals) != 1 else ''})")
+    return (f"  sensor noise {255.0 * sigma:.2f} grey levels in the first frame's images (of 255, "
+            f"median over {n} camera{'s' if n != 1 else ''})")
 
 
 def _level_line(results) -> str:

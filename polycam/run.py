@@ -254,9 +254,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
                               scheduler="sync", overwrite=True, progress=adv)
     s = time.perf_counter() - t0
     F, Ny, Nx, Nv, Nu = rs.grid.shape
-    from .lfstore import open_lightfield
-
-    noise_grey = 255.0 * open_lightfield(out / "lightfield.zarr").camera_noise_sigma   # NaN: no estimate
+    noise_grey = 255.0 * rs.camera_noise_sigma                 # NaN: no estimate
     summary["resample"] = {"faces": F, "views": [Ny, Nx], "directions": [Nv, Nu], "mean_W": rs.mean_W,
                            "missing_images": rs.missing_images, "seconds": s,
                            **({"camera_noise_grey": noise_grey} if math.isfinite(noise_grey) else {})}
@@ -269,6 +267,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
 
     # 5. motion
     from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
+    from .lfstore import open_lightfield
     from .motion import MotionOptions, estimate_trajectory
     from .motion_report import write_motion_report
     from .trajectory import write_tum

@@ -69,6 +69,8 @@ class ResampleSummary:
     seconds_frames: float
     mean_W: float
     """Mean confidence over all written samples."""
+    camera_noise_sigma: float = float("nan")
+    """The cameras' sensor noise recorded in the store (its ``camera_noise`` attribute; NaN: none)."""
 
 
 def open_calibration(session, calib_dir: str | os.PathLike | None) -> dict:
@@ -159,11 +161,10 @@ def _camera_noise_attr(sess, resampler) -> dict | None:
     """The store's ``camera_noise`` attribute: the median sensor noise of the calibrated cameras'
     images in the session's first frame (:func:`~resample.resampler.images_noise_sigma`, [0, 1]
     units) and how many images gave an estimate; None when none did."""
-    from .resampler import images_noise_sigma
+    from .resampler import images_noise_sigma, median_noise
 
-    est = images_noise_sigma(sess.read_frame(0), resampler.cameras, resampler.channels)
-    vals = [v for v in est.values() if np.isfinite(v)]
-    return {"sigma": float(np.median(vals)), "images": len(vals)} if vals else None
+    sigma, n = median_noise(images_noise_sigma(sess.read_frame(0), resampler.cameras, resampler.channels).values())
+    return {"sigma": sigma, "images": n} if n else None
 
 
 def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
@@ -250,7 +251,8 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
     summary = ResampleSummary(path=out, grid=grid, frames=n, cameras=len(sess.cameras), rays_per_frame=rays,
                               channels=channels, missing_images=int(np.sum(sess.cam_timestamps < 0)),
                               empty_frames=int(empty), scheduler=label, seconds_geometry=t_geo,
-                              seconds_frames=t_frames, mean_W=wsum / (n * grid.num_rays))
+                              seconds_frames=t_frames, mean_W=wsum / (n * grid.num_rays),
+                              camera_noise_sigma=noise["sigma"] if noise is not None else float("nan"))
     log.info("resampled %d frames of %d cameras into %s (%s): geometry %.1f s, frames %.1f s", n,
              summary.cameras, out, label, t_geo, t_frames)
     return summary

@@ -121,6 +121,13 @@ def images_noise_sigma(images: dict, cameras, channels: int) -> dict[str, float]
             if images.get(c) is not None}
 
 
+def median_noise(estimates) -> tuple[float, int]:
+    """(median, count) of the finite values among ``estimates`` (images' noise stds,
+    :func:`images_noise_sigma`); (NaN, 0) when there is none."""
+    vals = [float(v) for v in estimates if np.isfinite(v)]
+    return (float(np.median(vals)), len(vals)) if vals else (float("nan"), 0)
+
+
 class Resampler:
     """Resample frames of cameras ``models`` (camera id → mrcal cameramodel, rig frame)
     onto ``grid``.

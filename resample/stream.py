@@ -152,9 +152,18 @@ class SessionLightField:
     @property
     def camera_noise_sigma(self) -> float:
         """Median over the camera images estimated so far of their sensor noise's std, in [0, 1] units
-        (:attr:`camera_noise`; NaN before any estimate)."""
-        vals = [v for v in self.camera_noise.values() if np.isfinite(v)]
-        return float(np.median(vals)) if vals else float("nan")
+        (:attr:`camera_noise`; NaN before any estimate), as a store's
+        :attr:`~polycam.lfstore.LightFieldStore.camera_noise_sigma`."""
+        from .resampler import median_noise
+
+        return median_noise(self.camera_noise.values())[0]
+
+    @property
+    def camera_noise_images(self) -> int:
+        """How many camera images gave an estimate so far (as the store's attribute)."""
+        from .resampler import median_noise
+
+        return median_noise(self.camera_noise.values())[1]
 
     def sample_noise_sigma(self) -> float:
         """The std of the noise a resampled sample carries, in [0, 1] units: :attr:`camera_noise_sigma`
