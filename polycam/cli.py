@@ -301,8 +301,6 @@ def _session_noise_line(session) -> str:
     """``polycam info`` of a session: the sensor noise of the first frame's images (median over the
     cameras, grey levels of 255; :func:`resample.resampler.images_noise_sigma`), '' when no image
     gives an estimate (too small, or none)."""
-    import numpy as np
-
     from resample.resampler import images_noise_sigma, median_noise   # the CLI layer may import stages
 
     from .errors import PolycamError
@@ -313,8 +311,7 @@ def _session_noise_line(session) -> str:
         images = session.read_frame(0)
     except PolycamError:            # an unreadable image: the summary stands without the figure
         return ""
-    channels = 3 if any(img is not None and np.ndim(img) == 3 for img in images.values()) else 1
-    sigma, n = median_noise(images_noise_sigma(images, session.cameras, channels).values())
+    sigma, n = median_noise(images_noise_sigma(images, session.cameras).values())
     if not n:
         return ""
     return (f"  sensor noise {255.0 * sigma:.2f} grey levels in the first frame's images (of 255, "

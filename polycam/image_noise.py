@@ -49,7 +49,7 @@ _MASK_ENERGY = 70.0 ** 2     # Σ N² = (Σ a²)²: the response's variance per 
 
 
 def _channel_variance(img: np.ndarray, block: int, fraction: float) -> tuple[float, int]:
-    """(σ², blocks averaged) of one (H, W) float64 channel; (NaN, 0) when too few blocks."""
+    """(σ², blocks averaged) of one (H, W) float32 channel; (NaN, 0) when too few blocks."""
     H, W = img.shape
     h, w = (H - 2) // block, (W - 2) // block
     if h * w == 0:
@@ -91,7 +91,7 @@ def image_noise_sigma(image: np.ndarray, *, block: int = NOISE_BLOCK, fraction: 
         raise ValueError(f"image_noise_sigma: block {block} (>= 2), fraction {fraction} (in (0, 1])")
     variances = []
     for c in range(a.shape[2]):
-        ch = np.asarray(a[:, :, c], np.float64)
+        ch = np.asarray(a[:, :, c], np.float32)
         if not np.all(np.isfinite(ch)):
             return math.nan
         var, _ = _channel_variance(ch, block, fraction)

@@ -163,7 +163,7 @@ def _camera_noise_attr(sess, resampler) -> dict | None:
     units) and how many images gave an estimate; None when none did."""
     from .resampler import images_noise_sigma, median_noise
 
-    sigma, n = median_noise(images_noise_sigma(sess.read_frame(0), resampler.cameras, resampler.channels).values())
+    sigma, n = median_noise(images_noise_sigma(sess.read_frame(0), resampler.cameras).values())
     return {"sigma": sigma, "images": n} if n else None
 
 

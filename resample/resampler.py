@@ -88,17 +88,21 @@ class ResampledFrame:
     """Cameras that had an image in this frame."""
 
 
+def _unit_scale(img: np.ndarray) -> np.float32:
+    """The factor that takes an image's values to [0, 1]: 1/255 (uint8), 1/65535 (uint16), 1 (float)."""
+    if img.dtype == np.uint8:
+        return np.float32(1.0 / 255.0)
+    if img.dtype == np.uint16:
+        return np.float32(1.0 / 65535.0)
+    if np.issubdtype(img.dtype, np.floating):
+        return np.float32(1.0)
+    raise InputError(f"resample: images must be uint8, uint16 or float, got {img.dtype}")
+
+
 def normalise_image(image: np.ndarray, channels: int) -> np.ndarray:
     """(H, W) or (H, W, 3) uint8 / uint16 / float image → (H, W, channels) float32 in [0, 1]."""
     img = np.asarray(image)
-    if img.dtype == np.uint8:
-        scale = np.float32(1.0 / 255.0)
-    elif img.dtype == np.uint16:
-        scale = np.float32(1.0 / 65535.0)
-    elif np.issubdtype(img.dtype, np.floating):
-        scale = np.float32(1.0)
-    else:
-        raise InputError(f"resample: images must be uint8, uint16 or float, got {img.dtype}")
+    scale = _unit_scale(img)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 2:
@@ -110,15 +114,20 @@ def normalise_image(image: np.ndarray, channels: int) -> np.ndarray:
     raise InputError(f"resample: images must be (H, W) grey or (H, W, 3) RGB, got {img.shape}")
 
 
-def images_noise_sigma(images: dict, cameras, channels: int) -> dict[str, float]:
+def images_noise_sigma(images: dict, cameras) -> dict[str, float]:
     """Camera id → the sensor noise's std of its image in ``images`` (id → image, None: no image),
-    for the ids in ``cameras`` that have one, in [0, 1] units as the images are resampled
-    (:func:`normalise_image` with ``channels``; :func:`polycam.image_noise.image_noise_sigma`, NaN
-    where it gives no estimate)."""
+    for the ids in ``cameras`` that have one: per channel of the image as recorded (a grey camera's
+    one, a colour camera's root mean over its three), in [0, 1] units as the images are resampled
+    (:func:`polycam.image_noise.image_noise_sigma`, NaN where it gives no estimate)."""
     from polycam.image_noise import image_noise_sigma
 
-    return {c: image_noise_sigma(normalise_image(images[c], channels)) for c in cameras
-            if images.get(c) is not None}
+    out = {}
+    for c in cameras:
+        img = images.get(c)
+        if img is not None:
+            img = np.asarray(img)
+            out[c] = image_noise_sigma(img) * float(_unit_scale(img))
+    return out
 
 
 def median_noise(estimates) -> tuple[float, int]:

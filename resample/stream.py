@@ -8,9 +8,9 @@ session's images of frame i are read and pushed through one
 the last resampled frame is kept (``frame(i)`` then ``weights(i)`` cost one
 resampling), so memory does not grow with the session's length.
 
-Each resampled frame also estimates the sensor noise of up to ``NOISE_CAMERAS_PER_FRAME`` of its
-camera images (:func:`polycam.image_noise.image_noise_sigma`, cycling through the cameras from
-frame to frame; ~17 ms per 640 x 480 image): :attr:`SessionLightField.camera_noise_sigma`.
+The first resampled frames also estimate the sensor noise of ``NOISE_CAMERAS_PER_FRAME`` of their
+camera images each (:func:`polycam.image_noise.image_noise_sigma`, cycling through the cameras from
+frame to frame, ``NOISE_IMAGES`` in all): :attr:`SessionLightField.camera_noise_sigma`.
 :meth:`SessionLightField.sample_noise_sigma` turns it into the std of the noise each resampled
 sample carries (push-pull averages the cameras' pixels).
 
@@ -32,12 +32,15 @@ from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
 from polycam.session import Session, open_session
 
-__all__ = ["SessionLightField", "NOISE_CAMERAS_PER_FRAME", "NOISE_PROBE", "NOISE_PROBE_SEED"]
+__all__ = ["SessionLightField", "NOISE_CAMERAS_PER_FRAME", "NOISE_IMAGES", "NOISE_PROBE", "NOISE_PROBE_SEED"]
 
 log = logging.getLogger(__name__)
 
-NOISE_CAMERAS_PER_FRAME = 3
-"""Camera images per resampled frame whose sensor noise is estimated (the next ones each frame)."""
+NOISE_CAMERAS_PER_FRAME = 1
+"""Camera images per resampled frame whose sensor noise is estimated (the next one each frame: ~8 ms
+per 640 x 480 grey image, against ~100 ms to resample an OAK-D Lite's frame) ..."""
+NOISE_IMAGES = 12
+"""... until this many images have been (the noise is the cameras', not the frames')."""
 NOISE_PROBE = 1e-3
 """Smallest std (in [0, 1] units, 0.26 grey levels of 255) of the white noise added to a frame's images
 to see what resampling does to noise (:meth:`SessionLightField.sample_noise_sigma`); the probe is
@@ -88,8 +91,8 @@ class SessionLightField:
         self.cameras_present: dict[int, int] = {}
         """Frame index → number of calibrated cameras that had an image."""
         self.camera_noise: dict[tuple[int, str], float] = {}
-        """(frame index, camera id) → the sensor noise's std of that camera image, in [0, 1] units as
-        the images are resampled (:func:`polycam.image_noise.image_noise_sigma`; NaN: no estimate)."""
+        """(frame index, camera id) → the sensor noise's std of that camera image, per channel, in [0, 1]
+        units as the images are resampled (:func:`~resample.resampler.images_noise_sigma`; NaN: no estimate)."""
         self._noise_gain: float | None = None
         self._estimate_noise = bool(camera_noise)
         self._cached: tuple[int, np.ndarray, np.ndarray] | None = None
@@ -137,16 +140,17 @@ class SessionLightField:
 
     def _estimate_camera_noise(self, t: int, images: dict) -> None:
         """The sensor noise of the next ``NOISE_CAMERAS_PER_FRAME`` cameras (in the session's camera
-        order, from frame t's position in that cycle) among frame t's images, as resampled."""
+        order, from frame t's position in that cycle) among frame t's images, until ``NOISE_IMAGES``
+        images have been estimated."""
         from .resampler import images_noise_sigma
 
         cams = [c for c in self.resampler.cameras if images.get(c) is not None]
-        if not cams:
+        if not cams or len(self.camera_noise) >= NOISE_IMAGES:
             return
         k = min(NOISE_CAMERAS_PER_FRAME, len(cams))
         start = (t * k) % len(cams)
         chosen = [cams[(start + j) % len(cams)] for j in range(k)]
-        for c, sigma in images_noise_sigma(images, chosen, self.channels).items():
+        for c, sigma in images_noise_sigma(images, chosen).items():
             self.camera_noise[(t, c)] = sigma
 
     @property

@@ -127,7 +127,7 @@ def test_session_to_store_in_process(session, tmp_path):
     # the cameras' sensor noise in the first frame's images, as the session resampled on the fly has it
     from resample.resampler import images_noise_sigma
 
-    est = images_noise_sigma(s.read_frame(0), rs.cameras, 1)
+    est = images_noise_sigma(s.read_frame(0), rs.cameras)
     assert lf.camera_noise_images == 9 and lf.camera_noise_sigma == pytest.approx(np.median(list(est.values())))
     with pytest.raises(InputError, match="already exists"):
         resample_session(path, out, scheduler="sync")
