@@ -150,6 +150,8 @@ class SessionLightField:
         k = min(NOISE_CAMERAS_PER_FRAME, len(cams))
         start = (t * k) % len(cams)
         chosen = [cams[(start + j) % len(cams)] for j in range(k)]
+        if (t, chosen[0]) in self.camera_noise:       # a frame resampled again
+            return
         for c, sigma in images_noise_sigma(images, chosen).items():
             self.camera_noise[(t, c)] = sigma
 
