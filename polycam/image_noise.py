@@ -48,19 +48,20 @@ _MASK = np.array([1.0, -4.0, 6.0, -4.0, 1.0])   # a: the fourth difference
 _MASK_ENERGY = 70.0 ** 2     # Σ N² = (Σ a²)²: the response's variance per unit noise variance
 
 
-def _channel_variance(img: np.ndarray, block: int, fraction: float) -> tuple[float, int]:
-    """(σ², blocks averaged) of one (H, W) float32 channel; (NaN, 0) when too few blocks."""
+def _channel_variance(img: np.ndarray, block: int, fraction: float) -> float:
+    """σ² of one (H, W) float32 channel; NaN when too few blocks."""
     H, W = img.shape
-    h, w = (H - 2) // block, (W - 2) // block
+    r = len(_MASK) // 2                          # the border the mask's reflection reaches
+    h, w = (H - 2 * r) // block, (W - 2 * r) // block
     if h * w == 0:
-        return math.nan, 0
+        return math.nan
     resp = ndimage.correlate1d(ndimage.correlate1d(img, _MASK, axis=0, mode="reflect"), _MASK, axis=1,
                                mode="reflect")
     smooth = ndimage.gaussian_filter(img, _SMOOTH_SIGMA, mode="reflect")
     grad = np.hypot(ndimage.sobel(smooth, axis=0, mode="reflect"), ndimage.sobel(smooth, axis=1, mode="reflect"))
 
-    def blocks(a: np.ndarray) -> np.ndarray:     # interior (H − 2, W − 2) → (h, block, w, block)
-        return a[1:1 + h * block, 1:1 + w * block].reshape(h, block, w, block)
+    def blocks(a: np.ndarray) -> np.ndarray:     # interior (H − 2r, W − 2r) → (h, block, w, block)
+        return a[r:r + h * block, r:r + w * block].reshape(h, block, w, block)
 
     energy = np.mean(np.square(blocks(resp)), axis=(1, 3)).ravel() / _MASK_ENERGY
     rank = np.mean(blocks(grad), axis=(1, 3)).ravel()
@@ -68,10 +69,10 @@ def _channel_variance(img: np.ndarray, block: int, fraction: float) -> tuple[flo
     clipped = ((px <= img.min()) | (px >= img.max())).any(axis=(1, 3)).ravel()
     energy, rank = energy[~clipped], rank[~clipped]
     if energy.size < _MIN_BLOCKS:
-        return math.nan, 0
+        return math.nan
     k = min(energy.size, max(_MIN_BLOCKS, int(fraction * energy.size)))
     chosen = np.argpartition(rank, k - 1)[:k]
-    return float(np.mean(energy[chosen])), k
+    return float(np.mean(energy[chosen]))
 
 
 def image_noise_sigma(image: np.ndarray, *, block: int = NOISE_BLOCK, fraction: float = NOISE_FRACTION) -> float:
@@ -94,6 +95,5 @@ def image_noise_sigma(image: np.ndarray, *, block: int = NOISE_BLOCK, fraction: 
         ch = np.asarray(a[:, :, c], np.float32)
         if not np.all(np.isfinite(ch)):
             return math.nan
-        var, _ = _channel_variance(ch, block, fraction)
-        variances.append(var)
+        variances.append(_channel_variance(ch, block, fraction))
     return float(math.sqrt(np.mean(variances)))
