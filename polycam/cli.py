@@ -189,6 +189,10 @@ def cmd_motion(args: argparse.Namespace) -> int:
     noise = _noise_line(results, args.preset, bool(getattr(store, "has_weights", False)), cameras)
     if noise:
         print(noise)
+    if getattr(store, "compressed_cameras", 0):      # a session with MJPG cameras
+        from resample.resampler import compressed_note
+
+        print("  " + compressed_note(store.compressed_cameras, len(store.session.cameras)))
     levels = _level_line(results)
     if levels:
         print(levels)
@@ -299,23 +303,28 @@ def _noise_line(results, preset: str, confidences: bool = False, cameras: tuple[
 
 def _session_noise_line(session) -> str:
     """``polycam info`` of a session: the sensor noise of the first frame's images (median over the
-    cameras, grey levels of 255; :func:`resample.resampler.images_noise_sigma`), '' when no image
-    gives an estimate (too small, or none)."""
-    from resample.resampler import images_noise_sigma, median_noise   # the CLI layer may import stages
+    cameras, grey levels of 255; :func:`resample.resampler.images_noise_sigma`; MJPG cameras left out,
+    :func:`resample.resampler.noise_cameras`, and the line says so), '' when no image gives an estimate
+    (too small, or none)."""
+    from resample.resampler import compressed_note, images_noise_sigma, median_noise, noise_cameras   # a stage
 
     from .errors import PolycamError
 
     if len(session) == 0:
         return ""
+    cams = noise_cameras(session, session.cameras)
+    note = compressed_note(len(session.cameras) - len(cams), len(session.cameras))
+    if not cams:
+        return "  " + note
     try:
         images = session.read_frame(0)
     except PolycamError:            # an unreadable image: the summary stands without the figure
         return ""
-    sigma, n = median_noise(images_noise_sigma(images, session.cameras).values())
+    sigma, n = median_noise(images_noise_sigma(images, cams).values())
     if not n:
         return ""
     return (f"  sensor noise {255.0 * sigma:.2f} grey levels in the first frame's images (of 255, "
-            f"median over {n} camera{'s' if n != 1 else ''})")
+            f"median over {n} camera{'s' if n != 1 else ''}{'; ' + note if note else ''})")
 
 
 def _level_line(results) -> str:

@@ -258,7 +258,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     summary["resample"] = {"faces": F, "views": [Ny, Nx], "directions": [Nv, Nu], "mean_W": rs.mean_W,
                            "missing_images": rs.missing_images, "seconds": s,
                            **({"camera_noise_grey": noise_grey} if math.isfinite(noise_grey) else {})}
-    noise = f", the cameras' sensor noise {noise_grey:.2f} grey levels" if math.isfinite(noise_grey) else ""
+    noise = (f", the cameras' sensor noise {noise_grey:.2f} grey levels" if math.isfinite(noise_grey)
+             else ", the cameras' sensor noise not estimated (MJPG)" if rs.compressed_cameras else "")
     echo(f"resample  {out / 'lightfield.zarr'}: {F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions, "
          f"mean confidence W {rs.mean_W:.2f}, {rs.missing_images} missing images{noise} ({s:.1f} s)")
     if not rs.mean_W >= UNUSABLE["resample_mean_W"]:

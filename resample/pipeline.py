@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import os
 import threading
 import time
@@ -71,6 +72,8 @@ class ResampleSummary:
     """Mean confidence over all written samples."""
     camera_noise_sigma: float = float("nan")
     """The cameras' sensor noise recorded in the store (its ``camera_noise`` attribute; NaN: none)."""
+    compressed_cameras: int = 0
+    """Cameras left out of that estimate: they record MJPG (:data:`resample.resampler.COMPRESSED_FORMATS`)."""
 
 
 def open_calibration(session, calib_dir: str | os.PathLike | None) -> dict:
@@ -160,10 +163,12 @@ def _check_faces_reached(geometry, session_path) -> None:
 def _camera_noise_attr(sess, resampler) -> dict | None:
     """The store's ``camera_noise`` attribute: the median sensor noise of the calibrated cameras'
     images in the session's first frame (:func:`~resample.resampler.images_noise_sigma`, [0, 1]
-    units) and how many images gave an estimate; None when none did."""
-    from .resampler import images_noise_sigma, median_noise
+    units; not MJPG cameras', :func:`~resample.resampler.noise_cameras`) and how many images gave an
+    estimate; None when none did."""
+    from .resampler import images_noise_sigma, median_noise, noise_cameras
 
-    sigma, n = median_noise(images_noise_sigma(sess.read_frame(0), resampler.cameras).values())
+    cams = noise_cameras(sess, resampler.cameras)
+    sigma, n = median_noise(images_noise_sigma(sess.read_frame(0), cams).values()) if cams else (math.nan, 0)
     return {"sigma": sigma, "images": n} if n else None
 
 
@@ -181,7 +186,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
     from polycam.session import open_session
 
     from .grid import auto_grid
-    from .resampler import ResampleOptions, Resampler
+    from .resampler import ResampleOptions, Resampler, noise_cameras
     from .store import FrameStore
 
     sess = open_session(session_path)
@@ -252,7 +257,8 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                               channels=channels, missing_images=int(np.sum(sess.cam_timestamps < 0)),
                               empty_frames=int(empty), scheduler=label, seconds_geometry=t_geo,
                               seconds_frames=t_frames, mean_W=wsum / (n * grid.num_rays),
-                              camera_noise_sigma=noise["sigma"] if noise is not None else float("nan"))
+                              camera_noise_sigma=noise["sigma"] if noise is not None else float("nan"),
+                              compressed_cameras=len(sess.cameras) - len(noise_cameras(sess, sess.cameras)))
     log.info("resampled %d frames of %d cameras into %s (%s): geometry %.1f s, frames %.1f s", n,
              summary.cameras, out, label, t_geo, t_frames)
     return summary

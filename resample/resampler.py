@@ -38,7 +38,8 @@ VIEW_FILLS = ("depth", "pushpull")
 (:mod:`resample.viewfill`), or by the pull-push alone (depth-free: linear in (x, y) at
 fixed (u, v))."""
 
-__all__ = ["VIEW_FILLS", "ResampleOptions", "ResampledFrame", "Resampler", "normalise_image"]
+__all__ = ["VIEW_FILLS", "ResampleOptions", "ResampledFrame", "Resampler", "normalise_image", "COMPRESSED_FORMATS",
+           "noise_cameras", "compressed_note", "images_noise_sigma", "median_noise"]
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +113,32 @@ def normalise_image(image: np.ndarray, channels: int) -> np.ndarray:
         out = img.astype(np.float32) * scale
         return out.mean(axis=2, keepdims=True) if channels == 1 else out
     raise InputError(f"resample: images must be (H, W) grey or (H, W, 3) RGB, got {img.shape}")
+
+
+COMPRESSED_FORMATS = ("MJPG",)
+"""Rig pixel formats whose images are decoded from a lossy compression. JPEG quantises away the
+noise of the flat regions :func:`polycam.image_noise.image_noise_sigma` reads, and adds its own
+block edges: a rendered 320 x 240 camera image with 1 / 2 / 4 grey levels of noise reads 1.04 /
+1.97 / 3.91 as PNG, 0.43 / 1.51 / 4.43 after JPEG at quality 95, 0.44 / 0.63 / 2.56 at 90, 0.60 /
+0.63 / 0.86 at 80 (tests/test_image_noise.py), and a camera's quality is its own: no estimate of
+the sensor's noise. Their cameras are left out of it (:func:`noise_cameras`)."""
+
+
+def noise_cameras(session, cameras) -> list[str]:
+    """The ids among ``cameras`` whose images give a sensor-noise estimate: those whose pixel format
+    in the session's rig is not in :data:`COMPRESSED_FORMATS`."""
+    return [c for c in cameras if session.rig.camera(c).pixel_format not in COMPRESSED_FORMATS]
+
+
+def compressed_note(n: int, total: int) -> str:
+    """What the CLI says of ``n`` of ``total`` cameras left out of the noise estimate (''
+    for none): all of them, or how many."""
+    if n <= 0:
+        return ""
+    if n >= total:
+        return ("the cameras' sensor noise is not estimated: they record MJPG, whose JPEG compression "
+                "removes the noise from the flat regions the estimate reads")
+    return f"{n} MJPG camera{'s' if n != 1 else ''} left out (JPEG removes the noise the estimate reads)"
 
 
 def images_noise_sigma(images: dict, cameras) -> dict[str, float]:

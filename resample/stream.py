@@ -10,7 +10,8 @@ resampling), so memory does not grow with the session's length.
 
 The first resampled frames also estimate the sensor noise of ``NOISE_CAMERAS_PER_FRAME`` of their
 camera images each (:func:`polycam.image_noise.image_noise_sigma`, cycling through the cameras from
-frame to frame, ``NOISE_IMAGES`` in all): :attr:`SessionLightField.camera_noise_sigma`.
+frame to frame, ``NOISE_IMAGES`` in all; not MJPG cameras': :data:`~resample.resampler.COMPRESSED_FORMATS`):
+:attr:`SessionLightField.camera_noise_sigma`.
 :meth:`SessionLightField.sample_noise_sigma` turns it into the std of the noise each resampled
 sample carries (push-pull averages the cameras' pixels).
 
@@ -66,7 +67,7 @@ class SessionLightField:
                  options=None, models: dict | None = None, camera_noise: bool = True):
         from .grid import auto_grid
         from .pipeline import _channels_of, open_calibration
-        from .resampler import Resampler
+        from .resampler import Resampler, noise_cameras
 
         self.session = session_path if isinstance(session_path, Session) else open_session(session_path)
         if len(self.session) == 0:
@@ -95,6 +96,9 @@ class SessionLightField:
         units as the images are resampled (:func:`~resample.resampler.images_noise_sigma`; NaN: no estimate)."""
         self._noise_gain: float | None = None
         self._estimate_noise = bool(camera_noise)
+        self.noise_cameras = set(noise_cameras(self.session, self.session.cameras))
+        """The camera ids whose images give a noise estimate (:func:`~resample.resampler.noise_cameras`:
+        not MJPG)."""
         self._cached: tuple[int, np.ndarray, np.ndarray] | None = None
 
     @property
@@ -144,7 +148,7 @@ class SessionLightField:
         images have been estimated."""
         from .resampler import images_noise_sigma
 
-        cams = [c for c in self.resampler.cameras if images.get(c) is not None]
+        cams = [c for c in self.resampler.cameras if c in self.noise_cameras and images.get(c) is not None]
         if not cams or len(self.camera_noise) >= NOISE_IMAGES:
             return
         k = min(NOISE_CAMERAS_PER_FRAME, len(cams))
@@ -163,6 +167,11 @@ class SessionLightField:
         from .resampler import median_noise
 
         return median_noise(self.camera_noise.values())[0]
+
+    @property
+    def compressed_cameras(self) -> int:
+        """How many of the session's cameras record a compressed format and give no noise estimate."""
+        return len(self.session.cameras) - len(self.noise_cameras)
 
     @property
     def camera_noise_images(self) -> int:

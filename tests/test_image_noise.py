@@ -119,3 +119,53 @@ def test_session_cameras_and_resampled_samples(tmp_path):
     quiet = SessionLightField(tmp_path / "noisy", grid=noisy.grid, camera_noise=False)   # (the calibration draws')
     quiet.frame(0)
     assert not quiet.camera_noise and math.isnan(quiet.sample_noise_sigma())
+
+
+def test_jpeg_images_do_not_carry_their_noise(radiance):
+    # why MJPG cameras are left out (resample.resampler.COMPRESSED_FORMATS): JPEG quantises away the
+    # noise of the flat blocks the estimate reads, so the same image reads a fraction of its noise
+    # (and at high quality and much noise, JPEG's own block edges push it above)
+    cv2 = pytest.importorskip("cv2")
+
+    def reads(sigma: float, quality: int) -> float:
+        img = _grey(radiance["mock5x5"], sigma, seed=int(10 * sigma))
+        ok, data = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        return image_noise_sigma(cv2.imdecode(data, cv2.IMREAD_UNCHANGED)) / math.hypot(sigma, 12 ** -0.5)
+
+    assert all(reads(s, q) < 0.7 for q in (90, 80) for s in (1.0, 2.0, 4.0))     # measured 0.22-0.65
+    assert reads(1.0, 95) < 0.6 and reads(4.0, 95) > 1.05                        # 0.41, 1.13
+
+
+def test_mjpg_cameras_give_no_estimate(tmp_path):
+    # a session whose rig records MJPG: no camera's image is estimated, the store gets no figure, and
+    # polycam info / motion / resample say why instead
+    from polycam.cli import main
+    from polycam.lfstore import open_lightfield
+    from polycam.synth import synth_session
+    from resample.pipeline import resample_session
+    from resample.stream import SessionLightField
+    from conftest import mock_grid_rig_text
+
+    text = mock_grid_rig_text("mjpg1x3", 160, 120, rows=1, cols=3).replace('pixel_format = "GREY"',
+                                                                          'pixel_format = "MJPG"')
+    (tmp_path / "rig.toml").write_text(text)
+    session = synth_session(load_rig(tmp_path / "rig.toml"), tmp_path / "s", frames=2, seed=1, noise=2.0 / 255.0)
+    lf = SessionLightField(session)
+    lf.frame(0), lf.frame(1)
+    assert lf.compressed_cameras == 3 and not lf.camera_noise and lf.camera_noise_images == 0
+    summary = resample_session(session, tmp_path / "lf.zarr", scheduler="sync")
+    assert math.isnan(summary.camera_noise_sigma) and summary.compressed_cameras == 3
+    assert open_lightfield(tmp_path / "lf.zarr").camera_noise_images == 0
+    import contextlib
+    import io
+
+    for argv in (["info", str(session)], ["motion", str(session), "--out", str(tmp_path / "t.tum")]):
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            assert main(argv) == 0
+        text = out.getvalue()
+        assert "sensor noise is not estimated: they record MJPG" in text, (argv[0], text)
+        assert "grey levels in the cameras' images" not in text and "in the first frame's images" not in text
+    from resample.resampler import compressed_note
+
+    assert compressed_note(0, 5) == "" and compressed_note(2, 5).startswith("2 MJPG cameras left out")
