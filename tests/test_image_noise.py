@@ -1,6 +1,7 @@
 """A camera image's sensor noise estimated from the image alone (polycam.image_noise): the
 project's rendered camera images with known noise, clipped regions, colour, a real photo with
-noise added, and a session's cameras and resampled samples (resample.stream.SessionLightField)."""
+noise added, a session's cameras and resampled samples (resample.stream.SessionLightField), and JPEG
+images, which give no estimate (MJPG cameras are left out)."""
 
 from __future__ import annotations
 
@@ -137,8 +138,11 @@ def test_jpeg_images_do_not_carry_their_noise(radiance):
 
 
 def test_mjpg_cameras_give_no_estimate(tmp_path):
-    # a session whose rig records MJPG: no camera's image is estimated, the store gets no figure, and
-    # polycam info / motion / resample say why instead
+    # a session whose rig records MJPG: no camera's image is estimated, polycam resample records no
+    # figure (and counts the cameras it left out), and polycam info / motion say why instead
+    import contextlib
+    import io
+
     from polycam.cli import main
     from polycam.lfstore import open_lightfield
     from polycam.synth import synth_session
@@ -156,9 +160,6 @@ def test_mjpg_cameras_give_no_estimate(tmp_path):
     summary = resample_session(session, tmp_path / "lf.zarr", scheduler="sync")
     assert math.isnan(summary.camera_noise_sigma) and summary.compressed_cameras == 3
     assert open_lightfield(tmp_path / "lf.zarr").camera_noise_images == 0
-    import contextlib
-    import io
-
     for argv in (["info", str(session)], ["motion", str(session), "--out", str(tmp_path / "t.tum")]):
         out = io.StringIO()
         with contextlib.redirect_stdout(out):
