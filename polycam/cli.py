@@ -88,7 +88,8 @@ def cmd_synth_lightfield(args: argparse.Namespace) -> int:
         synth_lightfield(args.out, grid=grid, scene=args.scene, distance=args.distance,
                          frames=args.frames, seed=args.seed, supersample=args.supersample,
                          step_t=args.step_t, step_r_deg=args.step_r, fps=args.fps, noise=args.noise,
-                         bit_depth=args.bit_depth, overwrite=args.overwrite, progress=advance)
+                         bit_depth=args.bit_depth, specular=args.specular, overwrite=args.overwrite,
+                         progress=advance)
     print(f"wrote {args.out}: {args.frames} frames, {len(grid.faces)} face(s), "
           f"{grid.shape[1]}x{grid.shape[2]} views of {grid.shape[3]}x{grid.shape[4]}; "
           f"ground truth in {Path(args.out) / 'groundtruth.tum'}")
@@ -110,6 +111,11 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
                   noise=args.noise, perturb_position_m=args.perturb_position,
                   perturb_rotation_deg=args.perturb_rotation, perturb_focal_frac=args.perturb_focal,
                   overwrite=args.overwrite)
+    if args.board is None:
+        common["specular"] = args.specular
+    elif args.specular:
+        print("polycam synth session: error: --specular applies to scene sessions, not to --board", file=sys.stderr)
+        return 2
     with _progress(f"rendering {args.out}", args.frames) as advance:
         if board is not None:
             synth_board_session(rig, args.out, board=board, frames=args.frames, progress=advance,
@@ -425,6 +431,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="std of Gaussian sensor noise per sample in [0, 1] units, seeded (default 0)")
     pl.add_argument("--bit-depth", type=int, choices=(8, 16), default=None,
                     help="round the samples to 8 or 16 bits, as a camera does (default: float samples)")
+    pl.add_argument("--specular", type=_nonneg_float, default=0.0,
+                    help="strength of a view-dependent (Phong) highlight on every surface: a non-Lambertian "
+                         "scene (default 0: Lambertian)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing output")
     pl.set_defaults(func=cmd_synth_lightfield)
 
@@ -446,6 +455,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="std of per-camera rotation offsets [deg]")
     pss.add_argument("--perturb-focal", type=_nonneg_float, default=0.0,
                      help="std of per-camera relative focal-length offsets")
+    pss.add_argument("--specular", type=_nonneg_float, default=0.0,
+                     help="strength of a view-dependent (Phong) highlight on every surface: a non-Lambertian "
+                          "scene (default 0: Lambertian)")
     pss.add_argument("--overwrite", action="store_true", help="replace an existing output")
     pss.set_defaults(func=cmd_synth_session)
 

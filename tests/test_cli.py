@@ -54,6 +54,30 @@ def test_bad_usage_exits_2():
     assert "--faces" in res.stderr
 
 
+def test_synth_specular(tmp_path):
+    # --specular: a view-dependent highlight in the rendered frames (tests/test_synth.py checks the
+    # term itself); negative is bad usage, and so is a board session with it
+    from polycam.lfstore import open_lightfield
+
+    grid = tmp_path / "grid.toml"
+    grid.write_text('[grid]\nf = 60\nz_pi = 0\nfaces = ["+z"]\nx = [-0.02, 0.02, 3]\ny = [-0.02, 0.02, 3]\n'
+                    'u = [-45, 45, 24]\nv = [-45, 45, 24]\n')
+    frames = {}
+    for k in ("0", "0.5"):
+        out = tmp_path / f"lf{k}.zarr"
+        res = polycam("synth", "lightfield", "--grid", str(grid), "--distance", "3", "--specular", k, "--out", str(out))
+        assert res.returncode == 0, res.stderr
+        frames[k] = open_lightfield(out).frame(0)
+    diff = frames["0.5"] - frames["0"]
+    assert diff.min() >= -1e-6 and diff.max() > 0.05          # highlights only add light
+    res = polycam("synth", "lightfield", "--specular", "-1", "--out", str(tmp_path / "x.zarr"))
+    assert res.returncode == 2 and "--specular" in res.stderr
+    board = REPO / "rigs" / "boards" / "charuco_5x7.toml"
+    res = polycam("synth", "session", "--rig", str(REPO / "rigs" / "mock5x5.toml"), "--board", str(board),
+                  "--specular", "0.3", "--out", str(tmp_path / "b"))
+    assert res.returncode == 2 and "--specular" in res.stderr and not (tmp_path / "b").exists()
+
+
 def test_missing_rig_file_is_one_line(tmp_path):
     res = polycam("synth", "session", "--rig", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "s"))
     assert_one_line_error(res, "nope.toml", "no such file")

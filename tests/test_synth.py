@@ -134,10 +134,14 @@ def test_grid_traversal_matches_brute_force(rng):
     assert np.all((g.radiance >= 0) & (g.radiance <= 1))
 
 
-def test_radiance_depends_only_on_the_ray(rng):
+@pytest.mark.parametrize("specular", [0.0, 0.5])
+def test_radiance_depends_only_on_the_ray(rng, specular):
     """Brightness constancy: one world ray traced from two rig poses, and from origins
-    moved along itself, has one radiance."""
-    sc = room_scene(4.0, seed=3)
+    moved along itself, has one radiance; with a view-dependent highlight too (a static
+    scene's light field is a function of the ray, Lambertian or not)."""
+    import dataclasses
+
+    sc = dataclasses.replace(room_scene(4.0, seed=3), specular=specular, shininess=8.0)
     n = 3000
     o_w = rng.uniform(-0.5, 0.5, size=(n, 3))
     d_w = rng.normal(size=(n, 3))
@@ -153,6 +157,47 @@ def test_radiance_depends_only_on_the_ray(rng):
     s = rng.uniform(0.0, 0.9, size=n) * base.distance
     moved = trace_rays(sc, RayBundle(o_w + s[:, None] * d_w, d_w, "world"))
     assert np.abs(moved.radiance - base.radiance).max() <= RENDER_CONSTANCY_ATOL
+
+
+def test_specular_highlight_is_the_phong_term_and_depends_on_the_view(rng):
+    """Scene.specular adds k · max(0, r · v)^shininess to each hit (r the light mirrored about
+    the normal facing the ray, v = −d), so one surface point reads differently from two
+    viewpoints, where the Lambertian scene reads the same."""
+    import dataclasses
+
+    lamb = spheres_scene(3.0, seed=2)
+    k, shin = 0.4, 6.0
+    spec = dataclasses.replace(lamb, specular=k, shininess=shin)
+    n = 4000
+    o = np.zeros((n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a, b = trace_rays(lamb, RayBundle(o, d, "world")), trace_rays(spec, RayBundle(o, d, "world"))
+    hit = (a.primitive >= 0) & (a.primitive < lamb.sphere_radii.shape[0])
+    assert hit.mean() > 0.5
+    P = o[hit] + a.distance[hit, None] * d[hit]
+    nrm = (P - lamb.sphere_centres[a.primitive[hit]]) / lamb.sphere_radii[a.primitive[hit], None]
+    nrm *= -np.sign(np.sum(nrm * d[hit], axis=1))[:, None]          # the side facing the ray
+    lam = nrm @ lamb.light
+
+    def phong(dirs):
+        c = -np.sum((2.0 * lam[:, None] * nrm - lamb.light) * dirs, axis=1)
+        return np.where((lam > 0) & (c > 0), k * np.maximum(c, 0.0) ** shin, 0.0)
+
+    assert np.abs((b.radiance[hit] - a.radiance[hit]) - phong(d[hit])).max() < RENDER_CONSTANCY_ATOL
+    assert phong(d[hit]).max() > 0.2                                  # some rays see a highlight
+    # the same points from a viewpoint 0.3 m away (rays that reach them unoccluded)
+    o2 = np.array([0.3, 0.0, 0.0])
+    d2 = P - o2
+    dist2 = np.linalg.norm(d2, axis=1)
+    d2 /= dist2[:, None]
+    a2 = trace_rays(lamb, RayBundle(np.broadcast_to(o2, d2.shape), d2, "world"))
+    b2 = trace_rays(spec, RayBundle(np.broadcast_to(o2, d2.shape), d2, "world"))
+    seen = np.abs(a2.distance - dist2) < 1e-6
+    assert seen.mean() > 0.5
+    assert np.abs(a2.radiance[seen] - a.radiance[hit][seen]).max() < 1e-4            # Lambertian: one value
+    assert np.abs((b2.radiance - a2.radiance)[seen] - phong(d2)[seen]).max() < RENDER_CONSTANCY_ATOL
+    assert np.abs(b2.radiance[seen] - b.radiance[hit][seen]).max() > 0.02            # highlight: per view
 
 
 @pytest.mark.parametrize("face", ["+z", "-x"])

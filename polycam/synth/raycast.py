@@ -382,6 +382,13 @@ def _trace_range(k0, k1, orig, dirs, oidx, outer, R, tr,
                     if lam < 0.0:
                         lam = 0.0
                     val = alb * (shade[0] + shade[1] * lam)
+                    if shade[2] > 0.0 and lam > 0.0:
+                        # Phong highlight: the light mirrored about the normal, against the direction
+                        # back along the ray; view-dependent, so a surface point differs between views
+                        c = -((2.0 * lam * n0 - light[0]) * d0 + (2.0 * lam * n1 - light[1]) * d1
+                              + (2.0 * lam * n2 - light[2]) * d2)
+                        if c > 0.0:
+                            val += shade[2] * c ** shade[3]
                 acc += val
                 if si == 0:
                     t0 = best

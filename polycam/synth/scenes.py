@@ -291,6 +291,15 @@ class Scene:
     distance: float = 0.0
     """[m] the builder's distance parameter (nearest sphere surface / far wall)."""
     seed: int = 0
+    specular: float = 0.0
+    """Strength of a white Phong highlight added to every surface's radiance,
+    ``specular · max(0, r · v)^shininess`` (r the light mirrored about the normal, v towards the
+    viewer): a view-dependent, non-Lambertian part, so one surface point differs between the
+    views (0: Lambertian, the default). Light fields stay what the plenoptic constraint assumes
+    (a static scene's radiance per ray); paper Eq. 6, the resampler's view fill and the warp's
+    blend along the disparity assume Lambertian surfaces."""
+    shininess: float = 32.0
+    """Phong exponent of ``specular`` (32: the highlight falls to half 12° off the mirror direction)."""
 
     @property
     def num_primitives(self) -> int:
@@ -306,7 +315,8 @@ class Scene:
                 self.rect_texture,
                 t.kind, t.param, t.wave_start, t.waves, np.int64(t.max_waves), t.img_start, t.img_shape,
                 t.img_data,
-                np.int64(self.sky_texture), self.light, np.array([self.ambient, self.diffuse]))
+                np.int64(self.sky_texture), self.light,
+                np.array([self.ambient, self.diffuse, self.specular, self.shininess]))
 
     def with_image_rect(self, image: np.ndarray, T_world_rect: np.ndarray, bounds, uv_from_st: np.ndarray
                         ) -> tuple["Scene", int]:

@@ -24,6 +24,7 @@ equal seeds give byte-identical output.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -149,11 +150,18 @@ def write_lightfield_sequence(out: str | os.PathLike, scene: Scene, grid: LightF
         return w.close(groundtruth=trajectory)
 
 
+def _with_specular(scene: Scene, specular: float) -> Scene:
+    """``scene`` with its highlight set to ``specular`` (> 0), else as it is."""
+    if not specular >= 0.0 or not math.isfinite(specular):
+        raise ValueError(f"specular must be >= 0 and finite, got {specular}")
+    return dataclasses.replace(scene, specular=float(specular)) if specular > 0.0 else scene
+
+
 def synth_lightfield(out: str | os.PathLike, *, grid: LightFieldGrid | None = None, scene: str | Scene = "spheres",
                      distance: float = 6.0, frames: int = 2, seed: int = 0, supersample: int = 2,
                      step_t: float = 0.015, step_r_deg: float = 0.2, fps: float = 30.0,
                      trajectory: Trajectory | None = None, noise: float = 0.0, bit_depth: int | None = None,
-                     overwrite: bool = False, progress: Progress | None = None) -> Path:
+                     specular: float = 0.0, overwrite: bool = False, progress: Progress | None = None) -> Path:
     """``polycam synth lightfield``: a seeded scene and smooth trajectory rendered into ``out``.
 
     grid: default :func:`~polycam.synth.render.default_lightfield_grid` on all six faces.
@@ -162,9 +170,11 @@ def synth_lightfield(out: str | os.PathLike, *, grid: LightFieldGrid | None = No
     trajectory: default a smooth random one with RMS steps ``step_t`` [m], ``step_r_deg``.
     noise, bit_depth: sensor noise and rounding (:func:`write_lightfield_sequence`; seeded
         with ``seed``).
+    specular: > 0 adds a view-dependent highlight of that strength to the scene's surfaces
+        (:attr:`Scene.specular`; 0: as the scene has it).
     """
     grid = grid if grid is not None else default_lightfield_grid("all")
-    sc = scene if isinstance(scene, Scene) else make_scene(scene, distance, seed)
+    sc = _with_specular(scene if isinstance(scene, Scene) else make_scene(scene, distance, seed), specular)
     traj = trajectory if trajectory is not None else make_trajectory(
         "smooth", frames, step_t=step_t, step_r_deg=step_r_deg, fps=fps, seed=seed)
     return write_lightfield_sequence(out, sc, grid, traj, supersample=supersample, noise=noise,
@@ -210,7 +220,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
                   noise: float | None = None, perturb_position_m: float = 0.0,
                   perturb_rotation_deg: float = 0.0, perturb_focal_frac: float = 0.0,
                   distance: float | None = None, trajectory: Trajectory | None = None,
-                  models: dict | None = None, overwrite: bool = False, threads: int = 2,
+                  models: dict | None = None, specular: float = 0.0, overwrite: bool = False, threads: int = 2,
                   progress: Progress | None = None) -> Path:
     """``polycam synth session``: render a rig moving through a scene into a session folder.
 
@@ -225,6 +235,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     noise: Gaussian grey-level std in [0, 1] units, seeded per frame.
     perturb_*: see :func:`true_cameramodels`; ignored when ``models`` are given.
     trajectory: ``T_world_rig`` per frame (overrides frames / motion settings).
+    specular: > 0 adds a view-dependent highlight of that strength (:attr:`Scene.specular`).
     Writes ``groundtruth.tum`` and ``calib/<cam>.cameramodel`` (the true models).
     """
     from ..session import SessionWriter
@@ -232,7 +243,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     mock = rig.mock
     seed = seed if seed is not None else (mock.seed if mock is not None else 0)
     noise = noise if noise is not None else (mock.noise if mock is not None else 0.0)
-    sc = scene_for_rig(rig, scene, distance=distance, seed=seed)
+    sc = _with_specular(scene_for_rig(rig, scene, distance=distance, seed=seed), specular)
     if trajectory is None:
         trajectory = trajectory_for_rig(rig, frames, seed=seed)
     if models is None:
