@@ -167,6 +167,17 @@ def test_mjpg_cameras_give_no_estimate(tmp_path):
         text = out.getvalue()
         assert "sensor noise is not estimated: they record MJPG" in text, (argv[0], text)
         assert "grey levels in the cameras' images" not in text and "in the first frame's images" not in text
-    from resample.resampler import compressed_note
-
-    assert compressed_note(0, 5) == "" and compressed_note(2, 5).startswith("2 MJPG cameras left out")
+    # a mixed rig (the OAK-D Lite with its colour camera on MJPG): the grey cameras' figure, and the line
+    # names the one left out
+    oak = (REPO / "rigs" / "oak_d_lite.toml").read_text()
+    assert oak.count('pixel_format = "RGB"') == 1
+    (tmp_path / "oak.toml").write_text(oak.replace('pixel_format = "RGB"', 'pixel_format = "MJPG"'))
+    mixed = synth_session(load_rig(tmp_path / "oak.toml"), tmp_path / "m", frames=2, seed=1)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["info", str(mixed)]) == 0
+    line = next(l for l in out.getvalue().splitlines() if "sensor noise" in l)
+    assert "median over 2 cameras; 1 MJPG camera left out" in line, line
+    lf = SessionLightField(mixed)
+    lf.frame(0), lf.frame(1)
+    assert lf.compressed_cameras == 1 and {c for _, c in lf.camera_noise} <= {"left", "right"}
