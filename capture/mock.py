@@ -52,7 +52,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from polycam.rig import CameraSpec, MockSpec, Rig
+from polycam.rig import MJPG_QUALITY, CameraSpec, MockSpec, Rig
 
 from .source import CameraLost, CaptureError, Frame, FrameSource, Item
 
@@ -64,13 +64,18 @@ _SALT_DROP, _SALT_JITTER, _SALT_NOISE, _SALT_PATTERN = 41, 42, 43, 44
 _CODE_BITS = 32
 
 
-def to_pixel_format(grey: np.ndarray, pixel_format: str) -> np.ndarray:
+def to_pixel_format(grey: np.ndarray, pixel_format: str, mjpg_quality: int = MJPG_QUALITY) -> np.ndarray:
     """An 8-bit grey image (H, W) in a rig pixel format: ``GREY`` → (H, W) uint8,
-    ``Y16`` → (H, W) uint16 (x 257), ``RGB``/``YUYV``/``MJPG`` → (H, W, 3) uint8 RGB."""
+    ``Y16`` → (H, W) uint16 (x 257), ``RGB``/``YUYV`` → (H, W, 3) uint8 RGB, ``MJPG`` → the same
+    after a JPEG round trip at ``mjpg_quality`` (:func:`polycam.synth.mjpg_frame`), as a webcam's."""
     if pixel_format == "GREY":
         return grey
     if pixel_format == "Y16":
         return grey.astype(np.uint16) * np.uint16(257)
+    if pixel_format == "MJPG":
+        from polycam.synth import mjpg_frame
+
+        return mjpg_frame(grey, mjpg_quality)
     return np.repeat(grey[:, :, None], 3, axis=2)
 
 
@@ -377,7 +382,7 @@ class MockSource(FrameSource):
             if cam.pixel_format == "Y16":
                 return Frame(cam.id, ts, i, quantize(rad, 16, m.noise, rng))
             grey = quantize(rad, 8, m.noise, rng)
-        return Frame(cam.id, ts, i, to_pixel_format(grey, cam.pixel_format))
+        return Frame(cam.id, ts, i, to_pixel_format(grey, cam.pixel_format, m.mjpg_quality))
 
     # -- ground truth
 

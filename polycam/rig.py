@@ -21,10 +21,14 @@ from .errors import FormatError
 from .geometry import R_from_r, T_from_Rt
 from .tomlio import Table, load_toml
 
-__all__ = ["CameraSpec", "MockSpec", "Rig", "load_rig", "DRIVERS", "PIXEL_FORMATS", "MOCK_SCENES"]
+__all__ = ["CameraSpec", "MockSpec", "Rig", "load_rig", "DRIVERS", "PIXEL_FORMATS", "MOCK_SCENES", "MJPG_QUALITY"]
 
 DRIVERS = ("v4l2", "depthai", "mock", "replay")
 PIXEL_FORMATS = ("GREY", "Y16", "YUYV", "MJPG", "RGB")
+
+MJPG_QUALITY = 90
+"""Default ``[mock]`` ``mjpg_quality``: the JPEG quality of simulated MJPG cameras (a webcam's own is
+its firmware's; 90 costs the 5 x 5 mock rig's motion ~15 %, 75 ~70 %: docs/capture.md)."""
 MOCK_SCENES = ("room", "spheres", "pattern")
 
 _CAMERA_KEYS = ("driver", "width", "height", "fps", "pixel_format", "fov_deg", "lens")
@@ -92,6 +96,9 @@ class MockSpec:
     """[m] typical translation per frame of the ``smooth`` motion."""
     step_r_deg: float = 0.2
     """[deg] typical rotation per frame of the ``smooth`` motion."""
+    mjpg_quality: int = MJPG_QUALITY
+    """JPEG quality (1–100) of the mock's and the synthetic sessions' ``MJPG`` cameras: their frames
+    are JPEG-compressed and decoded as a webcam's are (:data:`MJPG_QUALITY`)."""
 
 
 @dataclass(frozen=True)
@@ -220,6 +227,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
             distance=m.number("distance", 4.0, min=0.0, open_min=True),
             step_t=m.number("step_t", 0.005, min=0.0),
             step_r_deg=m.number("step_r_deg", 0.2, min=0.0),
+            mjpg_quality=m.number("mjpg_quality", MJPG_QUALITY, integer=True, min=1, max=100),
         )
         m.finish()
     top.finish()

@@ -64,12 +64,19 @@ def test_mock_end_to_end_writes_a_complete_session(tmp_path):
     assert st["driver"]["mock"]["scene"] == "pattern"
 
 
-@pytest.mark.parametrize("fmt, dtype, ndim", [("Y16", np.uint16, 2), ("RGB", np.uint8, 3)])
+@pytest.mark.parametrize("fmt, dtype, ndim", [("Y16", np.uint16, 2), ("RGB", np.uint8, 3), ("MJPG", np.uint8, 3)])
 def test_mock_pixel_formats(tmp_path, fmt, dtype, ndim):
     rig = make_rig(tmp_path, rows=1, cols=2, fmt=fmt)
     record(MockSource(rig, realtime=False), rig, tmp_path / "s", frames=3)
     img = open_session(tmp_path / "s").read_frame(2)["cam01"]
     assert img.dtype == dtype and img.ndim == ndim and pattern_sequence(img) == 2
+    if fmt == "MJPG":               # JPEG-compressed and decoded, as a webcam's: close to the grey frame, not equal
+        (tmp_path / "g").mkdir()
+        grey_rig = make_rig(tmp_path / "g", rows=1, cols=2, fmt="GREY")
+        record(MockSource(grey_rig, realtime=False), grey_rig, tmp_path / "g" / "s", frames=3)
+        grey = open_session(tmp_path / "g" / "s").read_frame(2)["cam01"].astype(int)
+        diff = np.abs(img.astype(int) - grey[:, :, None])
+        assert 0 < diff.mean() < 3 and diff.max() > 10
 
 
 def test_mock_renders_the_synth_room(tmp_path):

@@ -145,6 +145,7 @@ def test_mjpg_cameras_give_no_estimate(tmp_path):
 
     from polycam.cli import main
     from polycam.lfstore import open_lightfield
+    from polycam.session import open_session
     from polycam.synth import synth_session
     from resample.pipeline import resample_session
     from resample.stream import SessionLightField
@@ -154,6 +155,8 @@ def test_mjpg_cameras_give_no_estimate(tmp_path):
                                                                           'pixel_format = "MJPG"')
     (tmp_path / "rig.toml").write_text(text)
     session = synth_session(load_rig(tmp_path / "rig.toml"), tmp_path / "s", frames=2, seed=1, noise=2.0 / 255.0)
+    img = open_session(session).read_frame(0)["cam00"]     # JPEG round trip at the rig's mjpg_quality (90)
+    assert img.ndim == 3 and image_noise_sigma(img) < 0.6 * 2.0
     lf = SessionLightField(session)
     lf.frame(0), lf.frame(1)
     assert lf.compressed_cameras == 3 and not lf.camera_noise and lf.camera_noise_images == 0

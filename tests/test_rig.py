@@ -129,13 +129,14 @@ noise = 0.01
 jitter_ms = 0.5
 drop_rate = 0.1
 distance = 2.5
+mjpg_quality = 75
 
 [mock.disconnect_after]
 cam04 = 10
 """
     m = load_rig(_rig(tmp_path, text)).mock
-    assert (m.scene, m.motion, m.seed, m.noise, m.jitter_ms, m.drop_rate, m.distance) == \
-        ("spheres", "static", 7, 0.01, 0.5, 0.1, 2.5)
+    assert (m.scene, m.motion, m.seed, m.noise, m.jitter_ms, m.drop_rate, m.distance, m.mjpg_quality) == \
+        ("spheres", "static", 7, 0.01, 0.5, 0.1, 2.5, 75)
     assert m.disconnect_after == {"cam04": 10}
 
 
@@ -160,6 +161,8 @@ cam04 = 10
     (CAMERAS, 'pixel_format = "Y16"', 'pixel_format = "NV12"', ["[[camera]] #2.pixel_format", "GREY"]),
     (GRID + "[mock]\nscene = 'forest'\n", "", "", ["[mock].scene", "room"]),
     (GRID + "[mock]\ndrop_rate = 1.5\n", "", "", ["[mock].drop_rate", "<= 1"]),
+    (GRID + "[mock]\nmjpg_quality = 0\n", "", "", ["[mock].mjpg_quality", ">= 1"]),
+    (GRID + "[mock]\nmjpg_quality = 95.5\n", "", "", ["[mock].mjpg_quality", "expected an integer"]),
     (GRID, 'name = "g"\n', "", ["[rig].name", "missing"]),
     (GRID, "[rig]", "[rig]\n[rig]", ["invalid TOML"]),
     # structure

@@ -10,7 +10,7 @@ from .boardrender import BoardRenderer
 from .motion import frame_timestamps, make_trajectory, smooth_trajectory, static_trajectory
 from .raycast import TraceResult, trace_indexed, trace_outer, trace_rays
 from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, lightfield_face_rays,
-                     quantize, render_lightfield)
+                     mjpg_frame, quantize, render_lightfield)
 from .scenes import (SCENE_NAMES, Scene, SphereGrid, TextureBuilder, Textures, make_scene, room_scene,
                      spheres_scene)
 from .sessions import (board_poses, camera_groups, default_board_frames, scene_for_rig, synth_board_session,
@@ -27,7 +27,7 @@ __all__ = [
     "frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory",
     # rendering
     "default_lightfield_grid", "lightfield_face_rays", "LightFieldRenderer", "render_lightfield",
-    "CameraArrayRenderer", "BoardRenderer", "quantize",
+    "CameraArrayRenderer", "BoardRenderer", "quantize", "mjpg_frame",
     # products on disk
     "scene_for_rig", "trajectory_for_rig", "true_cameramodels", "board_poses", "camera_groups",
     "default_board_frames", "write_lightfield_sequence", "synth_lightfield", "synth_session", "synth_board_session",

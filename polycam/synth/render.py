@@ -255,6 +255,23 @@ class CameraArrayRenderer:
         return res.distance.reshape(H, W), res.primitive.reshape(H, W)
 
 
+def mjpg_frame(grey: np.ndarray, quality: int) -> np.ndarray:
+    """An 8-bit grey image (H, W) as an MJPG camera delivers it: JPEG-encoded at ``quality`` (1–100,
+    OpenCV's encoder: 4:2:0 chroma) and decoded in colour as ``capture/v4l2.py`` does, (H, W, 3) uint8
+    RGB. The mock driver's and synthetic sessions' MJPG cameras (:attr:`polycam.rig.MockSpec.mjpg_quality`)."""
+    import cv2
+
+    img = np.asarray(grey)
+    if img.dtype != np.uint8 or img.ndim != 2:
+        raise ValueError(f"mjpg_frame: expected an (H, W) uint8 image, got {img.dtype} {img.shape}")
+    if not 1 <= int(quality) <= 100:
+        raise ValueError(f"mjpg_frame: quality must be 1..100, got {quality}")
+    ok, data = cv2.imencode(".jpg", np.repeat(img[:, :, None], 3, axis=2), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("mjpg_frame: the JPEG encoder failed")
+    return cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
 def quantize(radiance: np.ndarray, bit_depth: int = 8, noise: float = 0.0,
              rng: np.random.Generator | None = None) -> np.ndarray:
     """Radiance (...) in [0, 1] → uint8 (bit_depth 8) or uint16 (16) with rounding.

@@ -37,11 +37,11 @@ from ..cameras import T_rig_cam_of, nominal_cameramodel
 from ..errors import InputError
 from ..geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T
 from ..lightfield import LightFieldGrid
-from ..rig import Rig
+from ..rig import MJPG_QUALITY, Rig
 from ..trajectory import Trajectory, tum_text
 from .boardrender import BoardRenderer
 from .motion import make_trajectory, static_trajectory
-from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, quantize
+from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, mjpg_frame, quantize
 from .scenes import Scene, make_scene, room_scene
 
 __all__ = [
@@ -108,12 +108,21 @@ def true_cameramodels(rig: Rig, *, seed: int = 0, perturb_position_m: float = 0.
     return out
 
 
-def _image_for(cam, radiance: np.ndarray, bit_depth: int | None, noise: float, rng) -> np.ndarray:
-    """Quantised image in the camera's pixel format: grey (H, W), or (H, W, 3) for RGB."""
+def _mjpg_quality(rig: Rig) -> int:
+    """The JPEG quality of the rig's MJPG cameras: its ``[mock]`` ``mjpg_quality``, else the default."""
+    return rig.mock.mjpg_quality if rig.mock is not None else MJPG_QUALITY
+
+
+def _image_for(cam, radiance: np.ndarray, bit_depth: int | None, noise: float, rng,
+               mjpg_quality: int = MJPG_QUALITY) -> np.ndarray:
+    """Quantised image in the camera's pixel format: grey (H, W), or (H, W, 3) for RGB, and for 8-bit
+    MJPG the JPEG round trip at ``mjpg_quality`` (:func:`~polycam.synth.render.mjpg_frame`)."""
     depth = bit_depth if bit_depth is not None else (16 if cam.pixel_format == "Y16" else 8)
     img = quantize(radiance, depth, noise, rng)
     if cam.pixel_format == "RGB":
         img = np.repeat(img[:, :, None], 3, axis=2)
+    elif cam.pixel_format == "MJPG" and depth == 8:
+        img = mjpg_frame(img, mjpg_quality)
     return img
 
 
@@ -260,7 +269,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
         for i in range(n):
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
             rad = renderer.render(trajectory.T_world_rig[i])
-            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng) for cam in rig.cameras}
+            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng, _mjpg_quality(rig)) for cam in rig.cameras}
             w.add_frame(int(trajectory.timestamps_ns[i]), images)
             if progress is not None:
                 progress(i + 1, n)
@@ -536,7 +545,7 @@ def synth_board_session(rig: Rig, out: str | os.PathLike, *, board, frames: int 
         for i in range(frames):
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
             rad = renderer.render(poses[i])             # the rig is static at the world origin
-            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng) for cam in rig.cameras}
+            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng, _mjpg_quality(rig)) for cam in rig.cameras}
             w.add_frame(int(traj.timestamps_ns[i]), images)
             if progress is not None:
                 progress(i + 1, frames)
