@@ -112,9 +112,10 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
                   perturb_rotation_deg=args.perturb_rotation, perturb_focal_frac=args.perturb_focal,
                   overwrite=args.overwrite)
     if args.board is None:
-        common["specular"] = args.specular
-    elif args.specular:
-        print("polycam synth session: error: --specular applies to scene sessions, not to --board", file=sys.stderr)
+        common.update(specular=args.specular, sync_spread_ms=args.sync_spread_ms)
+    elif args.specular or args.sync_spread_ms:
+        print("polycam synth session: error: --specular and --sync-spread-ms apply to scene sessions, not to "
+              "--board", file=sys.stderr)
         return 2
     with _progress(f"rendering {args.out}", args.frames) as advance:
         if board is not None:
@@ -160,6 +161,11 @@ def cmd_motion(args: argparse.Namespace) -> int:
         F, Ny, Nx, Nv, Nu = store.grid.shape
         print(f"resampling {src} on the fly: {len(store.resampler.cameras)} calibrated cameras onto "
               f"{F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions (geometry {store.seconds_geometry:.1f} s)")
+        from .session import sync_warning
+
+        unsync = sync_warning(store.session)
+        if unsync:
+            print("  warning: " + unsync)
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
@@ -367,6 +373,17 @@ def cmd_info(args: argparse.Namespace) -> int:
         noise = _session_noise_line(s)
         if noise:
             print(noise)
+        if len(s.cameras) > 1 and len(s):
+            import numpy as np
+
+            from .session import sync_warning
+
+            spread = s.capture_spread_ns() / 1e6
+            print(f"  capture times: the cameras' images of a frame span {float(np.median(spread)):.2f} ms "
+                  f"(median; {float(spread.max()):.2f} ms at most)")
+            unsync = sync_warning(s)
+            if unsync:
+                print("  warning: " + unsync)
     elif path.is_dir() and any(path.glob("*.cameramodel")):
         _info_calibration(path)
     elif path.is_dir() and not any((path / n).exists() for n in ("zarr.json", ".zgroup")):
@@ -458,6 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
     pss.add_argument("--specular", type=_nonneg_float, default=0.0,
                      help="strength of a view-dependent (Phong) highlight on every surface: a non-Lambertian "
                           "scene (default 0: Lambertian)")
+    pss.add_argument("--sync-spread-ms", type=_nonneg_float, default=0.0, metavar="MS",
+                     help="unsynchronised cameras: each captures at its own constant offset from the frame's "
+                          "time, uniform in +-MS (seeded), and its image shows that moment (default 0)")
     pss.add_argument("--overwrite", action="store_true", help="replace an existing output")
     pss.set_defaults(func=cmd_synth_session)
 

@@ -38,6 +38,7 @@ import os
 import shutil
 import struct
 import threading
+import warnings
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping
@@ -57,6 +58,8 @@ __all__ = [
     "SessionWriter",
     "Session",
     "open_session",
+    "SYNC_WARN_MS",
+    "sync_warning",
 ]
 
 log = logging.getLogger(__name__)
@@ -730,6 +733,16 @@ class Session:
             img = np.ascontiguousarray(img[:, :, ::-1])  # cv2's BGR → RGB
         return img
 
+    def capture_spread_ns(self) -> np.ndarray:
+        """(F,) int64 [ns]: per frame, the latest minus the earliest of its cameras' image timestamps
+        (0 for a frame with fewer than two images): how far apart in time the cameras captured it."""
+        ts = self.cam_timestamps.astype(np.float64)
+        ts[self.cam_timestamps < 0] = np.nan
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)          # all-NaN rows: frames without images
+            spread = np.nanmax(ts, axis=1) - np.nanmin(ts, axis=1)
+        return np.nan_to_num(spread, nan=0.0).astype(np.int64)
+
     def read_frame(self, i: int) -> dict[str, np.ndarray | None]:
         """Images of frame ``i``: camera id → image, or None where the camera has none."""
         row = self.cam_timestamps[i]
@@ -778,3 +791,25 @@ class Session:
 def open_session(path: str | os.PathLike) -> Session:
     """Open and validate a recorded session folder (see :class:`Session`)."""
     return Session(path)
+
+
+SYNC_WARN_MS = 1.0
+"""[ms] median capture spread (:meth:`Session.capture_spread_ns`) from which the commands that read a
+session's images into a light field warn (:func:`sync_warning`)."""
+
+
+def sync_warning(session: Session) -> str:
+    """'' for a session whose cameras captured each frame together (median spread under
+    :data:`SYNC_WARN_MS`), else the line the CLI prints: the resampling puts every image of a frame at
+    the frame's time, so a moving rig's cameras seen at different times make an inconsistent light field
+    (docs/motion.md, "Unsynchronised cameras")."""
+    if len(session) == 0 or len(session.cameras) < 2:
+        return ""
+    spread = session.capture_spread_ns() / 1e6
+    med = float(np.median(spread))
+    if med < SYNC_WARN_MS:
+        return ""
+    return (f"the cameras are not synchronised: their images of a frame span {med:.1f} ms (median; "
+            f"{float(spread.max()):.1f} ms at most), and each is resampled as if taken at the frame's time; "
+            "on a moving rig expect errors several times larger and a reported std too small "
+            "(docs/motion.md, \"Unsynchronised cameras\")")

@@ -78,6 +78,29 @@ def test_synth_specular(tmp_path):
     assert res.returncode == 2 and "--specular" in res.stderr and not (tmp_path / "b").exists()
 
 
+def test_unsynchronised_sessions_are_named(tmp_path):
+    # a session whose cameras captured each frame up to ~20 ms apart (--sync-spread-ms): polycam info gives
+    # the capture times and warns, so do polycam motion and polycam resample; a synchronised one does not
+    rig = str(REPO / "rigs" / "mock1x5.toml")
+    for name, spread in (("u", "10"), ("s", "0")):
+        res = polycam("synth", "session", "--rig", rig, "--frames", "2", "--sync-spread-ms", spread,
+                      "--out", str(tmp_path / name))
+        assert res.returncode == 0, res.stderr
+    info = polycam("info", str(tmp_path / "u")).stdout
+    assert re.search(r"capture times: the cameras' images of a frame span \d+\.\d\d ms", info)
+    assert "warning: the cameras are not synchronised" in info
+    for argv in (["motion", str(tmp_path / "u"), "--out", str(tmp_path / "t.tum")],
+                 ["resample", str(tmp_path / "u"), "--out", str(tmp_path / "lf.zarr"), "--workers", "0"]):
+        res = polycam(*argv)
+        assert res.returncode == 0 and "warning: the cameras are not synchronised" in res.stdout, res.stderr
+    info = polycam("info", str(tmp_path / "s")).stdout
+    assert "span 0.00 ms" in info and "not synchronised" not in info
+    assert "not synchronised" not in polycam("motion", str(tmp_path / "s"), "--out", str(tmp_path / "t0.tum")).stdout
+    res = polycam("synth", "session", "--rig", rig, "--board", str(REPO / "rigs" / "boards" / "charuco_5x7.toml"),
+                  "--sync-spread-ms", "5", "--out", str(tmp_path / "b"))
+    assert res.returncode == 2 and "--sync-spread-ms" in res.stderr
+
+
 def test_missing_rig_file_is_one_line(tmp_path):
     res = polycam("synth", "session", "--rig", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "s"))
     assert_one_line_error(res, "nope.toml", "no such file")

@@ -416,6 +416,45 @@ def test_session_files_and_ground_truth(tmp_path):
     np.testing.assert_array_equal(img, expect)
 
 
+def test_unsynchronised_cameras(tmp_path):
+    # sync_spread_ms: each camera captures at its own constant offset (within the spread), its image is
+    # the scene at that moment and its timestamp says so; the frames' times and the ground truth stay
+    from polycam.session import open_session, sync_warning
+    from polycam.synth.motion import pose_at
+
+    rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nmotion = "smooth"\nstep_t = 0.02\n')
+    out = synth_session(rig, tmp_path / "s", frames=3, seed=2, supersample=1, bit_depth=16, sync_spread_ms=12.0)
+    s = open_session(out)
+    offsets = s.cam_timestamps - s.timestamps_ns[:, None]
+    assert np.all(offsets == offsets[0]) and np.all(np.abs(offsets) <= 12_000_000) and np.ptp(offsets[0]) > 1e6
+    ref = smooth_trajectory(3, step_t=0.02, step_r_deg=0.2, fps=30.0, seed=2, start_ns=12_000_000)
+    np.testing.assert_array_equal(s.timestamps_ns, ref.timestamps_ns)
+    np.testing.assert_allclose(s.groundtruth().T_world_rig, ref.T_world_rig, atol=1e-8)
+    renderer = CameraArrayRenderer(rig, true_cameramodels(rig, seed=2), room_scene(4.0, seed=2), supersample=1)
+    k = rig.ids.index("cam01")
+    t = int(s.cam_timestamps[1, k])
+    np.testing.assert_array_equal(s.read_frame(1)["cam01"],
+                                  quantize(renderer.render_camera("cam01", pose_at(ref, t)), 16))
+    assert not np.allclose(pose_at(ref, t), ref.T_world_rig[1])
+    assert "not synchronised" in sync_warning(s) and s.capture_spread_ns()[0] == np.ptp(offsets[0])
+    # without the spread: one time per frame, no warning
+    s0 = open_session(synth_session(rig, tmp_path / "s0", frames=2, seed=2, supersample=1))
+    assert not s0.capture_spread_ns().any() and sync_warning(s0) == ""
+
+
+def test_pose_between_frames():
+    from polycam.synth.motion import pose_at
+
+    tr = smooth_trajectory(4, step_t=0.01, step_r_deg=0.5, seed=3, start_ns=5_000)
+    for i, t in enumerate(tr.timestamps_ns):
+        np.testing.assert_allclose(pose_at(tr, t), tr.T_world_rig[i], atol=1e-12)
+    mid = pose_at(tr, 0.5 * (tr.timestamps_ns[1] + tr.timestamps_ns[2]))
+    d1, d2 = (np.linalg.norm(mid[:3, 3] - tr.T_world_rig[j][:3, 3]) for j in (1, 2))
+    assert abs(d1 - d2) < 0.1 * (d1 + d2)                     # half-way along the step
+    before = pose_at(tr, tr.timestamps_ns[0] - 1e7)            # extrapolated with the first step
+    assert 0 < np.linalg.norm(before[:3, 3]) < 0.01
+
+
 def test_lightfield_store_and_ground_truth(tmp_path):
     from polycam.lfstore import open_lightfield
 

@@ -40,7 +40,7 @@ from ..lightfield import LightFieldGrid
 from ..rig import MJPG_QUALITY, Rig
 from ..trajectory import Trajectory, tum_text
 from .boardrender import BoardRenderer
-from .motion import make_trajectory, static_trajectory
+from .motion import make_trajectory, pose_at, static_trajectory
 from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, mjpg_frame, quantize
 from .scenes import Scene, make_scene, room_scene
 
@@ -62,7 +62,7 @@ log = logging.getLogger(__name__)
 Progress = Callable[[int, int], None]
 """``progress(done, total)``: called after each frame."""
 
-_SALT_PERTURB, _SALT_NOISE, _SALT_BOARD = 31, 32, 33
+_SALT_PERTURB, _SALT_NOISE, _SALT_BOARD, _SALT_SYNC = 31, 32, 33, 34
 
 
 def _mrcal():
@@ -106,6 +106,14 @@ def true_cameramodels(rig: Rig, *, seed: int = 0, perturb_position_m: float = 0.
         out[cam.id] = mrcal.cameramodel(intrinsics=(lensmodel, intr), imagersize=m.imagersize(),
                                         rt_cam_ref=rt_from_T(T_inverse(T_rig_cam)))
     return out
+
+
+def _sync_offsets_ns(rig: Rig, seed: int, spread_ms: float) -> dict[str, int]:
+    """Camera id → its constant capture offset [ns], uniform in ±``spread_ms`` (seeded); {} for 0."""
+    if spread_ms <= 0.0:
+        return {}
+    rng = np.random.default_rng([seed, _SALT_SYNC])
+    return {c.id: int(round(rng.uniform(-spread_ms, spread_ms) * 1e6)) for c in rig.cameras}
 
 
 def _mjpg_quality(rig: Rig) -> int:
@@ -229,8 +237,8 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
                   noise: float | None = None, perturb_position_m: float = 0.0,
                   perturb_rotation_deg: float = 0.0, perturb_focal_frac: float = 0.0,
                   distance: float | None = None, trajectory: Trajectory | None = None,
-                  models: dict | None = None, specular: float = 0.0, overwrite: bool = False, threads: int = 2,
-                  progress: Progress | None = None) -> Path:
+                  models: dict | None = None, specular: float = 0.0, sync_spread_ms: float = 0.0,
+                  overwrite: bool = False, threads: int = 2, progress: Progress | None = None) -> Path:
     """``polycam synth session``: render a rig moving through a scene into a session folder.
 
     Defaults come from the rig's ``[mock]`` table where it has one: ``scene``,
@@ -245,6 +253,11 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     perturb_*: see :func:`true_cameramodels`; ignored when ``models`` are given.
     trajectory: ``T_world_rig`` per frame (overrides frames / motion settings).
     specular: > 0 adds a view-dependent highlight of that strength (:attr:`Scene.specular`).
+    sync_spread_ms: > 0: free-running, unsynchronised cameras: each camera captures at its own
+        constant offset from the frames' times, uniform in ±``sync_spread_ms`` (seeded), and its image
+        shows the scene at that time (:func:`~polycam.synth.motion.pose_at`) with that timestamp; the
+        frame's timestamp and the ground truth stay at the frames' times (a trajectory built here then
+        starts at ``sync_spread_ms``, so that no timestamp is negative).
     Writes ``groundtruth.tum`` and ``calib/<cam>.cameramodel`` (the true models).
     """
     from ..session import SessionWriter
@@ -253,13 +266,21 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     seed = seed if seed is not None else (mock.seed if mock is not None else 0)
     noise = noise if noise is not None else (mock.noise if mock is not None else 0.0)
     sc = _with_specular(scene_for_rig(rig, scene, distance=distance, seed=seed), specular)
+    if not 0.0 <= sync_spread_ms < math.inf:
+        raise ValueError(f"sync_spread_ms must be >= 0 and finite, got {sync_spread_ms}")
+    spread_ns = int(math.ceil(sync_spread_ms * 1e6))
     if trajectory is None:
-        trajectory = trajectory_for_rig(rig, frames, seed=seed)
+        trajectory = trajectory_for_rig(rig, frames, seed=seed, start_ns=spread_ns)
+    offsets = _sync_offsets_ns(rig, seed, sync_spread_ms)
+    if offsets and int(trajectory.timestamps_ns[0]) + min(offsets.values()) < 0:
+        raise ValueError(f"sync_spread_ms {sync_spread_ms}: the trajectory must start at {spread_ns} ns or later")
     if models is None:
         models = true_cameramodels(rig, seed=seed, perturb_position_m=perturb_position_m,
                                    perturb_rotation_deg=perturb_rotation_deg,
                                    perturb_focal_frac=perturb_focal_frac)
     renderer = CameraArrayRenderer(rig, models, sc, supersample)
+    own = ({c.id: CameraArrayRenderer(dataclasses.replace(rig, cameras=(c,)), {c.id: models[c.id]}, sc, supersample)
+            for c in rig.cameras} if offsets else {})          # one renderer per camera: its own pose
     n = len(trajectory)
     log.info("synth session %s: %d frames of %d cameras, scene %s (%.3g m), supersample %d", out, n,
              len(rig.cameras), sc.name, sc.distance, supersample)
@@ -268,9 +289,20 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
             w.write_calibration(cam.id, models[cam.id])
         for i in range(n):
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
-            rad = renderer.render(trajectory.T_world_rig[i])
-            images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng, _mjpg_quality(rig)) for cam in rig.cameras}
-            w.add_frame(int(trajectory.timestamps_ns[i]), images)
+            t_f = int(trajectory.timestamps_ns[i])
+            if not offsets:
+                rad = renderer.render(trajectory.T_world_rig[i])
+                images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng, _mjpg_quality(rig))
+                          for cam in rig.cameras}
+                w.add_frame(t_f, images)
+            else:
+                stamps = {}
+                for cam in rig.cameras:
+                    ts = t_f + offsets[cam.id]
+                    rad = own[cam.id].render(pose_at(trajectory, ts))[cam.id]
+                    w.write_image(cam.id, ts, _image_for(cam, rad, bit_depth, noise, rng, _mjpg_quality(rig)))
+                    stamps[cam.id] = ts
+                w.write_frame(t_f, stamps)
             if progress is not None:
                 progress(i + 1, n)
         w.write_groundtruth(trajectory)
