@@ -27,7 +27,8 @@ log = logging.getLogger(__name__)
 
 def calibration_draws(session_path: str | os.PathLike, models: dict, grid: LightFieldGrid, *, draws: int,
                       seed: int = 0, resample_options=None, motion_options=None, scale_selection: bool = False,
-                      progress: Callable[[int, int], None] | None = None, cov=None) -> tuple[np.ndarray, np.ndarray]:
+                      progress: Callable[[int, int], None] | None = None, cov=None,
+                      capture_motion=None) -> tuple[np.ndarray, np.ndarray]:
     """Re-solve every frame pair of a session with ``draws`` model sets drawn from the calibration
     of ``models`` (camera id → mrcal cameramodel with its ``optimization_inputs``), each at ``+δ``
     and ``−δ`` (``2 draws`` re-solves), resampled onto ``grid`` with ``resample_options`` and solved
@@ -36,8 +37,9 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
     Returns ((P, 6, 6) each pair's covariance of (t [m], r [rad]) over the draws, NaN where no draw
     solved it; (P,) the draws that did): :func:`polycam.calib_spread.antithetic_covariance`.
     ``progress(done, total)`` after each re-solve. ``cov``: the models'
-    :func:`calib.draws.calibration_covariance` when already computed. Raises InputError when the
-    models have no calibration covariance.
+    :func:`calib.draws.calibration_covariance` when already computed. ``capture_motion``: as the nominal
+    solve's (:class:`resample.stream.SessionLightField`: unsynchronised cameras moved to where they
+    captured). Raises InputError when the models have no calibration covariance.
     """
     from calib.draws import calibration_covariance, covariance_factor, drawn_models
     from resample.stream import SessionLightField
@@ -58,7 +60,7 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
         for sign, acc in ((1.0, plus), (-1.0, minus)):
             with _quiet("resample"):                  # its warnings repeat the nominal resampling's
                 lf = SessionLightField(session_path, models=drawn_models(models, cov, sign * z, factor), grid=grid,
-                                       options=resample_options, camera_noise=False)
+                                       options=resample_options, camera_noise=False, capture_motion=capture_motion)
                 _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
             acc.append(pair_vectors(results))
             if progress is not None:

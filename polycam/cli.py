@@ -16,6 +16,7 @@ import math
 import os
 import statistics
 import sys
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -157,15 +158,18 @@ def cmd_motion(args: argparse.Namespace) -> int:
         except InputError as e:
             raise InputError(f"{args.calib or src / 'calib'}: {e}") from None
     truth_name = src / "groundtruth.tum"
+    unsync = ""
     if hasattr(store, "resampler"):
         F, Ny, Nx, Nv, Nu = store.grid.shape
         print(f"resampling {src} on the fly: {len(store.resampler.cameras)} calibrated cameras onto "
               f"{F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions (geometry {store.seconds_geometry:.1f} s)")
-        from .session import sync_warning
+        from .session import SYNC_AS_IF_TOGETHER, sync_warning
 
         unsync = sync_warning(store.session)
         if unsync:
-            print("  warning: " + unsync)
+            print("  warning: " + unsync + (SYNC_AS_IF_TOGETHER if args.sync_correct == "off" else
+                                            "; the motion is solved twice, the second time with every camera "
+                                            "where it captured its image (--sync-correct)"))
     from .motion import estimate_trajectory
     from .trajectory import write_tum
 
@@ -179,13 +183,32 @@ def cmd_motion(args: argparse.Namespace) -> int:
                                                 scale_selection=scale_selection)
         except InputError as e:                       # e.g. a frame with NaNs: name the store
             raise InputError(f"{src}: {e}") from None
+    capture_motion = None
+    if hasattr(store, "resampler") and args.sync_correct == "auto" and unsync:
+        import numpy as np
+        from resample.stream import SessionLightField   # the CLI layer may import stages
+
+        capture_motion = np.stack([r.T_prev_next for r in results])   # a failed pair: the identity
+        first = store
+        store = SessionLightField(first.session, models=first.models, grid=first.grid,
+                                  options=first.resampler.options, capture_motion=capture_motion)
+        t0 = time.perf_counter()
+        with _progress(f"motion {src.name}, cameras where they captured", len(store) - 1) as advance:
+            try:
+                traj, results = estimate_trajectory(store, progress=advance, options=opts,
+                                                    scale_selection=scale_selection)
+            except InputError as e:
+                raise InputError(f"{src}: {e}") from None
+        print(f"  second pass: every frame resampled with each camera where it captured its image "
+              f"({time.perf_counter() - t0:.1f} s)")
     if calib_cov is not None:
         from .calib_draws_cli import add_calibration_share
 
         results, line, _ = add_calibration_share(
             store.path, store.models, store.grid, results, draws=args.calib_draws,
             bar=lambda total: _progress(f"calibration draws {src.name}", total), cov=calib_cov,
-            resample_options=store.resampler.options, motion_options=opts, scale_selection=scale_selection)
+            resample_options=store.resampler.options, motion_options=opts, scale_selection=scale_selection,
+            capture_motion=capture_motion)
         print("  " + line)
     write_tum(args.out, traj)
     failed = [r for r in results if not r]
@@ -376,14 +399,14 @@ def cmd_info(args: argparse.Namespace) -> int:
         if len(s.cameras) > 1 and len(s):
             import numpy as np
 
-            from .session import sync_warning
+            from .session import SYNC_AS_IF_TOGETHER, sync_warning
 
             spread = s.capture_spread_ns() / 1e6
             print(f"  capture times: the cameras' images of a frame span {float(np.median(spread)):.2f} ms "
                   f"(median; {float(spread.max()):.2f} ms at most)")
             unsync = sync_warning(s)
             if unsync:
-                print("  warning: " + unsync)
+                print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)
     elif path.is_dir() and any(path.glob("*.cameramodel")):
         _info_calibration(path)
     elif path.is_dir() and not any((path / n).exists() for n in ("zarr.json", ".zgroup")):
@@ -496,6 +519,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "models drawn from the calibration's uncertainty, each at +δ and −δ (2N re-solves), and "
                          "add the estimates' spread to each pair's covariance (default 0: the camera models are "
                          "taken as exact; docs/motion.md, \"How far to trust the covariance\")")
+    pm.add_argument("--sync-correct", choices=("auto", "off"), default="auto",
+                    help="SESSION whose cameras are not synchronised (their images of a frame over 1 ms apart, "
+                         "median): solve a second time with every frame resampled with each camera where it "
+                         "captured its image, its share of the first pass's motion (auto, the default), or not "
+                         "(off; docs/motion.md, \"Unsynchronised cameras\")")
     add_solver_options(pm)
     pm.set_defaults(func=cmd_motion)
 

@@ -272,4 +272,10 @@ def cmd_depth(args: argparse.Namespace) -> int:
             err = pair_errors(est, sub)
             print(f"  motion vs groundtruth: translation {100 * float(err.t_rel[0]):.2f}%, "
                   f"rotation {100 * float(err.w_rel[0]):.2f}%")
+    if hasattr(store, "session"):
+        from .session import SYNC_AS_IF_TOGETHER, sync_warning
+
+        unsync = sync_warning(store.session)
+        if unsync:
+            print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)
     return 0

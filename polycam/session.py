@@ -59,6 +59,7 @@ __all__ = [
     "Session",
     "open_session",
     "SYNC_WARN_MS",
+    "SYNC_AS_IF_TOGETHER",
     "sync_warning",
 ]
 
@@ -800,9 +801,10 @@ session's images into a light field warn (:func:`sync_warning`)."""
 
 def sync_warning(session: Session) -> str:
     """'' for a session whose cameras captured each frame together (median spread under
-    :data:`SYNC_WARN_MS`), else the line the CLI prints: the resampling puts every image of a frame at
-    the frame's time, so a moving rig's cameras seen at different times make an inconsistent light field
-    (docs/motion.md, "Unsynchronised cameras")."""
+    :data:`SYNC_WARN_MS`), else the start of the line the CLI prints, which each command ends with what
+    it does about it (:data:`SYNC_AS_IF_TOGETHER` or its own): the resampling puts every image of a frame
+    at the frame's time, so a moving rig's cameras seen at different times make an inconsistent light
+    field (docs/motion.md, "Unsynchronised cameras")."""
     if len(session) == 0 or len(session.cameras) < 2:
         return ""
     spread = session.capture_spread_ns() / 1e6
@@ -810,6 +812,10 @@ def sync_warning(session: Session) -> str:
     if med < SYNC_WARN_MS:
         return ""
     return (f"the cameras are not synchronised: their images of a frame span {med:.1f} ms (median; "
-            f"{float(spread.max()):.1f} ms at most), and each is resampled as if taken at the frame's time; "
-            "on a moving rig expect errors several times larger and a reported std too small "
-            "(docs/motion.md, \"Unsynchronised cameras\")")
+            f"{float(spread.max()):.1f} ms at most)")
+
+
+SYNC_AS_IF_TOGETHER = ("; each is resampled as if taken at the frame's time, which on a moving rig makes the errors "
+                       "several times larger and the reported std too small (polycam motion SESSION corrects "
+                       "for it; docs/motion.md, \"Unsynchronised cameras\")")
+"""How :func:`sync_warning`'s line ends where the images are resampled as they are."""

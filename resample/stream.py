@@ -33,7 +33,8 @@ from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
 from polycam.session import Session, open_session
 
-__all__ = ["SessionLightField", "NOISE_CAMERAS_PER_FRAME", "NOISE_IMAGES", "NOISE_PROBE", "NOISE_PROBE_SEED"]
+__all__ = ["SessionLightField", "models_at_capture", "NOISE_CAMERAS_PER_FRAME", "NOISE_IMAGES", "NOISE_PROBE",
+           "NOISE_PROBE_SEED"]
 
 log = logging.getLogger(__name__)
 
@@ -58,13 +59,19 @@ class SessionLightField:
     grid: the two-plane grid (default :func:`resample.grid.auto_grid` of the models
         with ``uv_step_px`` and ``xy_oversample``); options: :class:`resample.resampler.ResampleOptions`;
         models: camera id → mrcal cameramodel, overriding ``calib_dir``; camera_noise: estimate the
-        cameras' sensor noise as frames are resampled (off for re-solves that do not report it).
+        cameras' sensor noise as frames are resampled (off for re-solves that do not report it);
+        capture_motion: (T - 1, 4, 4) ``T_prev_next`` per frame pair (a first estimate of the session's
+        motion): each frame is then resampled with every camera moved to where it was when it captured
+        its image, its share of the motion to the neighbouring frame (:func:`models_at_capture`), for
+        cameras that are not synchronised (:func:`polycam.session.sync_warning`); a splat geometry per
+        frame, so several times the resampling's cost.
     Raises InputError for a session without frames or without a calibration.
     """
 
     def __init__(self, session_path: str | os.PathLike | Session, *, calib_dir: str | os.PathLike | None = None,
                  grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, xy_oversample: int = 2,
-                 options=None, models: dict | None = None, camera_noise: bool = True):
+                 options=None, models: dict | None = None, camera_noise: bool = True,
+                 capture_motion=None):
         from .grid import auto_grid
         from .pipeline import _channels_of, open_calibration
         from .resampler import Resampler, noise_cameras
@@ -100,6 +107,10 @@ class SessionLightField:
         """The camera ids whose images give a noise estimate (:func:`~resample.resampler.noise_cameras`:
         not MJPG)."""
         self._cached: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._frame_resampler = None
+        self.capture_motion = None if capture_motion is None else np.asarray(capture_motion, np.float64)
+        if self.capture_motion is not None and self.capture_motion.shape != (len(self.session) - 1, 4, 4):
+            raise ValueError(f"capture_motion must be ({len(self.session) - 1}, 4, 4), got {self.capture_motion.shape}")
 
     @property
     def timestamps_ns(self) -> np.ndarray:
@@ -133,7 +144,7 @@ class SessionLightField:
         else:
             if self._estimate_noise:
                 self._estimate_camera_noise(t, images)
-            r = self.resampler.resample(images)
+            r = self._resampler_for(t).resample(images)
             L, W = r.L, r.W
             self.cameras_present[t] = len(r.cameras)
         self.seconds_frames += time.perf_counter() - t0
@@ -141,6 +152,19 @@ class SessionLightField:
         self.w_sums[t] = float(np.mean(W, dtype=np.float64))
         self._cached = (t, L, W)
         return L, W
+
+    def _resampler_for(self, t: int):
+        """The resampler of frame t: the session's, or with ``capture_motion`` one of its own, with the
+        cameras where they captured that frame (the last one kept)."""
+        if self.capture_motion is None:
+            return self.resampler
+        if self._frame_resampler is None or self._frame_resampler[0] != t:
+            from .resampler import Resampler
+
+            models = models_at_capture(self.models, self.session, t, self.capture_motion)
+            self._frame_resampler = (t, Resampler(models, self.grid, channels=self.channels,
+                                                  options=self.resampler.options))
+        return self._frame_resampler[1]
 
     def _estimate_camera_noise(self, t: int, images: dict) -> None:
         """The sensor noise of the next ``NOISE_CAMERAS_PER_FRAME`` cameras (in the session's camera
@@ -216,7 +240,7 @@ class SessionLightField:
                 grey = np.ndim(img) == 2 or np.shape(img)[2] == 1   # its noise is the same in every channel
                 a += rng.normal(0.0, probe, a.shape[:2] + (1 if grey else a.shape[2],)).astype(np.float32)
                 probed[c] = a[:, :, 0] if self.channels == 1 else a
-            r = self.resampler.resample(probed)
+            r = self._resampler_for(t).resample(probed)
             N = (r.L - L) / np.float32(probe)
             if N.ndim == 6:                       # colour: the solver averages the channels
                 N = N.mean(axis=-1)
@@ -251,3 +275,36 @@ class SessionLightField:
     def mean_W(self) -> float:
         """Mean confidence over the frames resampled so far (NaN before any)."""
         return float(np.mean(list(self.w_sums.values()))) if self.w_sums else float("nan")
+
+
+def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.ndarray) -> dict:
+    """Camera id → its model in the rig frame at frame ``t``'s time, moved to where the camera was when
+    it captured its image of that frame: by the share ``d / Δt`` of the motion to the next frame (``d``
+    = its image's timestamp minus the frame's, ``Δt`` the frame interval), or back along the previous
+    one for an image taken early (the first and last frames extrapolate their one neighbour's). The
+    motion's share is its rotation vector and translation scaled alike, as
+    :func:`polycam.synth.motion.pose_at` interpolates. ``T_prev_next``: (T - 1, 4, 4) rig motion per
+    frame pair (frame i to i + 1, as :class:`polycam.motion.PairResult`); models: camera id → mrcal
+    cameramodel (rig frame; the session's cameras without an image keep theirs)."""
+    import mrcal
+
+    from polycam.cameras import T_rig_cam_of
+    from polycam.geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, rt_from_T
+
+    n = len(session)
+    ts = session.timestamps_ns
+    out = dict(models)
+    for k, cam in enumerate(session.cameras):
+        stamp = int(session.cam_timestamps[t, k])
+        if cam not in models or stamp < 0 or n < 2:
+            continue
+        i = min(max(t if stamp >= int(ts[t]) else t - 1, 0), n - 2)   # the pair whose motion spans the capture
+        step = T_prev_next[i]
+        a = float(stamp - int(ts[i])) / float(ts[i + 1] - ts[i])      # along it from frame i
+        D = T_from_Rt(R_from_r(a * r_from_R(step[:3, :3])), a * step[:3, 3])
+        if i != t:                                                    # i = t - 1: back to frame t
+            D = T_inverse(step) @ D
+        m = models[cam]
+        out[cam] = mrcal.cameramodel(intrinsics=m.intrinsics(), imagersize=m.imagersize(),
+                                     rt_cam_ref=rt_from_T(T_inverse(D @ T_rig_cam_of(m))))
+    return out
