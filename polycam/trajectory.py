@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import FormatError
-from .geometry import R_from_quat, T_from_Rt, T_inverse, quat_from_R
+from .geometry import R_from_quat, R_from_r, T_from_Rt, T_inverse, quat_from_R, r_from_R
 from .tomlio import atomic_write_text
 
-__all__ = ["Trajectory", "read_tum", "write_tum", "tum_text"]
+__all__ = ["Trajectory", "pose_at", "read_tum", "write_tum", "tum_text"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,24 @@ class Trajectory:
         for M in T_prev_next:
             T.append(T[-1] @ M)
         return cls(np.asarray(timestamps_ns, dtype=np.int64), np.stack(T))
+
+
+def pose_at(trajectory: Trajectory, t_ns: float) -> np.ndarray:
+    """(4, 4) ``T_world_rig`` at time ``t_ns`` [ns]: between two frames the step from the earlier to
+    the later one (``T[i]⁻¹ T[i+1]``) taken in the fraction elapsed, split linearly in its rotation
+    vector and its translation (as :func:`polycam.synth.smooth_trajectory` builds the frames' steps);
+    before the first frame and after the last, that end's step extrapolated. Where an unsynchronised
+    camera was when it captured: :func:`polycam.synth.synth_session`'s ``sync_spread_ms`` renders it
+    there, :func:`resample.stream.models_at_capture` puts it there."""
+    ts = np.asarray(trajectory.timestamps_ns, np.float64)
+    T = trajectory.T_world_rig
+    if len(ts) < 2:
+        return T[0].copy()
+    i = int(np.clip(np.searchsorted(ts, t_ns, side="right") - 1, 0, len(ts) - 2))
+    a = (float(t_ns) - ts[i]) / (ts[i + 1] - ts[i])
+    step = T_inverse(T[i]) @ T[i + 1]
+    part = T_from_Rt(R_from_r(a * r_from_R(step[:3, :3])), a * step[:3, 3])
+    return T[i] @ part
 
 
 def tum_text(timestamps_ns: np.ndarray, T: np.ndarray) -> str:

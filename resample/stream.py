@@ -281,29 +281,27 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     """Camera id → its model in the rig frame at frame ``t``'s time, moved to where the camera was when
     it captured its image of that frame: by the share ``d / Δt`` of the motion to the next frame (``d``
     = its image's timestamp minus the frame's, ``Δt`` the frame interval), or back along the previous
-    one for an image taken early (the first and last frames extrapolate their one neighbour's). The
-    motion's share is its rotation vector and translation scaled alike, as
-    :func:`polycam.synth.motion.pose_at` interpolates. ``T_prev_next``: (T - 1, 4, 4) rig motion per
+    one for an image taken early (the first and last frames extrapolate their one neighbour's): the
+    poses :func:`polycam.trajectory.pose_at` interpolates, which the synthetic sessions render.
+    ``T_prev_next``: (T - 1, 4, 4) rig motion per
     frame pair (frame i to i + 1, as :class:`polycam.motion.PairResult`); models: camera id → mrcal
     cameramodel (rig frame; the session's cameras without an image keep theirs)."""
     import mrcal
 
     from polycam.cameras import T_rig_cam_of
-    from polycam.geometry import R_from_r, T_from_Rt, T_inverse, r_from_R, rt_from_T
+    from polycam.geometry import T_inverse, rt_from_T
+    from polycam.trajectory import Trajectory, pose_at
 
-    n = len(session)
-    ts = session.timestamps_ns
+    if len(session) < 2:
+        return dict(models)
+    rel = Trajectory.from_relative(session.timestamps_ns, np.asarray(T_prev_next, np.float64))
+    T_t_world = T_inverse(rel.T_world_rig[t])
     out = dict(models)
     for k, cam in enumerate(session.cameras):
         stamp = int(session.cam_timestamps[t, k])
-        if cam not in models or stamp < 0 or n < 2:
+        if cam not in models or stamp < 0:
             continue
-        i = min(max(t if stamp >= int(ts[t]) else t - 1, 0), n - 2)   # the pair whose motion spans the capture
-        step = T_prev_next[i]
-        a = float(stamp - int(ts[i])) / float(ts[i + 1] - ts[i])      # along it from frame i
-        D = T_from_Rt(R_from_r(a * r_from_R(step[:3, :3])), a * step[:3, 3])
-        if i != t:                                                    # i = t - 1: back to frame t
-            D = T_inverse(step) @ D
+        D = T_t_world @ pose_at(rel, stamp)                  # the rig at the capture, in the rig at frame t
         m = models[cam]
         out[cam] = mrcal.cameramodel(intrinsics=m.intrinsics(), imagersize=m.imagersize(),
                                      rt_cam_ref=rt_from_T(T_inverse(D @ T_rig_cam_of(m))))

@@ -122,11 +122,11 @@ def test_motion_on_a_session_without_calibration_names_it(session, tmp_path, cap
 
 def test_models_at_capture_follow_the_capture_times(tmp_path):
     # each camera moved by its share of the motion around its frame: with the true motion, exactly where
-    # the synthetic session rendered it (polycam.synth.motion.pose_at); synchronised cameras stay put
+    # the synthetic session rendered it (polycam.trajectory.pose_at); synchronised cameras stay put
     from polycam.cameras import T_rig_cam_of
     from polycam.geometry import T_inverse
     from polycam.session import open_session
-    from polycam.synth.motion import pose_at
+    from polycam.trajectory import pose_at
     from resample.stream import models_at_capture
 
     (tmp_path / "rig.toml").write_text(RIG_TEXT)

@@ -420,7 +420,7 @@ def test_unsynchronised_cameras(tmp_path):
     # sync_spread_ms: each camera captures at its own constant offset (within the spread), its image is
     # the scene at that moment and its timestamp says so; the frames' times and the ground truth stay
     from polycam.session import open_session, sync_warning
-    from polycam.synth.motion import pose_at
+    from polycam.trajectory import pose_at
 
     rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nmotion = "smooth"\nstep_t = 0.02\n')
     out = synth_session(rig, tmp_path / "s", frames=3, seed=2, supersample=1, bit_depth=16, sync_spread_ms=12.0)
@@ -443,7 +443,7 @@ def test_unsynchronised_cameras(tmp_path):
 
 
 def test_pose_between_frames():
-    from polycam.synth.motion import pose_at
+    from polycam.trajectory import pose_at
 
     tr = smooth_trajectory(4, step_t=0.01, step_r_deg=0.5, seed=3, start_ns=5_000)
     for i, t in enumerate(tr.timestamps_ns):

@@ -17,10 +17,10 @@ import math
 
 import numpy as np
 
-from ..geometry import R_from_r, T_from_Rt, T_inverse, r_from_R
+from ..geometry import R_from_r, T_from_Rt
 from ..trajectory import Trajectory
 
-__all__ = ["frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory", "pose_at"]
+__all__ = ["frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory"]
 
 _SALT_MOTION = 21
 
@@ -84,19 +84,3 @@ def make_trajectory(motion: str, frames: int, *, step_t: float = 0.005, step_r_d
                                  start_ns=start_ns)
     raise ValueError(f"unknown motion {motion!r}; expected 'static' or 'smooth'")
 
-
-def pose_at(trajectory: Trajectory, t_ns: float) -> np.ndarray:
-    """(4, 4) ``T_world_rig`` at time ``t_ns`` [ns]: between two frames the step from the earlier to
-    the later one (``T[i]⁻¹ T[i+1]``) taken in the fraction elapsed, split linearly in its rotation
-    vector and its translation (the frames' own steps, :func:`smooth_trajectory`); before the first
-    frame and after the last, that end's step extrapolated (a camera capturing a little off the
-    frames' times, :func:`polycam.synth.synth_session`'s ``sync_spread_ms``)."""
-    ts = np.asarray(trajectory.timestamps_ns, np.float64)
-    T = trajectory.T_world_rig
-    if len(ts) < 2:
-        return T[0].copy()
-    i = int(np.clip(np.searchsorted(ts, t_ns, side="right") - 1, 0, len(ts) - 2))
-    a = (float(t_ns) - ts[i]) / (ts[i + 1] - ts[i])
-    step = T_inverse(T[i]) @ T[i + 1]
-    part = T_from_Rt(R_from_r(a * r_from_R(step[:3, :3])), a * step[:3, 3])
-    return T[i] @ part

@@ -38,9 +38,9 @@ from ..errors import InputError
 from ..geometry import R_from_r, T_from_Rt, T_inverse, rt_from_T
 from ..lightfield import LightFieldGrid
 from ..rig import MJPG_QUALITY, Rig
-from ..trajectory import Trajectory, tum_text
+from ..trajectory import Trajectory, pose_at, tum_text
 from .boardrender import BoardRenderer
-from .motion import make_trajectory, pose_at, static_trajectory
+from .motion import make_trajectory, static_trajectory
 from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, mjpg_frame, quantize
 from .scenes import Scene, make_scene, room_scene
 
@@ -255,7 +255,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     specular: > 0 adds a view-dependent highlight of that strength (:attr:`Scene.specular`).
     sync_spread_ms: > 0: free-running, unsynchronised cameras: each camera captures at its own
         constant offset from the frames' times, uniform in ±``sync_spread_ms`` (seeded), and its image
-        shows the scene at that time (:func:`~polycam.synth.motion.pose_at`) with that timestamp; the
+        shows the scene at that time (:func:`~polycam.trajectory.pose_at`) with that timestamp; the
         frame's timestamp and the ground truth stay at the frames' times (a trajectory built here then
         starts at ``sync_spread_ms``, so that no timestamp is negative).
     Writes ``groundtruth.tum`` and ``calib/<cam>.cameramodel`` (the true models).
