@@ -9,6 +9,7 @@ line, so bad usage exits 2 with argparse's message. :func:`check_output_file` an
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from pathlib import Path
 from typing import Callable
@@ -20,7 +21,7 @@ __all__ = ["number", "positive_int", "nonneg_int", "positive_float", "nonneg_flo
 
 
 def number(kind: type, minimum: float, strict: bool = False, *, why: str = "") -> Callable[[str], float]:
-    """A parser accepting a ``kind`` (int or float) >= ``minimum`` (> with ``strict``).
+    """A parser accepting a finite ``kind`` (int or float) >= ``minimum`` (> with ``strict``).
 
     ``why`` is appended to the range message, e.g. ``"PnP needs 6 corners"``.
     """
@@ -34,6 +35,8 @@ def number(kind: type, minimum: float, strict: bool = False, *, why: str = "") -
             raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
         if not (v > minimum if strict else v >= minimum):
             raise argparse.ArgumentTypeError(f"expected {what} {bound}, got {text}")
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
         return v
 
     return parse

@@ -72,6 +72,8 @@ def test_synth_specular(tmp_path):
     assert diff.min() >= -1e-6 and diff.max() > 0.05          # highlights only add light
     res = polycam("synth", "lightfield", "--specular", "-1", "--out", str(tmp_path / "x.zarr"))
     assert res.returncode == 2 and "--specular" in res.stderr
+    res = polycam("synth", "lightfield", "--specular", "inf", "--out", str(tmp_path / "x.zarr"))
+    assert res.returncode == 2 and "finite" in res.stderr
     board = REPO / "rigs" / "boards" / "charuco_5x7.toml"
     res = polycam("synth", "session", "--rig", str(REPO / "rigs" / "mock5x5.toml"), "--board", str(board),
                   "--specular", "0.3", "--out", str(tmp_path / "b"))
