@@ -148,7 +148,7 @@ def test_models_at_capture_follow_the_capture_times(tmp_path):
 
 
 def test_motion_corrects_unsynchronised_cameras(tmp_path, capsys):
-    # a row of five cameras capturing up to 16 ms apart: polycam motion solves again with every camera where
+    # a row of five cameras, each capturing at its own offset within ±16 ms: polycam motion solves again with every camera where
     # it captured (--sync-correct auto, the default), 3x smaller errors than with the images taken as
     # simultaneous (measured 1.42 against 4.77 %)
     from polycam.evaluate import pair_errors
