@@ -163,6 +163,8 @@ def cmd_depth(args: argparse.Namespace) -> int:
     from .lightfield import finite_frame
     from .motion_options import changed_options
     from .motion_weights import frame_noise_variance
+    from .motion import estimate_motion
+    from .session import SYNC_AS_IF_TOGETHER, sync_warning
 
     opts = solver_options(args)                       # before anything is read or written
     check_output_folder(args.out, "--out")
@@ -195,8 +197,6 @@ def cmd_depth(args: argparse.Namespace) -> int:
         M = pair_motion_from_trajectory(args.traj, int(ts[i]), int(ts[i + 1]))
         motion = {"motion_source": str(args.traj)}
     else:
-        from .motion import estimate_motion
-
         res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i, options=opts)
         if not res:
             raise InputError(f"{src}: motion of frames {i}, {i + 1} failed ({res.reason}); "
@@ -206,6 +206,35 @@ def cmd_depth(args: argparse.Namespace) -> int:
         changed = changed_options(opts)
         if changed:
             motion["motion_options"] = changed
+    unsync = sync_warning(store.session) if hasattr(store, "session") else ""
+    if unsync and not stereo:
+        # unsynchronised cameras: the pair resampled again with each camera where it captured its image, its
+        # share of the motion to the neighbouring frame (the pairs before and after too: their own motion,
+        # estimated or from --traj), and its motion estimated again
+        from resample.stream import SessionLightField   # the CLI layer may import stages
+
+        capture = np.repeat(M[None], n - 1, axis=0)
+        for p in (i - 1, i + 1):
+            if 0 <= p < n - 1:
+                if args.traj:
+                    capture[p] = pair_motion_from_trajectory(args.traj, int(ts[p]), int(ts[p + 1]))
+                else:
+                    a = (store.frame(p).copy(), store.weights(p).copy())        # one frame cached: copies
+                    b = (store.frame(p + 1).copy(), store.weights(p + 1).copy())
+                    near = estimate_motion(a[0], b[0], grid, W0=a[1], W1=b[1], index=p, options=opts)
+                    if near:
+                        capture[p] = near.T_prev_next
+        store = SessionLightField(store.session, models=store.models, grid=grid, options=store.resampler.options,
+                                  camera_noise=False, capture_motion=capture)
+        W0, W1 = store.weights(i), store.weights(j)
+        L0 = finite_frame(f"frame {i}", store.frame(i), W0, who=str(src))
+        L1 = finite_frame(f"frame {j}", store.frame(j), W1, who=str(src))
+        if not args.traj:
+            res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i, options=opts)
+            if res:
+                M = res.T_prev_next
+                motion["motion_condition"] = float(res.condition)
+        motion["cameras_moved_to_capture"] = True
     mode = args.scale_selection
     if mode == "auto":
         mode = "face" if args.views == "central" else "off"
@@ -272,10 +301,8 @@ def cmd_depth(args: argparse.Namespace) -> int:
             err = pair_errors(est, sub)
             print(f"  motion vs groundtruth: translation {100 * float(err.t_rel[0]):.2f}%, "
                   f"rotation {100 * float(err.w_rel[0]):.2f}%")
-    if hasattr(store, "session"):
-        from .session import SYNC_AS_IF_TOGETHER, sync_warning
-
-        unsync = sync_warning(store.session)
-        if unsync:
-            print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)
+    if unsync:
+        print("  warning: " + unsync + (SYNC_AS_IF_TOGETHER if stereo else
+                                        "; the pair was resampled again with each camera where it captured its "
+                                        "image (docs/motion.md, \"Unsynchronised cameras\")"))
     return 0

@@ -164,3 +164,15 @@ def test_motion_corrects_unsynchronised_cameras(tmp_path, capsys):
         e = pair_errors(read_tum(tmp_path / f"{mode}.tum"), truth)
         err[mode] = float(np.median(e.t_err / e.t_true))
     assert err["auto"] < 0.5 * err["off"], err
+    # polycam depth on the same session: its pair resampled again with the cameras where they captured
+    # (pair 0: measured 0.72 % against 3.09 % uncorrected)
+    import tomllib
+
+    assert main(["depth", str(session), "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    assert "the pair was resampled again with each camera where it captured" in out
+    depth = tomllib.loads((tmp_path / "d" / "depth.toml").read_text())["depth"]
+    assert depth["cameras_moved_to_capture"] is True
+    M_true = truth.relative()[0]
+    off = np.linalg.norm(read_tum(tmp_path / "off.tum").relative()[0][:3, 3] - M_true[:3, 3])
+    assert np.linalg.norm(np.array(depth["T_prev_next"])[:3, 3] - M_true[:3, 3]) < 0.5 * off
