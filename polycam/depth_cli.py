@@ -185,11 +185,14 @@ def cmd_depth(args: argparse.Namespace) -> int:
     grid = store.grid
     ts = np.asarray(store.timestamps_ns, np.int64)
     get_w = getattr(store, "weights", None)
-    W0 = get_w(i) if get_w else None
-    W1 = W0 if stereo else (get_w(j) if get_w else None)
-    # NaNs where W is not 0 are an error (also with --traj, where no solver would see them)
-    L0 = finite_frame(f"frame {i}", store.frame(i), W0, who=str(src))
-    L1 = L0 if stereo else finite_frame(f"frame {j}", store.frame(j), W1, who=str(src))
+
+    def read(t):       # (L, W) of frame t: a session resampled on the fly keeps its last frame, so read each once
+        W = get_w(t) if get_w else None
+        # NaNs where W is not 0 are an error (also with --traj, where no solver would see them)
+        return finite_frame(f"frame {t}", store.frame(t), W, who=str(src)), W
+
+    L0, W0 = read(i)
+    L1, W1 = (L0, W0) if stereo else read(j)
     if stereo:                     # Eq. 7's stereo estimates only (depth_of_pair without a motion)
         M = None
         motion = {"motion_source": "none (stereo only)"}
@@ -219,16 +222,14 @@ def cmd_depth(args: argparse.Namespace) -> int:
                 if args.traj:
                     capture[p] = pair_motion_from_trajectory(args.traj, int(ts[p]), int(ts[p + 1]))
                 else:
-                    a = (store.frame(p).copy(), store.weights(p).copy())        # one frame cached: copies
-                    b = (store.frame(p + 1).copy(), store.weights(p + 1).copy())
-                    near = estimate_motion(a[0], b[0], grid, W0=a[1], W1=b[1], index=p, options=opts)
+                    (La, Wa), (Lb, Wb) = read(p), read(p + 1)
+                    near = estimate_motion(La, Lb, grid, W0=Wa, W1=Wb, index=p, options=opts)
                     if near:
                         capture[p] = near.T_prev_next
         store = SessionLightField(store.session, models=store.models, grid=grid, options=store.resampler.options,
                                   camera_noise=False, capture_motion=capture)
-        W0, W1 = store.weights(i), store.weights(j)
-        L0 = finite_frame(f"frame {i}", store.frame(i), W0, who=str(src))
-        L1 = finite_frame(f"frame {j}", store.frame(j), W1, who=str(src))
+        get_w = store.weights
+        (L0, W0), (L1, W1) = read(i), read(j)
         if not args.traj:
             res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i, options=opts)
             if res:

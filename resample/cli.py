@@ -75,9 +75,8 @@ def cmd_resample(args: argparse.Namespace) -> int:
           f"{s.seconds_geometry:.1f} s, frames {s.seconds_frames:.1f} s ({s.scheduler})"
           + (f"; {s.missing_images} missing image(s)" if s.missing_images else "")
           + (f"; {s.empty_frames} empty frame(s)" if s.empty_frames else ""))
-    from polycam.session import SYNC_AS_IF_TOGETHER, open_session, sync_warning
+    if s.sync_warning:
+        from polycam.session import SYNC_AS_IF_TOGETHER
 
-    unsync = sync_warning(open_session(session))
-    if unsync:
-        print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)
+        print("  warning: " + s.sync_warning + SYNC_AS_IF_TOGETHER)
     return 0

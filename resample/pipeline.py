@@ -74,6 +74,8 @@ class ResampleSummary:
     """The cameras' sensor noise recorded in the store (its ``camera_noise`` attribute; NaN: none)."""
     compressed_cameras: int = 0
     """Cameras left out of that estimate: they record MJPG (:data:`resample.resampler.COMPRESSED_FORMATS`)."""
+    sync_warning: str = ""
+    """:func:`polycam.session.sync_warning` of the session ('' when its cameras are synchronised)."""
 
 
 def open_calibration(session, calib_dir: str | os.PathLike | None) -> dict:
@@ -183,7 +185,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
     local worker processes (default: the number of cores)."""
     from contextlib import ExitStack
 
-    from polycam.session import open_session
+    from polycam.session import open_session, sync_warning
 
     from .grid import auto_grid
     from .resampler import ResampleOptions, Resampler, noise_cameras
@@ -258,7 +260,8 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                               empty_frames=int(empty), scheduler=label, seconds_geometry=t_geo,
                               seconds_frames=t_frames, mean_W=wsum / (n * grid.num_rays),
                               camera_noise_sigma=noise["sigma"] if noise is not None else float("nan"),
-                              compressed_cameras=len(sess.cameras) - len(noise_cameras(sess, sess.cameras)))
+                              compressed_cameras=len(sess.cameras) - len(noise_cameras(sess, sess.cameras)),
+                              sync_warning=sync_warning(sess))
     log.info("resampled %d frames of %d cameras into %s (%s): geometry %.1f s, frames %.1f s", n,
              summary.cameras, out, label, t_geo, t_frames)
     return summary

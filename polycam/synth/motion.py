@@ -83,4 +83,3 @@ def make_trajectory(motion: str, frames: int, *, step_t: float = 0.005, step_r_d
         return smooth_trajectory(frames, step_t=step_t, step_r_deg=step_r_deg, fps=fps, seed=seed,
                                  start_ns=start_ns)
     raise ValueError(f"unknown motion {motion!r}; expected 'static' or 'smooth'")
-
