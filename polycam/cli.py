@@ -113,10 +113,11 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
                   perturb_rotation_deg=args.perturb_rotation, perturb_focal_frac=args.perturb_focal,
                   overwrite=args.overwrite)
     if args.board is None:
-        common.update(specular=args.specular, sync_spread_ms=args.sync_spread_ms)
-    elif args.specular or args.sync_spread_ms:
-        print("polycam synth session: error: --specular and --sync-spread-ms apply to scene sessions, not to "
-              "--board", file=sys.stderr)
+        common.update(specular=args.specular, sync_spread_ms=args.sync_spread_ms,
+                      timestamp_jitter_ms=args.timestamp_jitter_ms)
+    elif args.specular or args.sync_spread_ms or args.timestamp_jitter_ms:
+        print("polycam synth session: error: --specular, --sync-spread-ms and --timestamp-jitter-ms apply to "
+              "scene sessions, not to --board", file=sys.stderr)
         return 2
     with _progress(f"rendering {args.out}", args.frames) as advance:
         if board is not None:
@@ -403,7 +404,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 
             spread = s.capture_spread_ns() / 1e6
             print(f"  capture times: the cameras' images of a frame span {float(np.median(spread)):.2f} ms "
-                  f"(median; {float(spread.max()):.2f} ms at most)")
+                  f"(median; {float(spread.max()):.2f} ms at most); the timestamps jitter "
+                  f"{s.timestamp_jitter_ns() / 1e6:.2f} ms (RMS) about them")
             unsync = sync_warning(s)
             if unsync:
                 print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)
@@ -501,6 +503,9 @@ def build_parser() -> argparse.ArgumentParser:
     pss.add_argument("--sync-spread-ms", type=_nonneg_float, default=0.0, metavar="MS",
                      help="unsynchronised cameras: each captures at its own constant offset from the frame's "
                           "time, uniform in +-MS (seeded), and its image shows that moment (default 0)")
+    pss.add_argument("--timestamp-jitter-ms", type=_nonneg_float, default=0.0, metavar="MS",
+                     help="Gaussian jitter of this std on each image's timestamp, not on what it shows (a "
+                          "driver's varying transfer time; default 0)")
     pss.add_argument("--overwrite", action="store_true", help="replace an existing output")
     pss.set_defaults(func=cmd_synth_session)
 

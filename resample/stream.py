@@ -280,7 +280,8 @@ class SessionLightField:
 def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.ndarray) -> dict:
     """Camera id → its model in the rig frame at frame ``t``'s time, moved to where the camera was when
     it captured its image of that frame: by the share ``d / Δt`` of the motion to the next frame (``d``
-    = its image's timestamp minus the frame's, ``Δt`` the frame interval), or back along the previous
+    = its capture time minus the frame's timestamp, the capture time its image's timestamp without
+    the jitter, :meth:`Session.capture_times_ns`; ``Δt`` the frame interval), or back along the previous
     one for an image taken early (the first and last frames extrapolate their one neighbour's): the
     poses :func:`polycam.trajectory.pose_at` interpolates, which the synthetic sessions render.
     ``T_prev_next``: (T - 1, 4, 4) rig motion per
@@ -297,8 +298,9 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     rel = Trajectory.from_relative(session.timestamps_ns, np.asarray(T_prev_next, np.float64))
     T_t_world = T_inverse(rel.T_world_rig[t])
     out = dict(models)
+    captured = session.capture_times_ns()[t]
     for k, cam in enumerate(session.cameras):
-        stamp = int(session.cam_timestamps[t, k])
+        stamp = int(captured[k])
         if cam not in models or stamp < 0:
             continue
         D = T_t_world @ pose_at(rel, stamp)                  # the rig at the capture, in the rig at frame t

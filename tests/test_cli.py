@@ -89,7 +89,8 @@ def test_unsynchronised_sessions_are_named(tmp_path):
                       "--out", str(tmp_path / name))
         assert res.returncode == 0, res.stderr
     info = polycam("info", str(tmp_path / "u")).stdout
-    assert re.search(r"capture times: the cameras' images of a frame span \d+\.\d\d ms", info)
+    assert re.search(r"capture times: the cameras' images of a frame span \d+\.\d\d ms .*; the timestamps jitter "
+                     r"0\.00 ms \(RMS\) about them", info)
     assert "warning: the cameras are not synchronised" in info
     for argv in (["motion", str(tmp_path / "u"), "--out", str(tmp_path / "t.tum")],
                  ["resample", str(tmp_path / "u"), "--out", str(tmp_path / "lf.zarr"), "--workers", "0"]):
@@ -98,9 +99,10 @@ def test_unsynchronised_sessions_are_named(tmp_path):
     info = polycam("info", str(tmp_path / "s")).stdout
     assert "span 0.00 ms" in info and "not synchronised" not in info
     assert "not synchronised" not in polycam("motion", str(tmp_path / "s"), "--out", str(tmp_path / "t0.tum")).stdout
-    res = polycam("synth", "session", "--rig", rig, "--board", str(REPO / "rigs" / "boards" / "charuco_5x7.toml"),
-                  "--sync-spread-ms", "5", "--out", str(tmp_path / "b"))
-    assert res.returncode == 2 and "--sync-spread-ms" in res.stderr
+    for opt in ("--sync-spread-ms", "--timestamp-jitter-ms"):
+        res = polycam("synth", "session", "--rig", rig, "--board", str(REPO / "rigs" / "boards" / "charuco_5x7.toml"),
+                      opt, "5", "--out", str(tmp_path / "b"))
+        assert res.returncode == 2 and opt in res.stderr
 
 
 def test_missing_rig_file_is_one_line(tmp_path):

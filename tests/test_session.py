@@ -485,3 +485,38 @@ def test_calibration_from_another_folder(session, rig, tmp_path):
         nominal_cameramodel(c).write(str(d / f"{c.id}.cameramodel"))
     assert set(s.calibration(d)) == {"g8", "g16", "rgb"}
     assert s.calibration() is None
+
+
+def test_capture_times_take_out_the_timestamp_jitter():
+    # free-running cameras: constant phases, jittered timestamps; the running median of each camera's
+    # offset from the frame time recovers the phases to a fraction of the jitter, follows a steady drift,
+    # restarts where the grouping moved to the camera's next image, and keeps missing images missing
+    from polycam.session import capture_times
+
+    rng = np.random.default_rng(5)
+    F, C, period = 120, 6, 33_333_333
+    phase = rng.uniform(-8e6, 8e6, C)
+    phase[1] = -12e6
+    drift = np.zeros((F, C))
+    drift[:, 2] = np.linspace(0.0, 3e6, F)                          # 3 ms over 4 s: rates 0.07 % apart
+    drift[60:, 1] = period                                           # camera 1's phase past the tolerance
+    captured = 1e9 + np.arange(F)[:, None] * period + phase + drift
+    stamps = np.round(captured + rng.normal(0.0, 1e6, (F, C))).astype(np.int64)
+    stamps[7, 3] = -1
+    frames = np.median(stamps, axis=1).astype(np.int64)
+    times = capture_times(frames, stamps)
+    assert times[7, 3] == -1 and (times[stamps >= 0] >= 0).all()
+    have = stamps >= 0
+
+    def relative(t):         # error of each camera's time against the others' in its frame (what the
+        e = np.where(have, t - captured, np.nan)                    # correction uses)
+        return (e - np.nanmean(e, axis=1, keepdims=True))[have]
+
+    assert np.sqrt(np.mean(relative(times) ** 2)) < 0.35 * np.sqrt(np.mean(relative(stamps) ** 2))
+    assert np.abs(relative(times)).max() < 1.5e6                    # no frame near the jump is off by a period
+    # synchronised cameras with jittered timestamps read as synchronised
+    sync = np.round(1e9 + np.arange(F)[:, None] * period + rng.normal(0.0, 1e6, (F, C))).astype(np.int64)
+    t = capture_times(np.median(sync, axis=1).astype(np.int64), sync)
+    assert np.median(np.ptp(t, axis=1)) < 1e6 < np.median(np.ptp(sync, axis=1))
+    # one frame, or one image per camera: the timestamps as they are
+    np.testing.assert_array_equal(capture_times(frames[:1], stamps[:1]), stamps[:1])

@@ -442,6 +442,33 @@ def test_unsynchronised_cameras(tmp_path):
     assert not s0.capture_spread_ns().any() and sync_warning(s0) == ""
 
 
+def test_timestamp_jitter(tmp_path):
+    # timestamp_jitter_ms: each image's timestamp is its capture time plus seeded Gaussian jitter, its
+    # image unchanged; the session's capture times take the jitter out, so synchronised cameras with
+    # jittery timestamps read as synchronised; with a spread, the phases survive the jitter
+    from polycam.session import open_session, sync_warning
+
+    rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nmotion = "smooth"\nstep_t = 0.02\n')
+    kw = dict(frames=31, seed=2, supersample=1, bit_depth=16)       # one CAPTURE_OFFSET_FRAMES window
+    s0 = open_session(synth_session(rig, tmp_path / "s0", **kw))
+    sj = open_session(synth_session(rig, tmp_path / "sj", timestamp_jitter_ms=1.5, **kw))
+    start = 7_500_000                                               # TIMESTAMP_JITTER_MARGIN stds
+    np.testing.assert_array_equal(sj.timestamps_ns - start, s0.timestamps_ns)
+    for f in (0, 30):
+        for cam in rig.ids:
+            np.testing.assert_array_equal(sj.read_frame(f)[cam], s0.read_frame(f)[cam])
+    jitter = (sj.cam_timestamps - sj.timestamps_ns[:, None]) / 1e6
+    assert 1.0 < np.std(jitter) < 2.0 and np.median(np.ptp(jitter, axis=1)) > 1.0
+    assert sync_warning(sj) == "" and np.median(sj.capture_spread_ns()) < 1_000_000
+    assert 1.0e6 < sj.timestamp_jitter_ns() < 2.0e6 and s0.timestamp_jitter_ns() == 0.0
+    sp = open_session(synth_session(rig, tmp_path / "sp", timestamp_jitter_ms=1.0, sync_spread_ms=12.0, **kw))
+    phase = (sp.capture_times_ns() - sp.timestamps_ns[:, None]).astype(float)
+    true = (open_session(synth_session(rig, tmp_path / "sp0", sync_spread_ms=12.0, **kw)).cam_timestamps
+            - sp.timestamps_ns[:, None] + 5_000_000)                   # the same phases, 5 ms later start
+    assert np.abs(phase - true).max() < 1.0e6 < np.abs(sp.cam_timestamps - sp.timestamps_ns[:, None] - true).max()
+    assert "not synchronised" in sync_warning(sp)
+
+
 def test_pose_between_frames():
     from polycam.trajectory import pose_at
 

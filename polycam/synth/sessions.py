@@ -62,7 +62,10 @@ log = logging.getLogger(__name__)
 Progress = Callable[[int, int], None]
 """``progress(done, total)``: called after each frame."""
 
-_SALT_PERTURB, _SALT_NOISE, _SALT_BOARD, _SALT_SYNC = 31, 32, 33, 34
+_SALT_PERTURB, _SALT_NOISE, _SALT_BOARD, _SALT_SYNC, _SALT_JITTER = 31, 32, 33, 34, 35
+TIMESTAMP_JITTER_MARGIN = 5.0
+"""A trajectory :func:`synth_session` builds for timestamp jitter starts this many jitter stds (plus the
+capture spread) after 0, so that no image timestamp is negative."""
 
 
 def _mrcal():
@@ -238,7 +241,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
                   perturb_rotation_deg: float = 0.0, perturb_focal_frac: float = 0.0,
                   distance: float | None = None, trajectory: Trajectory | None = None,
                   models: dict | None = None, specular: float = 0.0, sync_spread_ms: float = 0.0,
-                  overwrite: bool = False, threads: int = 2, progress: Progress | None = None) -> Path:
+                  timestamp_jitter_ms: float = 0.0, overwrite: bool = False, threads: int = 2, progress: Progress | None = None) -> Path:
     """``polycam synth session``: render a rig moving through a scene into a session folder.
 
     Defaults come from the rig's ``[mock]`` table where it has one: ``scene``,
@@ -258,6 +261,10 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
         shows the scene at that time (:func:`~polycam.trajectory.pose_at`) with that timestamp; the
         frame's timestamp and the ground truth stay at the frames' times (a trajectory built here then
         starts at ``sync_spread_ms``, so that no timestamp is negative).
+    timestamp_jitter_ms: > 0: each image's timestamp is its capture time plus Gaussian jitter of this
+        std (seeded per frame and camera; a camera's timestamps kept increasing), as a driver stamps it
+        late by a varying transfer time; the image still shows the capture time (a trajectory built
+        here starts ``TIMESTAMP_JITTER_MARGIN`` stds later).
     Writes ``groundtruth.tum`` and ``calib/<cam>.cameramodel`` (the true models).
     """
     from ..session import SessionWriter
@@ -268,12 +275,15 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     sc = _with_specular(scene_for_rig(rig, scene, distance=distance, seed=seed), specular)
     if not 0.0 <= sync_spread_ms < math.inf:
         raise ValueError(f"sync_spread_ms must be >= 0 and finite, got {sync_spread_ms}")
-    spread_ns = int(math.ceil(sync_spread_ms * 1e6))
+    if not 0.0 <= timestamp_jitter_ms < math.inf:
+        raise ValueError(f"timestamp_jitter_ms must be >= 0 and finite, got {timestamp_jitter_ms}")
+    spread_ns = int(math.ceil((sync_spread_ms + TIMESTAMP_JITTER_MARGIN * timestamp_jitter_ms) * 1e6))
     if trajectory is None:
         trajectory = trajectory_for_rig(rig, frames, seed=seed, start_ns=spread_ns)
     offsets = _sync_offsets_ns(rig, seed, sync_spread_ms)
     if offsets and int(trajectory.timestamps_ns[0]) + min(offsets.values()) < 0:
-        raise ValueError(f"sync_spread_ms {sync_spread_ms}: the trajectory must start at {spread_ns} ns or later")
+        raise ValueError(f"sync_spread_ms {sync_spread_ms}: the trajectory must start at "
+                         f"{int(math.ceil(sync_spread_ms * 1e6))} ns or later")
     if models is None:
         models = true_cameramodels(rig, seed=seed, perturb_position_m=perturb_position_m,
                                    perturb_rotation_deg=perturb_rotation_deg,
@@ -287,22 +297,27 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     with SessionWriter(out, rig, overwrite=overwrite, threads=threads) as w:
         for cam in rig.cameras:
             w.write_calibration(cam.id, models[cam.id])
+        last = {cam.id: -1 for cam in rig.cameras}
         for i in range(n):
             rng = np.random.default_rng([seed, _SALT_NOISE, i])
             t_f = int(trajectory.timestamps_ns[i])
-            if not offsets:
+            if not offsets and timestamp_jitter_ms <= 0.0:
                 rad = renderer.render(trajectory.T_world_rig[i])
                 images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng, _mjpg_quality(rig))
                           for cam in rig.cameras}
                 w.add_frame(t_f, images)
-            else:
-                stamps = {}
-                for cam in rig.cameras:
-                    ts = t_f + offsets[cam.id]
-                    rad = own[cam.id].render(pose_at(trajectory, ts))[cam.id]
-                    w.write_image(cam.id, ts, _image_for(cam, rad, bit_depth, noise, rng, _mjpg_quality(rig)))
-                    stamps[cam.id] = ts
-                w.write_frame(t_f, stamps)
+                continue
+            jitter = np.random.default_rng([seed, _SALT_JITTER, i]).normal(0.0, timestamp_jitter_ms * 1e6,
+                                                                             len(rig.cameras))
+            rad = None if offsets else renderer.render(trajectory.T_world_rig[i])
+            stamps = {}
+            for cam, jit in zip(rig.cameras, jitter.tolist()):
+                t_c = t_f + offsets.get(cam.id, 0)                   # when the camera captured
+                img = rad[cam.id] if rad is not None else own[cam.id].render(pose_at(trajectory, t_c))[cam.id]
+                ts = max(t_c + int(round(jit)), last[cam.id] + 1, 0)
+                w.write_image(cam.id, ts, _image_for(cam, img, bit_depth, noise, rng, _mjpg_quality(rig)))
+                stamps[cam.id] = last[cam.id] = ts
+            w.write_frame(t_f, stamps)
             if progress is not None:
                 progress(i + 1, n)
         w.write_groundtruth(trajectory)
