@@ -16,6 +16,11 @@ It renders the rig's ``[mock]`` table (SPEC.md, rig file):
   and frame.
 - ``jitter_ms``: Gaussian jitter (std [ms]) of each frame's timestamp around the
   nominal ``start + i / fps`` (the image stays that of the nominal time).
+- ``sync_spread_ms``: free-running cameras: camera k's frames come at ``start + o_k + i / fps``, its
+  constant offset ``o_k`` uniform in ±``sync_spread_ms`` (seeded by ``seed`` and the camera's index in
+  the rig), and (``room`` / ``spheres``) show the scene at that moment
+  (:func:`polycam.trajectory.pose_at`); ``start`` is then ``sync_spread_ms`` later, so that no
+  timestamp comes before it. A board session ignores it (the board holds each pose for a frame).
 - ``drop_rate``: each frame is lost with this probability; its sequence number
   is used up, so the gap shows as a drop.
 - ``disconnect_after``: camera id → frame count after which that camera
@@ -45,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import logging
+import math
 import os
 import time
 from pathlib import Path
@@ -60,7 +66,7 @@ __all__ = ["MockSource", "PatternRenderer", "pattern_sequence", "to_pixel_format
 
 log = logging.getLogger(__name__)
 
-_SALT_DROP, _SALT_JITTER, _SALT_NOISE, _SALT_PATTERN = 41, 42, 43, 44
+_SALT_DROP, _SALT_JITTER, _SALT_NOISE, _SALT_PATTERN, _SALT_SYNC = 41, 42, 43, 44, 45
 _CODE_BITS = 32
 
 
@@ -177,6 +183,18 @@ class _RayTraced:
         """The trajectory (or board pose) index shown at ``t_rel_ns`` after the start."""
         return min(max(int(round(t_rel_ns / self.period_ns)), 0), len(self.trajectory) - 1)
 
+    def pose_at(self, t_rel_ns: float) -> np.ndarray:
+        """(4, 4) ``T_world_rig`` at ``t_rel_ns`` after the start, between the trajectory's poses
+        (:func:`polycam.trajectory.pose_at`; held at its ends)."""
+        from polycam.trajectory import pose_at
+
+        ts = self.trajectory.timestamps_ns
+        return pose_at(self.trajectory, min(max(int(ts[0]) + float(t_rel_ns), float(ts[0])), float(ts[-1])))
+
+    def radiance_at(self, k: int, t_rel_ns: float) -> np.ndarray:
+        """Camera k's radiance at its own moment ``t_rel_ns`` (an unsynchronised camera's)."""
+        return self.renderer.render_camera(self.ids[k], self.pose_at(t_rel_ns))
+
     def radiance(self, k: int, i: int) -> np.ndarray:
         if self._cache is None or self._cache[0] != i:
             scene = None if self.board_poses is None else self.scene.with_rect_pose(self._rect, self.board_poses[i])
@@ -246,7 +264,7 @@ class MockSource(FrameSource):
         self.board = board
         if board is not None and self.mock.scene == "pattern":
             raise CaptureError(f"{rig.path or rig.name}: a mock board needs a ray-traced [mock] scene, not 'pattern'")
-        self._shown: dict[tuple[str, int], int] = {}     # (camera id, timestamp) → pose index shown
+        self._shown: dict[tuple[str, int], int] = {}     # (camera id, timestamp) → [ns] moment shown (from start)
         self._clock = clock
         self._sleep = sleep
         self._started = False
@@ -265,9 +283,12 @@ class MockSource(FrameSource):
             n = self.frames if self.frames is not None else self.trajectory_frames
             self._renderer = _RayTraced(self.rig, self.cams, m, max(int(n), 1), self.supersample,
                                         models=self.models, board=self.board)
-        self._t0 = self._clock() + 1_000_000 if self.realtime else self.start_ns  # [ns]
         idx = {c.id: i for i, c in enumerate(self.rig.cameras)}
         self._rig_index = [idx.get(c.id, i) for i, c in enumerate(self.cams)]
+        spread = m.sync_spread_ms if self.board is None else 0.0
+        self._offset = [int(round(np.random.default_rng([m.seed, _SALT_SYNC, r]).uniform(-spread, spread) * 1e6))
+                        if spread > 0 else 0 for r in self._rig_index]      # [ns] each camera's capture phase
+        self._t0 = (self._clock() + 1_000_000 if self.realtime else self.start_ns) + int(math.ceil(spread * 1e6))
         self._period = [1e9 / float(c.fps) for c in self.cams]
         self._next = [0] * len(self.cams)            # next frame index per camera
         self._last_ts = [-1] * len(self.cams)
@@ -284,13 +305,13 @@ class MockSource(FrameSource):
     def info(self) -> dict[str, Any]:
         m = self.mock
         return {"mock": {"scene": "board" if self.board is not None else m.scene, "motion": m.motion, "seed": m.seed, "noise": m.noise,
-                         "jitter_ms": m.jitter_ms, "drop_rate": m.drop_rate,
+                         "jitter_ms": m.jitter_ms, "sync_spread_ms": m.sync_spread_ms, "drop_rate": m.drop_rate,
                          "realtime": self.realtime}}
 
     # -- frames
 
     def _nominal(self, k: int, i: int) -> int:
-        return self._t0 + int(round(i * self._period[k]))
+        return self._t0 + self._offset[k] + int(round(i * self._period[k]))
 
     def _due(self, now: int | None) -> list[tuple[int, int, int]]:
         """(nominal time, camera k, frame i) of the frames to deliver now, in time order."""
@@ -310,7 +331,7 @@ class MockSource(FrameSource):
         out: list[tuple[int, int, int]] = []
         for _, k, i in events:
             # frames whose time has come; those older than `buffers` periods were overwritten
-            last = int((now - self._t0) // self._period[k])
+            last = int((now - self._t0 - self._offset[k]) // self._period[k])
             if self.frames is not None:
                 last = min(last, self.frames - 1)
             first = max(i, last - self.buffers + 1)
@@ -375,9 +396,9 @@ class MockSource(FrameSource):
         else:
             from polycam.synth import quantize
 
-            pose = self._renderer.index(t_rel)
-            self._shown[(cam.id, ts)] = pose
-            rad = self._renderer.radiance(k, pose)
+            self._shown[(cam.id, ts)] = t_rel
+            rad = (self._renderer.radiance_at(k, t_rel) if self._offset[k] else
+                   self._renderer.radiance(k, self._renderer.index(t_rel)))
             rng = np.random.default_rng([m.seed, _SALT_NOISE, self._rig_index[k], i]) if m.noise > 0 else None
             if cam.pixel_format == "Y16":
                 return Frame(cam.id, ts, i, quantize(rad, 16, m.noise, rng))
@@ -397,7 +418,8 @@ class MockSource(FrameSource):
 
         - ``groundtruth.tum``: ``T_world_rig`` of the pose each frame shows, at the
           frame's timestamp (world = the rig at the trajectory's start; a board session's
-          rig stands still at the origin);
+          rig stands still at the origin); with ``sync_spread_ms``, the rig at the median of the
+          moments its cameras captured the frame;
         - ``calib/<cam>.cameramodel``: the models the cameras were rendered with;
         - with a board: ``board_poses.tum`` (``T_rig_board`` per frame, as
           :func:`polycam.synth.synth_board_session` writes it) and ``board.toml`` (a copy
@@ -415,17 +437,20 @@ class MockSource(FrameSource):
         if not self.has_truth or not isinstance(self._renderer, _RayTraced):
             raise CaptureError("mock: the 'pattern' scene has no ground truth (or the source never started)")
         sess = open_session(session_path)
+        r = self._renderer
         poses = np.empty(len(sess), np.int64)
+        T_world_rig = np.empty((len(sess), 4, 4))
         cams = list(sess.cameras)
         for f in range(len(sess)):
             shown = [self._shown.get((c, int(ts))) for c, ts in zip(cams, sess.cam_timestamps[f]) if ts >= 0]
-            shown = [p for p in shown if p is not None]
+            shown = [t for t in shown if t is not None]
             if not shown:
                 raise CaptureError(f"{sess.path}: frame {f} was not delivered by this mock source")
-            poses[f] = shown[0]
-        r = self._renderer
+            poses[f] = r.index(shown[0])
+            T_world_rig[f] = (r.pose_at(float(np.median(shown))) if any(self._offset) else
+                              r.trajectory.T_world_rig[poses[f]])
         path = Path(session_path)
-        write_tum(path / "groundtruth.tum", Trajectory(sess.timestamps_ns.copy(), r.trajectory.T_world_rig[poses]))
+        write_tum(path / "groundtruth.tum", Trajectory(sess.timestamps_ns.copy(), T_world_rig))
         written = ["groundtruth.tum"]
         (path / "calib").mkdir(exist_ok=True)
         for c, model in r.models.items():

@@ -85,7 +85,10 @@ class MockSpec:
     noise: float = 0.0
     """Grey-level noise std in [0, 1] units."""
     jitter_ms: float = 0.0
-    """Std of per-camera timestamp jitter [ms]."""
+    """Std of per-camera timestamp jitter [ms] (moves the timestamps, not what the images show)."""
+    sync_spread_ms: float = 0.0
+    """[ms] free-running cameras: each captures at its own constant offset from the others, uniform in
+    ±``sync_spread_ms`` (seeded), and its images show those moments (0: one trigger for all)."""
     drop_rate: float = 0.0
     """Probability in [0, 1] that a camera drops a frame."""
     disconnect_after: dict[str, int] = field(default_factory=dict)
@@ -222,6 +225,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
             seed=m.number("seed", 0, integer=True),
             noise=m.number("noise", 0.0, min=0.0, max=1.0),
             jitter_ms=m.number("jitter_ms", 0.0, min=0.0),
+            sync_spread_ms=m.number("sync_spread_ms", 0.0, min=0.0),
             drop_rate=m.number("drop_rate", 0.0, min=0.0, max=1.0),
             disconnect_after=disconnect,
             distance=m.number("distance", 4.0, min=0.0, open_min=True),

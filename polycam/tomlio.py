@@ -8,6 +8,7 @@ unknown keys are reported, so a typo in a user's file becomes one clear line
 from __future__ import annotations
 
 import errno
+import math
 import os
 import tomllib
 from pathlib import Path
@@ -83,10 +84,12 @@ class Table:
 
     def number(self, key: str, default: Any = _MISSING, *, min: float | None = None,
                max: float | None = None, integer: bool = False, open_min: bool = False) -> Any:
-        """A number within ``[min, max]`` (``(min, max]`` with ``open_min``)."""
+        """A finite number within ``[min, max]`` (``(min, max]`` with ``open_min``)."""
         value = self.get(key, int if integer else float, default)
         if value is default and key not in self.data:
             return value
+        if not math.isfinite(value):
+            raise self.error(key, f"must be a finite number, got {value}")
         if min is not None and (value < min or (open_min and value == min)):
             raise self.error(key, f"must be {'>' if open_min else '>='} {min}, got {value}")
         if max is not None and value > max:

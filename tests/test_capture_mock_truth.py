@@ -54,6 +54,41 @@ def test_mock_session_carries_its_trajectory_and_models(tmp_path):
         np.testing.assert_allclose(calib[c].intrinsics()[1], models[c].intrinsics()[1])
 
 
+def test_mock_unsynchronised_cameras(tmp_path):
+    """[mock] sync_spread_ms: free-running cameras, each at its own constant phase within the spread,
+    their images the scene at those moments; the capture groups them into frames as it would real
+    cameras, and the truth is the rig at the median of a frame's moments."""
+    from polycam.session import sync_warning
+    from polycam.synth import CameraArrayRenderer, quantize, scene_for_rig
+    from polycam.trajectory import pose_at
+
+    path = make_rig(tmp_path, mock="sync_spread_ms = 10.0\nstep_t = 0.02").path
+    path.write_text(path.read_text().replace("noise = 0.004", "noise = 0.0"))    # images to compare exactly
+    rig = load_rig(path)
+    src = MockSource(rig, realtime=False, frames=5)
+    record(src, rig, tmp_path / "s", frames=5)
+    src.write_truth(tmp_path / "s")
+    s = open_session(tmp_path / "s")
+    assert len(s) == 5 and (s.cam_timestamps >= 0).all()
+    start = 10_000_000                                             # the spread: no timestamp before 0
+    phase = (s.cam_timestamps - start) - np.round(np.arange(5) * 1e9 / 30).astype(np.int64)[:, None]
+    assert np.all(phase == phase[0]) and np.all(np.abs(phase) <= 10_000_000) and np.ptp(phase[0]) > 1_000_000
+    assert "not synchronised" in sync_warning(s)
+    traj = trajectory_for_rig(rig, 5, seed=1)
+    renderer = CameraArrayRenderer(rig, s.calibration(), scene_for_rig(rig, seed=1), supersample=1)
+    for f in (0, 3):
+        for k, cam in enumerate(s.cameras):
+            moment = int(s.cam_timestamps[f, k]) - start
+            want = quantize(renderer.render_camera(cam, pose_at(traj, min(max(moment, 0), int(traj.timestamps_ns[-1])))), 8)
+            np.testing.assert_array_equal(s.read_frame(f)[cam], want)
+    gt = s.groundtruth()
+    for f in range(5):
+        moment = float(np.median(s.cam_timestamps[f])) - start
+        np.testing.assert_allclose(gt.T_world_rig[f], pose_at(traj, min(max(moment, 0.0), traj.timestamps_ns[-1])),
+                                   atol=1e-9)
+    assert not np.allclose(gt.T_world_rig[2], traj.T_world_rig[2])
+
+
 def test_mock_renders_with_the_given_models(tmp_path):
     """A camera rendered with a perturbed model sees a different image than the nominal one."""
     rig = make_rig(tmp_path, motion="static")

@@ -127,6 +127,7 @@ motion = "static"
 seed = 7
 noise = 0.01
 jitter_ms = 0.5
+sync_spread_ms = 6.5
 drop_rate = 0.1
 distance = 2.5
 mjpg_quality = 75
@@ -135,8 +136,8 @@ mjpg_quality = 75
 cam04 = 10
 """
     m = load_rig(_rig(tmp_path, text)).mock
-    assert (m.scene, m.motion, m.seed, m.noise, m.jitter_ms, m.drop_rate, m.distance, m.mjpg_quality) == \
-        ("spheres", "static", 7, 0.01, 0.5, 0.1, 2.5, 75)
+    assert (m.scene, m.motion, m.seed, m.noise, m.jitter_ms, m.sync_spread_ms, m.drop_rate, m.distance,
+            m.mjpg_quality) == ("spheres", "static", 7, 0.01, 0.5, 6.5, 0.1, 2.5, 75)
     assert m.disconnect_after == {"cam04": 10}
 
 
@@ -154,6 +155,9 @@ cam04 = 10
     (GRID, "width = 32", "width = 0", ["[defaults].width", ">= 1"]),
     (GRID, "rows = 2", "rows = true", ["[grid].rows", "boolean"]),
     (GRID, "pitch = 0.1", "pitch = 0", ["[grid].pitch", "> 0"]),
+    (GRID, "pitch = 0.1", "pitch = inf", ["[grid].pitch", "finite"]),
+    (GRID + "[mock]\njitter_ms = nan\n", "", "", ["[mock].jitter_ms", "finite"]),
+    (GRID + "[mock]\nsync_spread_ms = -1.0\n", "", "", ["[mock].sync_spread_ms", ">= 0"]),
     (CAMERAS, "position = [-0.05, 0.0, 0.0]", "position = [-0.05, 0.0]", ["[[camera]] #1.position", "3"]),
     (CAMERAS, 'id = "left"', "id = 3", ["[[camera]] #1.id", "expected a string"]),
     (CAMERAS, 'id = "left"', 'id = "a/b"', ["[[camera]] #1.id", "folder name"]),
