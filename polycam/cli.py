@@ -405,7 +405,8 @@ def cmd_info(args: argparse.Namespace) -> int:
             spread = s.capture_spread_ns() / 1e6
             print(f"  capture times: the cameras' images of a frame span {float(np.median(spread)):.2f} ms "
                   f"(median; {float(spread.max()):.2f} ms at most); the timestamps jitter "
-                  f"{s.timestamp_jitter_ns() / 1e6:.2f} ms (RMS) about them")
+                  f"{s.timestamp_jitter_ns() / 1e6:.2f} ms (RMS) about them, which alone spreads them "
+                  f"~{s.jitter_spread_ns() / 1e6:.2f} ms")
             unsync = sync_warning(s)
             if unsync:
                 print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)

@@ -758,6 +758,17 @@ class Session:
         d = (self.cam_timestamps[has] - self.capture_times_ns()[has]).astype(np.float64)
         return float(np.sqrt(np.mean(d * d)))
 
+    def jitter_spread_ns(self) -> float:
+        """[ns] the capture spread the timestamps' jitter alone would give synchronised cameras: the
+        expected range over the cameras of the errors of their running medians
+        (:func:`capture_times`: a median of n of the jitter has ~1.25 jitter / sqrt(n) std), with n the
+        session's frames up to :data:`CAPTURE_OFFSET_FRAMES`."""
+        have = int(np.count_nonzero(np.any(self.cam_timestamps >= 0, axis=0)))
+        if have < 2:
+            return 0.0
+        n = min(len(self), CAPTURE_OFFSET_FRAMES)
+        return _MEDIAN_STD * self.timestamp_jitter_ns() / math.sqrt(n) * _normal_range(have)
+
     def capture_spread_ns(self) -> np.ndarray:
         """(F,) int64 [ns]: per frame, the latest minus the earliest of its cameras' capture times
         (:meth:`capture_times_ns`, the timestamps without their jitter; 0 for a frame with fewer than two
@@ -827,6 +838,17 @@ median follows a steady drift (two cameras' rates 0.1 % apart: 1 ms in 31 frames
 timestamps jitter from frame to frame (the median of 31 has ~1/4 of their std)."""
 
 
+_MEDIAN_STD = math.sqrt(math.pi / 2)
+"""The std of the median of n Gaussian samples, times sqrt(n) / their std (large n)."""
+
+
+def _normal_range(n: int) -> float:
+    """The expected range (max − min) of n independent standard normal samples."""
+    x = np.linspace(-9.0, 9.0, 3601)
+    cdf = 0.5 * (1.0 + np.vectorize(math.erf)(x / math.sqrt(2.0)))
+    return float(np.sum(1.0 - cdf ** n - (1.0 - cdf) ** n) * (x[1] - x[0]))
+
+
 def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
                   window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
     """When each camera captured its image of each frame, from the image timestamps without their jitter.
@@ -868,7 +890,7 @@ session's images into a light field warn (:func:`sync_warning`)."""
 
 def sync_warning(session: Session) -> str:
     """'' for a session whose cameras captured each frame together (median spread under
-    :data:`SYNC_WARN_MS`), else the start of the line the CLI prints, which each command ends with what
+    :data:`SYNC_WARN_MS` plus what the timestamps' jitter alone spreads, :meth:`Session.jitter_spread_ns`), else the start of the line the CLI prints, which each command ends with what
     it does about it (:data:`SYNC_AS_IF_TOGETHER` or its own): the resampling puts every image of a frame
     at the frame's time, so a moving rig's cameras seen at different times make an inconsistent light
     field (docs/motion.md, "Unsynchronised cameras")."""
@@ -876,7 +898,7 @@ def sync_warning(session: Session) -> str:
         return ""
     spread = session.capture_spread_ns() / 1e6
     med = float(np.median(spread))
-    if med < SYNC_WARN_MS:
+    if med < SYNC_WARN_MS + session.jitter_spread_ns() / 1e6:
         return ""
     return (f"the cameras are not synchronised: their images of a frame span {med:.1f} ms (median; "
             f"{float(spread.max()):.1f} ms at most)")

@@ -21,7 +21,7 @@ from polycam.synth import (CameraArrayRenderer, SphereGrid, board_poses, default
                            synth_lightfield, synth_session, trace_outer, trace_rays, true_cameramodels)
 from polycam.trajectory import read_tum
 
-from conftest import shared_data
+from conftest import mock_grid_rig_text, shared_data
 from tolerances import (MOTION_NOISE_SIGMA_REL, RENDER_CONSTANCY_ATOL, RENDER_PROJECTION_PX, RENDER_SHIFT_ATOL,
                         RENDER_SUPERSAMPLE_ATOL, SYNTH_BACKGROUND_MAX, SYNTH_BOARD_CORNER_MAX_PX,
                         SYNTH_BOARD_CORNER_RMS_PX, SYNTH_BOARD_DETECTED_MIN, SYNTH_STEP_RTOL)
@@ -460,7 +460,14 @@ def test_timestamp_jitter(tmp_path):
     jitter = (sj.cam_timestamps - sj.timestamps_ns[:, None]) / 1e6
     assert 1.0 < np.std(jitter) < 2.0 and np.median(np.ptp(jitter, axis=1)) > 1.0
     assert sync_warning(sj) == "" and np.median(sj.capture_spread_ns()) < 1_000_000
+    assert 0.3e6 < sj.jitter_spread_ns() < 1.0e6                   # 1.25 x 1.5 ms / sqrt(31) x 1.13 (2 cameras)
     assert 1.0e6 < sj.timestamp_jitter_ns() < 2.0e6 and s0.timestamp_jitter_ns() == 0.0
+    # a short session: the capture times keep part of the jitter, which alone spreads five cameras' by
+    # ~2.9 ms here; that is not taken for unsynchronised cameras
+    (tmp_path / "row.toml").write_text(mock_grid_rig_text("row", 32, 24, rows=1, cols=5))
+    short = open_session(synth_session(load_rig(tmp_path / "row.toml"), tmp_path / "short", frames=9, seed=2,
+                                       supersample=1, timestamp_jitter_ms=3.0))
+    assert np.median(short.capture_spread_ns()) > 1.5e6 and sync_warning(short) == ""
     sp = open_session(synth_session(rig, tmp_path / "sp", timestamp_jitter_ms=1.0, sync_spread_ms=12.0, **kw))
     phase = (sp.capture_times_ns() - sp.timestamps_ns[:, None]).astype(float)
     true = (open_session(synth_session(rig, tmp_path / "sp0", sync_spread_ms=12.0, **kw)).cam_timestamps
