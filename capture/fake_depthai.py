@@ -18,9 +18,12 @@ call signatures and behaviours as depthai 3.x for that surface
   newest ``maxSize`` frames, the older ones are lost with their sequence
   numbers), ``get()``; ``MessageQueue.QueueException`` when the device is gone.
 - ``ImgFrame``: ``getCvFrame()`` (grey, or BGR for colour types),
-  ``getTimestamp()`` (host-synchronised ``timedelta``),
+  ``getTimestamp()`` (host-synchronised ``timedelta`` of the end of the exposure) and
+  ``getTimestamp(CameraExposureOffset)`` (``START`` / ``MIDDLE`` / ``END``: the end minus the
+  exposure, half of it in whole microseconds, or nothing), ``getExposureTime()``,
   ``getTimestampDevice()``, ``getSequenceNum()``, ``getWidth()``,
-  ``getHeight()``, ``getType()``.
+  ``getHeight()``, ``getType()``. A sensor's exposure is its ``setManualExposure`` time, else
+  its device's ``auto_exposure_us``.
 
 Time is simulated: ``fake.sleep(s)`` advances it and ``fake.clock()`` reads it
 (pass both to the driver). Sensors of one device are exposed together when
@@ -35,7 +38,7 @@ from __future__ import annotations
 import datetime as _dt
 import enum
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
@@ -57,6 +60,9 @@ class FakeOak:
     """The device vanishes after this many frames on any of its sensors."""
     boot_offset_ns: int = 5_000_000_000
     """[ns] device clock = host clock − this."""
+    auto_exposure_us: dict[str, int] = field(default_factory=dict)
+    """Sensor socket name → [µs] exposure its auto exposure settles on (default 10000: the same for
+    every sensor); a frame's timestamp is the end of its exposure, as with a real FSYNC'd OAK."""
     seed: int = 0
 
 
@@ -90,6 +96,11 @@ def make_fake_depthai(oaks: list[FakeOak], start_s: float = 1000.0):
         OFF = 1
         OUTPUT = 2
         INPUT = 3
+
+    class CameraExposureOffset(enum.Enum):
+        START = 0
+        MIDDLE = 1
+        END = 2
 
     class ExternalFrameSyncRole(enum.Enum):
         AUTO_DETECT = -1
@@ -143,8 +154,9 @@ def make_fake_depthai(oaks: list[FakeOak], start_s: float = 1000.0):
 
     class ImgFrame:
 
-        def __init__(self, img: np.ndarray, kind, ts_ns: int, dev_ns: int, seq: int):
+        def __init__(self, img: np.ndarray, kind, ts_ns: int, dev_ns: int, seq: int, exposure_us: int):
             self._img, self._type, self._ts, self._dev, self._seq = img, kind, ts_ns, dev_ns, seq
+            self._exposure_us = int(exposure_us)
 
         def getCvFrame(self) -> np.ndarray:
             return self._img.copy()
@@ -152,8 +164,18 @@ def make_fake_depthai(oaks: list[FakeOak], start_s: float = 1000.0):
         def getFrame(self) -> np.ndarray:
             return self._img.copy()
 
-        def getTimestamp(self) -> _dt.timedelta:
-            return _dt.timedelta(microseconds=self._ts // 1000)
+        def getTimestamp(self, offset=None) -> _dt.timedelta:
+            end = _dt.timedelta(microseconds=self._ts // 1000)
+            if offset is None or offset == CameraExposureOffset.END:
+                return end
+            if offset == CameraExposureOffset.MIDDLE:
+                return end - _dt.timedelta(microseconds=self._exposure_us // 2)
+            if offset == CameraExposureOffset.START:
+                return end - _dt.timedelta(microseconds=self._exposure_us)
+            raise TypeError(f"getTimestamp(): incompatible offset {offset!r}")
+
+        def getExposureTime(self) -> _dt.timedelta:
+            return _dt.timedelta(microseconds=self._exposure_us)
 
         def getTimestampDevice(self) -> _dt.timedelta:
             return _dt.timedelta(microseconds=self._dev // 1000)
@@ -250,7 +272,10 @@ def make_fake_depthai(oaks: list[FakeOak], start_s: float = 1000.0):
             grey = cam.renderer.image(0, k / cam.fps, k)
             img = grey if self.type == ImgType.GRAY8 else np.repeat(grey[:, :, None], 3, axis=2)
             t = cam.frame_time(k)
-            return ImgFrame(img, self.type, t, t - cam.pipeline.device.oak.boot_offset_ns, k)
+            oak = cam.pipeline.device.oak
+            manual = cam.initialControl.exposure
+            exposure = manual[0] if manual is not None else oak.auto_exposure_us.get(cam.socket.name, 10_000)
+            return ImgFrame(img, self.type, t, t - oak.boot_offset_ns, k, exposure)
 
     class Camera:
         initialControl = property(lambda self: self._initial_control)
@@ -374,6 +399,6 @@ def make_fake_depthai(oaks: list[FakeOak], start_s: float = 1000.0):
     return SimpleNamespace(
         __name__="fake_depthai", __version__="3.12.0-fake", Device=Device, DeviceInfo=DeviceInfo,
         Pipeline=Pipeline, node=node, Node=Node, ImgFrame=ImgFrame, MessageQueue=MessageQueue,
-        CameraBoardSocket=CameraBoardSocket, CameraControl=CameraControl,
+        CameraBoardSocket=CameraBoardSocket, CameraControl=CameraControl, CameraExposureOffset=CameraExposureOffset,
         ExternalFrameSyncRole=ExternalFrameSyncRole, XLinkDeviceState=XLinkDeviceState,
         clock=clock, sleep=sleep, state=state)

@@ -92,6 +92,9 @@ class FakeCamera:
     max_buffers: int = 32
     monotonic: bool = True
     """Timestamps flagged CLOCK_MONOTONIC (else TIMESTAMP_UNKNOWN)."""
+    tstamp_src: str = "SOE"
+    """``SOE``: timestamps flagged taken at the start of the exposure (as uvcvideo's); ``EOF``: at the end
+    of the frame (``V4L2_BUF_FLAG_TSTAMP_SRC_EOF``, 0)."""
     phase_ns: int = 0
     """[ns] offset of this sensor's frame clock after STREAMON."""
     lose: set[int] = field(default_factory=set)
@@ -339,6 +342,8 @@ class FakeV4L2(V.Syscalls):
         if buf["index"] in cam.incoming:
             flags |= V.V4L2_BUF_FLAG_QUEUED
         flags |= V.V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC if cam.monotonic else V.V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN
+        if cam.tstamp_src == "SOE":
+            flags |= V.V4L2_BUF_FLAG_TSTAMP_SRC_SOE
         b.flags = flags
         b.bytesused, b.sequence = buf["bytesused"], buf["sequence"]
         b.timestamp.tv_sec, b.timestamp.tv_usec = divmod(buf["ts"] // 1000, 1_000_000)

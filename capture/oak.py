@@ -14,9 +14,13 @@ non-blocking host queue (``createOutputQueue(maxSize, blocking=False)``: when
 the host falls behind, the oldest frames are overwritten, which shows as a
 gap in ``getSequenceNum()``), then ``pipeline.start()``.
 
-Timestamps: ``ImgFrame.getTimestamp()``, the device clock already mapped by
-DepthAI's time synchronisation onto the host's ``std::chrono::steady_clock``,
-which on Linux is ``CLOCK_MONOTONIC`` (the clock of the V4L2 and mock drivers).
+Timestamps: ``ImgFrame.getTimestamp(CameraExposureOffset.MIDDLE)``, the middle of the
+image's exposure (DepthAI stamps the end; the middle is the moment the image shows, so
+sensors with different exposure times, each under its own auto exposure, are stamped when
+they saw the scene even when one FSYNC pulse ends their exposures together), on the device
+clock already mapped by DepthAI's time synchronisation onto the host's
+``std::chrono::steady_clock``, which on Linux is ``CLOCK_MONOTONIC`` (the clock of the V4L2
+and mock drivers).
 Sequence numbers: ``getSequenceNum()``.
 
 Synchronisation (``sync``): ``hardware`` ties the sensors of a device to one
@@ -263,7 +267,8 @@ class DepthAISource(FrameSource):
         if img.shape[:2] != (cam.height, cam.width):
             raise CaptureError(f"camera {cam.id}: OAK delivered {img.shape[1]}x{img.shape[0]}, the rig "
                                f"asks for {cam.width}x{cam.height}")
-        return Frame(cam.id, _ns(msg.getTimestamp()), int(msg.getSequenceNum()), img)
+        mid = msg.getTimestamp(self._dai.CameraExposureOffset.MIDDLE)
+        return Frame(cam.id, _ns(mid), int(msg.getSequenceNum()), img)
 
     def stop(self) -> None:
         for d in self.devices:

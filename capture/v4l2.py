@@ -19,7 +19,13 @@ Timestamps and sequence numbers come from the dequeued ``v4l2_buffer``: when
 the driver flags its timestamps ``V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC`` (every
 uvcvideo device does) they are ``CLOCK_MONOTONIC`` at microsecond resolution,
 the clock the other drivers use; otherwise the host's monotonic clock at
-dequeue time is used and a warning logged. A buffer flagged
+dequeue time is used and a warning logged. A timestamp of the start of the
+exposure (``V4L2_BUF_FLAG_TSTAMP_SRC_SOE``, as uvcvideo's) is moved to its middle,
+the moment the image shows (as the OAK driver's), by half the manual exposure
+the controls set; with automatic exposure (``Controls(fixed=False)``, or a
+device without the controls) the exposure is unknown and the stamp stays at the
+start. An end-of-frame timestamp (``TSTAMP_SRC_EOF``) stays as it is: it lags the
+exposure by the readout, which the device does not report (logged once). A buffer flagged
 ``V4L2_BUF_FLAG_ERROR`` (or an undecodable MJPG frame) is discarded, so it
 shows as a sequence gap (a drop). ``ENODEV``/``EIO`` on a camera report it as
 lost.
@@ -233,6 +239,9 @@ V4L2_BUF_FLAG_TIMESTAMP_MASK = 0x0000E000
 V4L2_BUF_FLAG_TIMESTAMP_UNKNOWN = 0x00000000
 V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC = 0x00002000
 V4L2_BUF_FLAG_TIMESTAMP_COPY = 0x00004000
+V4L2_BUF_FLAG_TSTAMP_SRC_MASK = 0x00070000
+V4L2_BUF_FLAG_TSTAMP_SRC_EOF = 0x00000000
+V4L2_BUF_FLAG_TSTAMP_SRC_SOE = 0x00010000
 V4L2_CTRL_FLAG_DISABLED = 0x0001
 V4L2_CTRL_FLAG_INACTIVE = 0x0010
 V4L2_CTRL_TYPE_INTEGER, V4L2_CTRL_TYPE_BOOLEAN, V4L2_CTRL_TYPE_MENU = 1, 2, 3
@@ -628,6 +637,7 @@ class V4L2Source(FrameSource):
         self.applied: dict[str, dict[str, Any]] = {}
         self._lost: list[Item] = []
         self._warned_clock: set[str] = set()
+        self._noted_eof: set[str] = set()
         self.finished = False
         self.realtime = realtime  # False only over a simulated kernel (tests)
 
@@ -747,12 +757,27 @@ class V4L2Source(FrameSource):
         out.sort(key=lambda it: it.timestamp_ns if isinstance(it, Frame) else -1)
         return out
 
+    def _half_exposure_ns(self, cam: CameraSpec) -> int:
+        """[ns] from the start of ``cam``'s exposure to its middle: half the manual exposure the controls
+        set (``EXPOSURE_ABSOLUTE`` in 100 µs units, active once auto exposure is off); 0 when unknown."""
+        applied = self.applied.get(cam.id, {})
+        if applied.get("auto_exposure") != V4L2_EXPOSURE_MANUAL or applied.get("exposure") is None:
+            return 0
+        return int(applied["exposure"]) * 100_000 // 2
+
     def _frame(self, cam: CameraSpec, dev: V4L2Device, b: v4l2_buffer) -> Frame | None:
         if b.flags & V4L2_BUF_FLAG_ERROR:
             log.info("%s: buffer %d flagged as corrupt (sequence %d); discarded", cam.id, b.index, b.sequence)
             return None
         if b.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC:
             ts = int(b.timestamp.tv_sec) * 1_000_000_000 + int(b.timestamp.tv_usec) * 1000
+            if b.flags & V4L2_BUF_FLAG_TSTAMP_SRC_MASK == V4L2_BUF_FLAG_TSTAMP_SRC_SOE:
+                ts += self._half_exposure_ns(cam)
+            elif cam.id not in self._noted_eof:
+                self._noted_eof.add(cam.id)
+                log.info("%s: the driver stamps the end of each frame, which lags the exposure by the readout "
+                         "(not known): on a rig mixing it with start-of-exposure cameras their capture times "
+                         "differ by that", cam.id)
         else:
             if cam.id not in self._warned_clock:
                 self._warned_clock.add(cam.id)

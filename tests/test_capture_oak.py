@@ -43,7 +43,7 @@ def test_fake_sdk_surface_exists_in_the_real_depthai():
         "Pipeline": ["create", "start", "stop", "isRunning"],
         "MessageQueue": ["tryGet", "get", "QueueException", "getMaxSize", "isClosed"],
         "ImgFrame": ["getCvFrame", "getFrame", "getTimestamp", "getTimestampDevice", "getSequenceNum",
-                     "getWidth", "getHeight", "getType", "Type"],
+                     "getWidth", "getHeight", "getType", "Type", "getExposureTime"],
         "CameraControl": ["setManualExposure", "setManualWhiteBalance", "setFrameSyncMode", "FrameSyncMode"],
     }
     for cls, names in used.items():
@@ -55,7 +55,8 @@ def test_fake_sdk_surface_exists_in_the_real_depthai():
     assert hasattr(dai.Node.Output, "createOutputQueue")
     for enum_name, members in (("ImgFrame.Type", ["GRAY8", "RGB888i"]), ("CameraBoardSocket", ["CAM_A", "CAM_B", "CAM_C"]),
                                ("CameraControl.FrameSyncMode", ["OUTPUT", "INPUT"]),
-                               ("ExternalFrameSyncRole", ["MASTER", "SLAVE"])):
+                               ("ExternalFrameSyncRole", ["MASTER", "SLAVE"]),
+                               ("CameraExposureOffset", ["START", "MIDDLE", "END"])):
         real, fk = dai, fake
         for part in enum_name.split("."):
             real, fk = getattr(real, part), getattr(fk, part)
@@ -66,6 +67,7 @@ def test_fake_sdk_surface_exists_in_the_real_depthai():
     assert "type" in dai.node.Camera.requestOutput.__doc__ and "fps" in dai.node.Camera.requestOutput.__doc__
     assert "maxSize" in dai.Node.Output.createOutputQueue.__doc__ and "blocking" in dai.Node.Output.createOutputQueue.__doc__
     assert "timedelta" in dai.ImgFrame.getTimestamp.__doc__
+    assert "offset: depthai.CameraExposureOffset" in dai.ImgFrame.getTimestamp.__doc__
     fake_sig = inspect.signature(fake.node.Camera.requestOutput)
     assert {"size", "type", "fps"} <= set(fake_sig.parameters)
 
@@ -102,6 +104,28 @@ def test_timestamps_are_host_synced_nanoseconds():
     assert f.timestamp_ns % 1000 == 0
     assert abs(f.timestamp_ns - dai.state.now_ns) < 0.2e9  # on the host clock, not the device's
     assert f.timestamp_ns == (1000 * 10**9 + 50_000_000 + (f.timestamp_ns - 1000 * 10**9 - 50_000_000))
+
+
+def test_timestamps_are_the_middle_of_the_exposure():
+    # DepthAI stamps the end of a frame's exposure; the driver takes the middle, the moment the image
+    # shows: FSYNC'd sensors whose auto exposures differ are stamped that far apart
+    oak = FakeOak(auto_exposure_us={"CAM_A": 20_000, "CAM_C": 4_001})
+    src, dai = source([spec(0, "CAM_B"), spec(1, "CAM_C"), spec(2, "CAM_A", "RGB")], [oak])
+    src.start()
+    stamps: dict[int, dict[str, int]] = {}
+    for f in frames_of(src):
+        if isinstance(f, Frame):
+            stamps.setdefault(f.sequence, {})[f.cam_id] = f.timestamp_ns
+    full = [t for t in stamps.values() if len(t) == 3]
+    assert full and all(t["cam00"] - t["cam02"] == 5_000_000 and t["cam01"] - t["cam00"] == 3_000_000
+                        for t in full)          # 20000 / 2 - 10000 / 2, 10000 / 2 - 4001 // 2 [µs] (DepthAI's halving)
+    # a manual exposure moves every stamp back by half of it from the same end
+    ends = {}
+    for exposure in (8_000, 20_000):
+        src, _ = source([spec(0, "CAM_B")], [FakeOak()], controls=DepthAIControls(exposure_us=exposure, iso=100))
+        src.start()
+        ends[exposure] = frames_of(src, 3)[0].timestamp_ns
+    assert ends[8_000] - ends[20_000] == 6_000_000
 
 
 def test_software_sync_when_external_sync_is_refused(caplog):

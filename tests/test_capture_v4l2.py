@@ -125,6 +125,26 @@ def test_controls_are_fixed_and_equal_on_every_camera():
     src.stop()
 
 
+def test_start_of_exposure_timestamps_move_to_its_middle(caplog):
+    # uvcvideo stamps the start of the exposure (TSTAMP_SRC_SOE): with the controls' manual exposure
+    # (100 µs units) the driver moves each stamp to the exposure's middle, as the OAK driver's; with
+    # automatic exposure (unknown) and for end-of-frame stamps it leaves them
+    def first_stamp(tstamp_src, controls):
+        k = FakeV4L2([FakeCamera(tstamp_src=tstamp_src)])
+        src = V.V4L2Source([spec(0)], sys=k, controls=controls)
+        src.start()
+        ts = read_all(src, 3)[0].timestamp_ns
+        src.stop()
+        return ts
+
+    caplog.set_level("INFO", logger="capture.v4l2")
+    eof = first_stamp("EOF", V.Controls(exposure=100))
+    assert "stamps the end of each frame" in caplog.text
+    assert first_stamp("SOE", V.Controls(exposure=100)) - eof == 5_000_000
+    assert first_stamp("SOE", V.Controls(exposure=333)) - eof == 16_650_000
+    assert first_stamp("SOE", V.Controls(fixed=False)) == eof
+
+
 def test_auto_controls_are_left_alone():
     f = FakeCamera()
     k = FakeV4L2([f])
