@@ -77,6 +77,10 @@ def add_parsers(sub) -> None:
                               help="depth of frame I alone from its two differential-stereo estimates (paper "
                                    "Eq. 6: across the viewpoints, no motion): a light field of one frame, or a "
                                    "static scene")
+    p.add_argument("--sync-correct", choices=("auto", "off"), default="auto",
+                   help="SESSION whose cameras are not synchronised: resample the pair again with each camera "
+                        "where it captured its image, its share of the motion (auto, the default), or take the "
+                        "images as captured together (off); docs/motion.md, \"Unsynchronised cameras\"")
     p.add_argument("--views", choices=("central", "all"), default="central",
                    help="write maps (and points) for the central view of each face or all views (default central)")
     p.add_argument("--scale-selection", choices=("auto", "off", "face", "region"), default="auto",
@@ -210,7 +214,8 @@ def cmd_depth(args: argparse.Namespace) -> int:
         if changed:
             motion["motion_options"] = changed
     unsync = sync_warning(store.session) if hasattr(store, "session") else ""
-    if unsync and not stereo:
+    correct = bool(unsync) and not stereo and args.sync_correct == "auto"
+    if correct:
         # unsynchronised cameras: the pair resampled again with each camera where it captured its image, its
         # share of the motion to the neighbouring frame (the pairs before and after too: their own motion,
         # estimated or from --traj), and its motion estimated again
@@ -303,7 +308,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
             print(f"  motion vs groundtruth: translation {100 * float(err.t_rel[0]):.2f}%, "
                   f"rotation {100 * float(err.w_rel[0]):.2f}%")
     if unsync:
-        print("  warning: " + unsync + (SYNC_AS_IF_TOGETHER if stereo else
+        print("  warning: " + unsync + (SYNC_AS_IF_TOGETHER if not correct else
                                         "; the pair was resampled again with each camera where it captured its "
                                         "image (docs/motion.md, \"Unsynchronised cameras\")"))
     return 0

@@ -204,4 +204,11 @@ def test_motion_corrects_unsynchronised_cameras(tmp_path, capsys):
     assert depth["cameras_moved_to_capture"] is True
     M_true = truth.relative()[0]
     off = np.linalg.norm(read_tum(tmp_path / "off.tum").relative()[0][:3, 3] - M_true[:3, 3])
-    assert np.linalg.norm(np.array(depth["T_prev_next"])[:3, 3] - M_true[:3, 3]) < 0.5 * off
+    corrected = np.linalg.norm(np.array(depth["T_prev_next"])[:3, 3] - M_true[:3, 3])
+    assert corrected < 0.5 * off
+    # --sync-correct off: the images as captured together, as polycam motion's off
+    assert main(["depth", str(session), "--out", str(tmp_path / "d0"), "--sync-correct", "off"]) == 0
+    assert "each is resampled as if taken at the frame's time" in capsys.readouterr().out
+    depth0 = tomllib.loads((tmp_path / "d0" / "depth.toml").read_text())["depth"]
+    assert "cameras_moved_to_capture" not in depth0
+    assert np.linalg.norm(np.array(depth0["T_prev_next"])[:3, 3] - M_true[:3, 3]) > 2 * corrected
