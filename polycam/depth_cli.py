@@ -20,9 +20,6 @@ from .motion_options import PRESETS, options_from_strings
 __all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
            "add_solver_options", "solver_options"]
 
-TIMESTAMP_TOLERANCE_NS = 1_000_000
-"""A --traj pose belongs to a frame when their timestamps differ by at most this (1 ms)."""
-
 
 def add_source_options(p: argparse.ArgumentParser) -> None:
     """``--calib``, ``--uv-step`` and ``--xy-oversample``: how a SESSION source is resampled on
@@ -140,22 +137,16 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
 
 def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int):
     """(4, 4) ``T_rig0_rig1`` between the poses of a TUM trajectory at two frame times
-    (each matched within :data:`TIMESTAMP_TOLERANCE_NS`)."""
-    import numpy as np
-
+    (each matched within :data:`polycam.trajectory.MATCH_TOLERANCE_NS`)."""
     from .errors import InputError
     from .geometry import T_inverse
-    from .trajectory import read_tum
+    from .trajectory import poses_at_times, read_tum
 
-    traj = read_tum(path)
-    ts = np.asarray(traj.timestamps_ns, np.int64)
-    idx = []
-    for t in (t0_ns, t1_ns):
-        i = int(np.argmin(np.abs(ts - t))) if len(ts) else -1
-        if i < 0 or abs(int(ts[i]) - int(t)) > TIMESTAMP_TOLERANCE_NS:
-            raise InputError(f"{path}: no pose within 1 ms of frame time {t * 1e-9:.9f} s")
-        idx.append(i)
-    return T_inverse(traj.T_world_rig[idx[0]]) @ traj.T_world_rig[idx[1]]
+    try:
+        T0, T1 = poses_at_times(read_tum(path), [t0_ns, t1_ns])
+    except ValueError as e:
+        raise InputError(f"{path}: {e}") from None
+    return T_inverse(T0) @ T1
 
 
 def cmd_depth(args: argparse.Namespace) -> int:

@@ -17,7 +17,11 @@ from .errors import FormatError
 from .geometry import R_from_quat, R_from_r, T_from_Rt, T_inverse, quat_from_R, r_from_R
 from .tomlio import atomic_write_text
 
-__all__ = ["Trajectory", "pose_at", "read_tum", "write_tum", "tum_text"]
+__all__ = ["Trajectory", "pose_at", "poses_at_times", "read_tum", "write_tum", "tum_text", "MATCH_TOLERANCE_NS"]
+
+MATCH_TOLERANCE_NS = 1_000_000
+"""[ns] how far a trajectory's pose may be from a frame's timestamp and still be that frame's
+(:func:`poses_at_times`; TUM files written by other tools round their times)."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,23 @@ class Trajectory:
         for M in T_prev_next:
             T.append(T[-1] @ M)
         return cls(np.asarray(timestamps_ns, dtype=np.int64), np.stack(T))
+
+
+def poses_at_times(trajectory: Trajectory, timestamps_ns: np.ndarray,
+                   tolerance_ns: int = MATCH_TOLERANCE_NS) -> np.ndarray:
+    """(N, 4, 4) ``T_world_rig`` of the trajectory's poses at the given (N,) times [ns], each the pose
+    nearest in time; ValueError naming the first time without a pose within ``tolerance_ns``."""
+    ts = np.asarray(trajectory.timestamps_ns, np.int64)
+    want = np.asarray(timestamps_ns, np.int64)
+    if ts.size == 0:
+        raise ValueError("the trajectory has no poses")
+    after = np.clip(np.searchsorted(ts, want), 0, ts.size - 1)          # the nearest pose: this one or
+    before = np.maximum(after - 1, 0)                                    # the one before it
+    i = np.where(np.abs(ts[before] - want) <= np.abs(ts[after] - want), before, after)
+    far = np.flatnonzero(np.abs(ts[i] - want) > tolerance_ns)
+    if far.size:
+        raise ValueError(f"no pose within {tolerance_ns / 1e6:g} ms of frame time {want[far[0]] * 1e-9:.9f} s")
+    return trajectory.T_world_rig[i]
 
 
 def pose_at(trajectory: Trajectory, t_ns: float) -> np.ndarray:

@@ -100,3 +100,17 @@ def test_relative_and_from_relative(rng):
 def test_trajectory_checks_shapes():
     with pytest.raises(ValueError):
         Trajectory(np.zeros(3, np.int64), np.zeros((2, 4, 4)))
+
+
+def test_poses_at_frame_times():
+    # the pose nearest each time, within the tolerance (TUM files of other tools round their times)
+    from polycam.trajectory import MATCH_TOLERANCE_NS, poses_at_times
+
+    T = np.broadcast_to(np.eye(4), (4, 4, 4)).copy()
+    T[:, 0, 3] = np.arange(4)
+    tr = Trajectory(np.array([0, 100, 200, 300], np.int64) * 1_000_000, T)
+    got = poses_at_times(tr, np.array([0, 300_000_400, 100_999_000, 199_500_000, -900_000]))
+    np.testing.assert_array_equal(got[:, 0, 3], [0, 3, 1, 2, 0])
+    with pytest.raises(ValueError, match="no pose within 1 ms of frame time 0.150000000 s"):
+        poses_at_times(tr, np.array([0, 150_000_000]))
+    assert MATCH_TOLERANCE_NS == 1_000_000
