@@ -906,5 +906,6 @@ def sync_warning(session: Session) -> str:
 
 SYNC_AS_IF_TOGETHER = ("; each is resampled as if taken at the frame's time, which on a moving rig makes the errors "
                        "several times larger and the reported std too small (polycam motion SESSION and polycam "
-                       "depth SESSION correct for it; docs/motion.md, \"Unsynchronised cameras\")")
+                       "depth SESSION correct for it, polycam resample with --sync-motion TRAJ.tum; docs/motion.md, "
+                       "\"Unsynchronised cameras\")")
 """How :func:`sync_warning`'s line ends where the images are resampled as they are."""

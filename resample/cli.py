@@ -1,4 +1,5 @@
-"""The resampling stage's verb: ``polycam resample SESSION --calib DIR --out LF.zarr [--grid GRID.toml]``.
+"""The resampling stage's verb: ``polycam resample SESSION --calib DIR --out LF.zarr [--grid GRID.toml]
+[--sync-motion TRAJ.tum]``.
 
 Registered by :func:`add_parsers` (polycam/cli.py discovers this module). Nothing
 heavy is imported at module level; the handler imports what it needs after the
@@ -39,6 +40,10 @@ def add_parsers(sub) -> None:
                         "cluster of --workers processes (in-process for tiny jobs)")
     p.add_argument("--workers", type=_nonneg_int, default=None, metavar="N",
                    help="local worker processes (default: one per core; 0 = resample in this process)")
+    p.add_argument("--sync-motion", metavar="TRAJ.tum",
+                   help="cameras that are not synchronised: resample each frame with every camera where it "
+                        "captured its image, its share of this trajectory's motion (T_world_rig at the frame "
+                        "times, e.g. polycam motion SESSION's output); a splat geometry per frame")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output store")
     p.set_defaults(func=cmd_resample)
 
@@ -56,6 +61,18 @@ def cmd_resample(args: argparse.Namespace) -> int:
         raise InputError(f"{args.calib}: no such calibration folder")
     if args.scheduler is not None and args.workers is not None:
         raise InputError("resample: give either --scheduler or --workers, not both")
+    capture_motion = None
+    if args.sync_motion is not None:
+        from polycam.geometry import T_inverse
+        from polycam.session import open_session
+        from polycam.trajectory import poses_at_times, read_tum
+
+        traj = read_tum(args.sync_motion)
+        try:
+            T_world_rig = poses_at_times(traj, open_session(session).timestamps_ns)
+        except ValueError as e:
+            raise InputError(f"{args.sync_motion}: {e}") from None
+        capture_motion = T_inverse(T_world_rig[:-1]) @ T_world_rig[1:]          # T_prev_next per pair
     from .pipeline import resample_session
     from .resampler import ResampleOptions
 
@@ -64,7 +81,8 @@ def cmd_resample(args: argparse.Namespace) -> int:
         scheduler = "sync"
     with _progress(f"resampling {session.name}", None) as advance:   # total: set by the first callback
         s = resample_session(session, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
-                             options=ResampleOptions(view_fill=args.view_fill), scheduler=scheduler, workers=args.workers or None, overwrite=args.overwrite,
+                             options=ResampleOptions(view_fill=args.view_fill), scheduler=scheduler,
+                             workers=args.workers or None, overwrite=args.overwrite, capture_motion=capture_motion,
                              progress=advance)
     F, Ny, Nx, Nv, Nu = s.grid.shape
     print(f"wrote {s.path}: {s.frames} frames, {F} face(s) ({' '.join(f.name for f in s.grid.faces)}), "
@@ -75,7 +93,11 @@ def cmd_resample(args: argparse.Namespace) -> int:
           f"{s.seconds_geometry:.1f} s, frames {s.seconds_frames:.1f} s ({s.scheduler})"
           + (f"; {s.missing_images} missing image(s)" if s.missing_images else "")
           + (f"; {s.empty_frames} empty frame(s)" if s.empty_frames else ""))
-    if s.sync_warning:
+    if s.cameras_moved_to_capture:
+        print(f"  each frame resampled with every camera where it captured its image (its share of "
+              f"{args.sync_motion}'s motion)" + (f"; {s.sync_warning}" if s.sync_warning else
+                                                 "; the session's cameras were synchronised already"))
+    elif s.sync_warning:
         from polycam.session import SYNC_AS_IF_TOGETHER
 
         print("  warning: " + s.sync_warning + SYNC_AS_IF_TOGETHER)

@@ -76,6 +76,8 @@ class ResampleSummary:
     """Cameras left out of that estimate: they record MJPG (:data:`resample.resampler.COMPRESSED_FORMATS`)."""
     sync_warning: str = ""
     """:func:`polycam.session.sync_warning` of the session ('' when its cameras are synchronised)."""
+    cameras_moved_to_capture: bool = False
+    """Each frame was resampled with every camera where it captured its image (``capture_motion``)."""
 
 
 def open_calibration(session, calib_dir: str | os.PathLike | None) -> dict:
@@ -143,6 +145,16 @@ def _frame_task(resampler, session_path: str, t: int, partial: str, threads: int
         return t, len(r.cameras), float(np.sum(r.W, dtype=np.float64))
 
 
+def _moved_frame_task(models: dict, grid, channels: int, options, session_path: str, t: int, partial: str,
+                      threads: int | None) -> tuple[int, int, float]:
+    """:func:`_frame_task` with a resampler of frame t's own: ``models`` are the cameras where they
+    captured its images (:func:`resample.stream.models_at_capture`)."""
+    from .resampler import Resampler
+
+    return _frame_task(Resampler(models, grid, channels=channels, options=options), session_path, t, partial,
+                       threads)
+
+
 # ----------------------------------------------------------------------------- the job
 
 
@@ -177,12 +189,15 @@ def _camera_noise_attr(sess, resampler) -> dict | None:
 def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                      calib_dir: str | os.PathLike | None = None, grid: LightFieldGrid | None = None,
                      options=None, uv_step_px: float = 1.0, scheduler: str | None = None,
-                     workers: int | None = None, overwrite: bool = False,
+                     workers: int | None = None, overwrite: bool = False, capture_motion=None,
                      progress: Progress | None = None) -> ResampleSummary:
     """Resample every frame of a session into the light-field store ``out`` (see the module
     docstring). ``scheduler``: ``"sync"``, ``"local"``, an address, or None (automatic:
     ``workers == 0`` → sync, ``workers`` given → local, else by job size). ``workers``:
-    local worker processes (default: the number of cores)."""
+    local worker processes (default: the number of cores). ``capture_motion``: (T - 1, 4, 4)
+    ``T_prev_next`` per frame pair of a session whose cameras are not synchronised: each frame is
+    resampled with every camera where it captured its image (:func:`resample.stream.models_at_capture`;
+    a splat geometry per frame; the store's ``resample`` attribute says ``cameras_moved_to_capture``)."""
     from contextlib import ExitStack
 
     from polycam.session import open_session, sync_warning
@@ -196,6 +211,10 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
     if n == 0:
         raise InputError(f"{sess.path}: the session has no frames")
     models = open_calibration(sess, calib_dir)
+    if capture_motion is not None:
+        capture_motion = np.asarray(capture_motion, np.float64)
+        if capture_motion.shape != (max(n - 1, 0), 4, 4):
+            raise ValueError(f"capture_motion must be ({n - 1}, 4, 4), got {capture_motion.shape}")
     out = Path(out)
     if out.exists() and not overwrite:
         raise InputError(f"{out}: already exists (choose another name or allow overwriting)")
@@ -227,6 +246,8 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                                          "linear": options.kernel.linear},
                               "schedule": options.schedule, "attenuation": options.attenuation,
                               "full_weight": options.full_weight, "view_fill": options.view_fill}}
+        if capture_motion is not None:
+            attrs["resample"]["cameras_moved_to_capture"] = True
         positions = resampler.camera_positions()
         if positions is not None:          # the depth refinement's sources (polycam.depth_refine)
             attrs["camera_positions"] = camera_positions_attr(positions)
@@ -239,11 +260,17 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
         wsum = 0.0
         empty = 0
         try:
+            moved = None
+            if capture_motion is not None:
+                from .stream import models_at_capture
+
+                def moved(t: int) -> dict:
+                    return models_at_capture(models, sess, t, capture_motion)
             if client is None:
-                wsum, empty = _run_in_process(resampler, sess, n, str(store.partial), progress)
+                wsum, empty = _run_in_process(resampler, sess, n, str(store.partial), progress, moved)
             else:
                 wsum, empty = _run_dask(client, resampler, str(sess.path), n, str(store.partial), threads,
-                                        progress)
+                                        progress, moved)
             gt = sess.groundtruth()
             if gt is not None and not np.array_equal(gt.timestamps_ns, sess.timestamps_ns):
                 log.warning("%s: groundtruth.tum does not have one pose per frame; not copied", sess.path)
@@ -261,18 +288,21 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
                               seconds_frames=t_frames, mean_W=wsum / (n * grid.num_rays),
                               camera_noise_sigma=noise["sigma"] if noise is not None else float("nan"),
                               compressed_cameras=len(sess.cameras) - len(noise_cameras(sess, sess.cameras)),
-                              sync_warning=sync_warning(sess))
+                              sync_warning=sync_warning(sess), cameras_moved_to_capture=capture_motion is not None)
     log.info("resampled %d frames of %d cameras into %s (%s): geometry %.1f s, frames %.1f s", n,
              summary.cameras, out, label, t_geo, t_frames)
     return summary
 
 
-def _run_in_process(resampler, sess, n: int, partial: str, progress: Progress | None) -> tuple[float, int]:
+def _run_in_process(resampler, sess, n: int, partial: str, progress: Progress | None,
+                    moved=None) -> tuple[float, int]:
     """Frames one after the other in this process, with the reading of frame t+1 and the
     writing of frame t-1 overlapped with resampling frame t (two threads, two output
-    buffers: PNG decoding and chunk compression release the GIL)."""
+    buffers: PNG decoding and chunk compression release the GIL). ``moved``: frame t → its camera
+    models where they captured it, resampled with a resampler of its own."""
     from concurrent.futures import ThreadPoolExecutor
 
+    from .resampler import Resampler
     from .store import write_frame
 
     bufs = [resampler.new_output(), resampler.new_output()]
@@ -291,7 +321,9 @@ def _run_in_process(resampler, sess, n: int, partial: str, progress: Progress | 
                 writing[k].result()                 # buffer k is free again
             L, W = bufs[k]
             if any(img is not None for img in images.values()):
-                r = resampler.resample_into(images, out=(L, W))
+                own = resampler if moved is None else Resampler(moved(t), resampler.grid, channels=C,
+                                                                  options=resampler.options)
+                r = own.resample_into(images, out=(L, W))
                 wsum += float(np.sum(r.W, dtype=np.float64))
             else:
                 L[...] = 0.0
@@ -332,19 +364,28 @@ def _dask_client(stack, scheduler: str, workers: int | None):
 
 
 def _run_dask(client, resampler, session_path: str, n: int, partial: str, threads: int | None,
-              progress: Progress | None) -> tuple[float, int]:
-    """Frames as dask tasks, a bounded number in flight; returns (sum of W, empty frames)."""
+              progress: Progress | None, moved=None) -> tuple[float, int]:
+    """Frames as dask tasks, a bounded number in flight; returns (sum of W, empty frames). ``moved``:
+    as :func:`_run_in_process`'s (each task then builds its frame's resampler)."""
     from distributed import as_completed
 
     nw = max(1, len(client.scheduler_info().get("workers", {})))
-    remote = client.scatter(resampler, broadcast=True)
+    if moved is None:
+        remote = client.scatter(resampler, broadcast=True)
+
+        def submit(t: int):
+            return client.submit(_frame_task, remote, session_path, t, partial, threads, pure=False)
+    else:
+        def submit(t: int):
+            return client.submit(_moved_frame_task, moved(t), resampler.grid, resampler.channels,
+                                 resampler.options, session_path, t, partial, threads, pure=False)
     pending = iter(range(n))
     futures = as_completed()
     for _ in range(max(2, 2 * nw)):
         t = next(pending, None)
         if t is None:
             break
-        futures.add(client.submit(_frame_task, remote, session_path, t, partial, threads, pure=False))
+        futures.add(submit(t))
     done = 0
     wsum = 0.0
     empty = 0
@@ -359,7 +400,7 @@ def _run_dask(client, resampler, session_path: str, n: int, partial: str, thread
                 progress(done, n)
             t = next(pending, None)
             if t is not None:
-                futures.add(client.submit(_frame_task, remote, session_path, t, partial, threads, pure=False))
+                futures.add(submit(t))
     except BaseException:
         for f in list(futures.futures):
             f.cancel()

@@ -278,3 +278,42 @@ def test_grid_from_a_grid_file_is_used_as_given(session, tmp_path):
     grid = LightFieldGrid.cube(["+z"], f=g.faces[0].f, z_pi=0.01, x=g.x, y=g.y, u=g.u, v=g.v)
     summ = resample_session(path, tmp_path / "lf.zarr", grid=grid, scheduler="sync")
     assert open_lightfield(summ.path).grid == grid
+
+
+def test_unsynchronised_cameras_moved_to_their_capture(tmp_path, capsys):
+    """capture_motion (polycam resample --sync-motion TRAJ.tum): every frame resampled with each camera
+    where it captured its image: the frames of resample.stream.SessionLightField(capture_motion=...), in
+    process and through dask alike; the store says so, and a trajectory without the frame times is one
+    line naming it."""
+    from polycam.cli import main
+    from polycam.trajectory import read_tum
+    from resample.stream import SessionLightField
+
+    rig = load_rig(_rig(tmp_path))
+    path = synth_session(rig, tmp_path / "u", frames=3, seed=2, supersample=1, sync_spread_ms=16.0)
+    truth = read_tum(path / "groundtruth.tum")
+    motion = truth.relative()
+    a = resample_session(path, tmp_path / "sync.zarr", scheduler="sync", capture_motion=motion)
+    b = resample_session(path, tmp_path / "dask.zarr", workers=2, capture_motion=motion)
+    plain = resample_session(path, tmp_path / "plain.zarr", scheduler="sync")
+    assert a.cameras_moved_to_capture and b.cameras_moved_to_capture and not plain.cameras_moved_to_capture
+    la, lb, lp = (open_lightfield(s.path) for s in (a, b, plain))
+    stream = SessionLightField(path, grid=a.grid, capture_motion=motion, camera_noise=False)
+    for t in range(3):
+        np.testing.assert_array_equal(la.frame(t), stream.frame(t))
+        np.testing.assert_array_equal(la.weights(t), stream.weights(t))
+        np.testing.assert_array_equal(lb.frame(t), la.frame(t))
+    assert not np.array_equal(la.frame(1), lp.frame(1))
+    assert la.attrs["resample"]["cameras_moved_to_capture"] is True
+    assert "cameras_moved_to_capture" not in lp.attrs["resample"]
+    # the command, with the ground truth as the trajectory; and one without the frames' times
+    assert main(["resample", str(path), "--out", str(tmp_path / "cli.zarr"), "--workers", "0",
+                 "--sync-motion", str(path / "groundtruth.tum")]) == 0
+    assert "each frame resampled with every camera where it captured its image" in capsys.readouterr().out
+    np.testing.assert_array_equal(open_lightfield(tmp_path / "cli.zarr").frame(2), la.frame(2))
+    (tmp_path / "short.tum").write_text((path / "groundtruth.tum").read_text().splitlines()[0] + "\n")
+    assert main(["resample", str(path), "--out", str(tmp_path / "bad.zarr"), "--workers", "0",
+                 "--sync-motion", str(tmp_path / "short.tum")]) == 1
+    err = [l for l in capsys.readouterr().err.splitlines() if l.strip()]
+    assert len(err) == 1 and "short.tum" in err[0] and "no pose within 1 ms" in err[0], err
+    assert not (tmp_path / "bad.zarr").exists()
