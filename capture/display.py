@@ -12,7 +12,7 @@ import time
 
 from .stats import CaptureStats
 
-__all__ = ["LiveDisplay", "summary"]
+__all__ = ["LiveDisplay", "summary", "free_running_hint", "FREE_RUNNING_MISSING"]
 
 
 def _table(stats: CaptureStats, title: str):
@@ -99,4 +99,32 @@ def summary(stats: CaptureStats, where: str, status: str, recorded: bool = True)
             if c.lost:
                 what.append(f"lost after {c.lost_after_frames} frames ({c.lost})")
             lines.append(f"  {cam}: " + ", ".join(what))
+    hint = free_running_hint(stats)
+    if hint:
+        lines.append("  hint: " + hint)
     return "\n".join(lines)
+
+
+FREE_RUNNING_MISSING = 0.1
+"""Share of the cameras' places in the multi-frames left empty from which :func:`free_running_hint`
+speaks (with few frames lost and the spread at the tolerance)."""
+
+
+def free_running_hint(stats: CaptureStats) -> str:
+    """'' or why many multi-frames are incomplete although few frames were lost: cameras that free-run
+    at their own phases, spread over more than the tolerance, are split across multi-frames (one image
+    per camera per frame needs a tolerance of nearly a frame period: docs/capture.md)."""
+    cams = list(stats.per_camera.values())
+    slots = stats.multiframes * len(cams)
+    missing = sum(c.missing for c in cams)
+    lost = sum(c.dropped + c.late + c.overflow + c.unwritten for c in cams)
+    if len(cams) < 2 or slots == 0 or missing < FREE_RUNNING_MISSING * slots or missing < 2 * lost:
+        return ""
+    if stats.spread_percentiles_ms()["p90"] < 0.7 * stats.tolerance_ns / 1e6:
+        return ""
+    rates = [c.fps for c in cams if c.fps > 0]
+    period_ms = 1e3 / max(rates) if rates else float("nan")
+    return (f"{100 * missing / slots:.0f}% of the cameras' places in the multi-frames are empty though "
+            f"{lost} frames were lost, and the spread reaches the tolerance: the cameras seem to free-run "
+            f"at their own phases; --tolerance-ms {max(period_ms - 2.0, 0.5 * period_ms):.0f} (nearly a frame "
+            f"period) gives one image per camera per frame (docs/capture.md, \"Synchronisation\")")

@@ -318,3 +318,23 @@ def test_a_failing_driver_leaves_an_incomplete_readable_session(tmp_path):
     s = open_session(tmp_path / "s")
     assert s.status == "incomplete" and len(s) >= 2
     assert stats_of(tmp_path / "s")["capture"]["stopped_by"] == "source error"
+
+
+def test_free_running_cameras_need_a_frame_period_of_tolerance(tmp_path):
+    """Cameras at their own phases over a whole frame period ([mock] sync_spread_ms 16 at 30 Hz) are split
+    across multi-frames by the default tolerance (half a period), and the summary says what to do; a
+    tolerance of nearly a period gives one image per camera per frame."""
+    from capture.display import summary
+
+    rig = make_rig(tmp_path, rows=1, cols=5, mock="sync_spread_ms = 16.0")
+    split = record(MockSource(rig, realtime=False, frames=20), rig, tmp_path / "a", frames=20)
+    assert split.stats.complete < 5
+    text = summary(split.stats, "a", split.status)
+    assert "hint: " in text and "--tolerance-ms 31" in text
+    whole = record(MockSource(rig, realtime=False, frames=20), rig, tmp_path / "b", frames=19,
+                   tolerance_ns=31_000_000)
+    assert whole.stats.complete == whole.stats.multiframes == 19
+    assert "hint" not in summary(whole.stats, "b", whole.status)
+    s = open_session(tmp_path / "b")
+    phase = s.capture_times_ns() - s.timestamps_ns[:, None]
+    assert np.all(phase == phase[0]) and 20e6 < np.ptp(phase[0]) <= 31e6
