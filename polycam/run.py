@@ -15,7 +15,9 @@ ground truth (docs/end_to_end.md):
 4. **resample**: the resampling stage onto the two-plane light field with the
    *calibrated* models (``DIR/lightfield.zarr``);
 5. **motion**: plenoptic egomotion of every frame pair (``DIR/trajectory.tum``),
-   compared with the ground truth;
+   compared with the ground truth; cameras that are not synchronised (``[mock]
+   sync_spread_ms``) are resampled again with each camera where it captured its image
+   and solved again, as ``polycam motion SESSION`` does;
 6. **depth**: per-ray depth of the first frame pair (paper Eq. 6-7) and a point cloud;
 7. **report**: ``DIR/report/`` — ``README.md`` (every number below), ``summary.toml``,
    ``trajectory.png``, ``errors.png``, ``pairs.csv``, ``calibration_residuals.png``,
@@ -51,6 +53,9 @@ __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "
            "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS", "run_grid", "session_grid"]
 
 _REPO = Path(__file__).resolve().parents[1]
+FREE_RUNNING_MARGIN_NS = 2_000_000
+"""[ns] the capture tolerance for free-running mock cameras is a frame period less this (the
+advice of ``capture.display.free_running_hint``)."""
 DEFAULT_RIG = _REPO / "rigs" / "mock5x5.toml"
 DEFAULT_BOARD = _REPO / "rigs" / "boards" / "charuco_5x7.toml"
 DEFAULT_BOARD_FACES = _REPO / "rigs" / "boards" / "charuco_7x9.toml"
@@ -273,19 +278,40 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     from .motion_report import write_motion_report
     from .trajectory import write_tum
 
-    lf = open_lightfield(out / "lightfield.zarr")
+    from .session import sync_warning
+
     motion_options = MotionOptions()     # (no discontinuity weight on these resampled frames:
                                          # MotionOptions.smooth_c_resampled)
-    stamps = [time.perf_counter()]                 # after each pair: per-pair times
-    with bar("5/6 plenoptic motion", len(lf) - 1) as adv, _stage("motion"):
-        def tick(done: int, total: int) -> None:
-            stamps.append(time.perf_counter())
-            if adv is not None:
-                adv(done, total)
 
-        traj, results = estimate_trajectory(lf, progress=tick, options=motion_options,
-                                            scale_selection=opts.scale_selection)
-    per_pair = np.diff(stamps) if len(stamps) > 1 else np.array([time.perf_counter() - stamps[0]])
+    def solve(desc: str):
+        """The trajectory, the pairs' results and their times [s] on the store as it is now."""
+        lf = open_lightfield(out / "lightfield.zarr")
+        stamps = [time.perf_counter()]                 # after each pair: per-pair times
+        with bar(desc, len(lf) - 1) as adv, _stage("motion"):
+            def tick(done: int, total: int) -> None:
+                stamps.append(time.perf_counter())
+                if adv is not None:
+                    adv(done, total)
+
+            traj, results = estimate_trajectory(lf, progress=tick, options=motion_options,
+                                                scale_selection=opts.scale_selection)
+        per_pair = np.diff(stamps) if len(stamps) > 1 else np.array([time.perf_counter() - stamps[0]])
+        return lf, traj, results, per_pair
+
+    lf, traj, results, per_pair = solve("5/6 plenoptic motion")
+    unsync = sync_warning(sess)
+    capture_motion = None
+    if unsync:
+        # free-running cameras: as polycam motion SESSION, the frames resampled again with each camera
+        # where it captured its image (its share of this motion) and solved again
+        capture_motion = np.stack([r.T_prev_next for r in results])
+        t0 = time.perf_counter()
+        with bar("5/6 resample, cameras where they captured", None) as adv, _stage("resample"):
+            resample_session(out / "session", out / "lightfield.zarr", calib_dir=out / "calib", grid=grid,
+                             scheduler="sync", overwrite=True, capture_motion=capture_motion, progress=adv)
+        lf, traj, results, per_pair = solve("5/6 plenoptic motion, second pass")
+        unsync += (f": every frame resampled again with each camera where it captured its image, its share "
+                   f"of the first solve's motion, and solved again ({time.perf_counter() - t0:.1f} s)")
     draws_line, drawn, draws_s = "", 0, None
     if opts.calib_draws:
         from .calib_draws_cli import add_calibration_share
@@ -294,7 +320,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
             results, draws_line, draws_s = add_calibration_share(
                 out / "session", cal.models, lf.grid, results, draws=opts.calib_draws,
                 bar=lambda total: bar("5/6 calibration draws", total), seed=seed, motion_options=motion_options,
-                scale_selection=opts.scale_selection)
+                scale_selection=opts.scale_selection, capture_motion=capture_motion)
         except InputError as e:                 # models without a covariance: the solver's covariance alone
             draws_line = f"calibration draws skipped: {e}"
         drawn = opts.calib_draws if draws_s is not None else 0
@@ -311,7 +337,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "ate_m": ate_rmse(traj, truth),
          "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan"),
-         "calibration_draws": drawn}
+         "calibration_draws": drawn, "cameras_moved_to_capture": capture_motion is not None}
     if drawn:
         from .calib_spread import calibration_std
         from .evaluate import std_norms
@@ -333,6 +359,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          f"rotation {100 * m['median_w_rel']:.1f}%; ATE {1e3 * m['ate_m']:.2f} mm; {solved}")
     if draws_line:
         echo(f"          {draws_line}")
+    if unsync:
+        echo(f"          {unsync}")
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")
@@ -377,13 +405,19 @@ def _record_mock(rig, path: Path, frames: int, models: dict, board, supersample:
     """Record ``frames`` multi-frames of ``rig``'s mock driver into the session ``path``
     the way ``polycam capture --rig RIG --fast`` does (``capture.record`` on a simulated
     clock, nothing lost), rendering with ``models`` (and showing ``board`` if given), then
-    add the mock's ground truth. Returns counts for the summary."""
+    add the mock's ground truth. Free-running mock cameras (``[mock] sync_spread_ms``) are grouped
+    with a tolerance of nearly a frame period, as docs/capture.md advises for them. Returns counts
+    for the summary."""
     from capture.mock import MockSource
     from capture.recorder import record
 
     src = MockSource(rig, realtime=False, frames=frames, supersample=supersample, models=models, board=board)
     on_update = (lambda st: advance(st.written, frames)) if advance is not None else None
-    res = record(src, rig, path, frames=frames, overwrite=True, on_update=on_update, update_interval=0.25)
+    free = board is None and rig.mock is not None and rig.mock.sync_spread_ms > 0
+    period_ns = 1e9 / max(float(c.fps) for c in rig.cameras)
+    tolerance = int(max(period_ns - FREE_RUNNING_MARGIN_NS, 0.5 * period_ns)) if free else None
+    res = record(src, rig, path, frames=frames, overwrite=True, on_update=on_update, update_interval=0.25,
+                 tolerance_ns=tolerance)
     st = res.stats
     if res.status != "complete" or st.written < frames:
         raise _fail("board" if board is not None else "capture",

@@ -194,3 +194,35 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
                  "--out", str(tmp_path / "depth_off"), "--refine", "off"])
     cap = capsys.readouterr()
     assert code == 0 and "0 points" in cap.out and "no captured data" in cap.out and "--refine on" in cap.out, cap.out
+
+
+def test_run_free_running_cameras_are_grouped_and_corrected(tmp_path, capsys, monkeypatch):
+    """Mock cameras at their own phases within ±12 ms (beyond the capture's default tolerance): the run
+    records them with nearly a frame period of tolerance (every multi-frame complete), sees that they are
+    not synchronised, resamples each frame again with the cameras where they captured and solves again
+    (measured: median error translation / rotation 5.4 / 7.5 % against 7.1 / 12.9 % uncorrected, the
+    synchronised run 5.1 / 10.5 %: the calibration's error dominates these small rigs)."""
+    import tomllib
+
+    import polycam.session as session_module
+    from polycam.evaluate import pair_errors
+    from polycam.session import open_session
+
+    (tmp_path / "rig.toml").write_text(RUN_RIG_TEXT + "sync_spread_ms = 12.0\nstep_t = 0.01\n")
+    err = {}
+    for mode in ("auto", "off"):
+        if mode == "off":
+            monkeypatch.setattr(session_module, "sync_warning", lambda s: "")
+        out = tmp_path / mode
+        code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "4"])
+        cap = capsys.readouterr()
+        assert code == 0, cap.err
+        assert ("the cameras are not synchronised" in cap.out) == (mode == "auto")
+        summary = tomllib.loads((out / "report" / "summary.toml").read_text())
+        assert summary["motion"]["cameras_moved_to_capture"] == (mode == "auto")
+        s = open_session(out / "session")
+        assert (s.cam_timestamps >= 0).all() and np.ptp(s.capture_times_ns()[0]) > 16e6   # beyond half a period
+        e = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
+        err[mode] = (float(np.median(e.t_rel)), float(np.median(e.w_rel)))
+    assert err["auto"][0] < E2E_RUN_MOTION_REL and err["auto"][1] < E2E_RUN_MOTION_REL
+    assert err["auto"][0] < 0.9 * err["off"][0] and err["auto"][1] < 0.75 * err["off"][1], err
