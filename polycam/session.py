@@ -890,10 +890,11 @@ session's images into a light field warn (:func:`sync_warning`)."""
 
 def sync_warning(session: Session) -> str:
     """'' for a session whose cameras captured each frame together (median spread under
-    :data:`SYNC_WARN_MS` plus what the timestamps' jitter alone spreads, :meth:`Session.jitter_spread_ns`), else the start of the line the CLI prints, which each command ends with what
-    it does about it (:data:`SYNC_AS_IF_TOGETHER` or its own): the resampling puts every image of a frame
-    at the frame's time, so a moving rig's cameras seen at different times make an inconsistent light
-    field (docs/motion.md, "Unsynchronised cameras")."""
+    :data:`SYNC_WARN_MS` plus what the timestamps' jitter alone spreads, :meth:`Session.jitter_spread_ns`),
+    else the start of the line the CLI prints, which each command ends with what it does about it
+    (:data:`SYNC_AS_IF_TOGETHER` or its own): the resampling puts every image of a frame at the frame's
+    time, so a moving rig's cameras seen at different times make an inconsistent light field
+    (docs/motion.md, "Unsynchronised cameras")."""
     if len(session) == 0 or len(session.cameras) < 2:
         return ""
     spread = session.capture_spread_ns() / 1e6

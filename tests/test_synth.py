@@ -450,8 +450,11 @@ def test_timestamp_jitter(tmp_path):
 
     rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nmotion = "smooth"\nstep_t = 0.02\n')
     kw = dict(frames=31, seed=2, supersample=1, bit_depth=16)       # one CAPTURE_OFFSET_FRAMES window
-    s0 = open_session(synth_session(rig, tmp_path / "s0", **kw))
-    sj = open_session(synth_session(rig, tmp_path / "sj", timestamp_jitter_ms=1.5, **kw))
+    calls: dict[str, list] = {"s0": [], "sj": []}
+    s0 = open_session(synth_session(rig, tmp_path / "s0", progress=lambda d, t: calls["s0"].append(d), **kw))
+    sj = open_session(synth_session(rig, tmp_path / "sj", timestamp_jitter_ms=1.5,
+                                    progress=lambda d, t: calls["sj"].append(d), **kw))
+    assert calls["s0"] == calls["sj"] == list(range(1, 32))        # a progress step per frame either way
     start = 7_500_000                                               # TIMESTAMP_JITTER_MARGIN stds
     np.testing.assert_array_equal(sj.timestamps_ns - start, s0.timestamps_ns)
     for f in (0, 30):

@@ -241,7 +241,8 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
                   perturb_rotation_deg: float = 0.0, perturb_focal_frac: float = 0.0,
                   distance: float | None = None, trajectory: Trajectory | None = None,
                   models: dict | None = None, specular: float = 0.0, sync_spread_ms: float = 0.0,
-                  timestamp_jitter_ms: float = 0.0, overwrite: bool = False, threads: int = 2, progress: Progress | None = None) -> Path:
+                  timestamp_jitter_ms: float = 0.0, overwrite: bool = False, threads: int = 2,
+                  progress: Progress | None = None) -> Path:
     """``polycam synth session``: render a rig moving through a scene into a session folder.
 
     Defaults come from the rig's ``[mock]`` table where it has one: ``scene``,
@@ -306,18 +307,18 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
                 images = {cam.id: _image_for(cam, rad[cam.id], bit_depth, noise, rng, _mjpg_quality(rig))
                           for cam in rig.cameras}
                 w.add_frame(t_f, images)
-                continue
-            jitter = np.random.default_rng([seed, _SALT_JITTER, i]).normal(0.0, timestamp_jitter_ms * 1e6,
-                                                                             len(rig.cameras))
-            rad = None if offsets else renderer.render(trajectory.T_world_rig[i])
-            stamps = {}
-            for cam, jit in zip(rig.cameras, jitter.tolist()):
-                t_c = t_f + offsets.get(cam.id, 0)                   # when the camera captured
-                img = rad[cam.id] if rad is not None else own[cam.id].render(pose_at(trajectory, t_c))[cam.id]
-                ts = max(t_c + int(round(jit)), last[cam.id] + 1, 0)
-                w.write_image(cam.id, ts, _image_for(cam, img, bit_depth, noise, rng, _mjpg_quality(rig)))
-                stamps[cam.id] = last[cam.id] = ts
-            w.write_frame(t_f, stamps)
+            else:      # each image at its own capture time and timestamp
+                jitter = np.random.default_rng([seed, _SALT_JITTER, i]).normal(
+                    0.0, timestamp_jitter_ms * 1e6, len(rig.cameras))
+                rad = None if offsets else renderer.render(trajectory.T_world_rig[i])
+                stamps = {}
+                for cam, jit in zip(rig.cameras, jitter.tolist()):
+                    t_c = t_f + offsets.get(cam.id, 0)                   # when the camera captured
+                    img = rad[cam.id] if rad is not None else own[cam.id].render(pose_at(trajectory, t_c))[cam.id]
+                    ts = max(t_c + int(round(jit)), last[cam.id] + 1, 0)
+                    w.write_image(cam.id, ts, _image_for(cam, img, bit_depth, noise, rng, _mjpg_quality(rig)))
+                    stamps[cam.id] = last[cam.id] = ts
+                w.write_frame(t_f, stamps)
             if progress is not None:
                 progress(i + 1, n)
         w.write_groundtruth(trajectory)
