@@ -54,8 +54,12 @@ def _recording(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing session folder")
     p.add_argument("--strict", action="store_true",
                    help="stop (exit 1) when a camera is lost instead of recording it as missing")
-    p.add_argument("--tolerance-ms", type=_positive_float,
-                   help="max timestamp spread of a multi-frame [ms] (default: half a frame period)")
+    sync = p.add_mutually_exclusive_group()
+    sync.add_argument("--tolerance-ms", type=_positive_float,
+                      help="max timestamp spread of a multi-frame [ms] (default: half a frame period)")
+    sync.add_argument("--free-running", action="store_true",
+                      help="cameras without a common trigger: one image per camera per frame period, the "
+                           "boundaries between frames in the largest gap between their phases")
     p.add_argument("--queue", type=_positive_int, default=32, help="writer queue length [multi-frames] (default 32)")
     p.add_argument("--png-threads", type=_positive_int, default=3, help="PNG encoding and writing threads (default 3)")
     p.add_argument("--no-display", action="store_true", help="no live display")
@@ -113,7 +117,8 @@ def _run(source, rig, out, args, title: str) -> int:
     tol = int(round(args.tolerance_ms * 1e6)) if args.tolerance_ms else None
     with _stop_on_signals() as stop, LiveDisplay(title, enabled=not args.no_display) as display:
         result = record(source, rig, out, frames=args.frames, seconds=args.seconds, strict=args.strict,
-                        overwrite=args.overwrite, tolerance_ns=tol, queue_frames=args.queue,
+                        overwrite=args.overwrite, tolerance_ns=tol, free_running=args.free_running,
+                        queue_frames=args.queue,
                         png_threads=args.png_threads, stop_event=stop, on_update=display)
     where = f"wrote {out}" if out is not None else f"replayed {title}"
     print(summary(result.stats, where, result.status, recorded=out is not None))

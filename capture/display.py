@@ -112,8 +112,8 @@ speaks (with few frames lost and the spread at the tolerance)."""
 
 def free_running_hint(stats: CaptureStats) -> str:
     """'' or why many multi-frames are incomplete although few frames were lost: cameras that free-run
-    at their own phases, spread over more than the tolerance, are split across multi-frames (one image
-    per camera per frame needs a tolerance of nearly a frame period: docs/capture.md)."""
+    at their own phases, spread over more than the tolerance, are split across multi-frames (their
+    grouping: ``--free-running``, :class:`capture.sync.Synchronizer`'s ``period_ns``)."""
     cams = list(stats.per_camera.values())
     slots = stats.multiframes * len(cams)
     missing = sum(c.missing for c in cams)
@@ -122,9 +122,8 @@ def free_running_hint(stats: CaptureStats) -> str:
         return ""
     if stats.spread_percentiles_ms()["p90"] < 0.7 * stats.tolerance_ns / 1e6:
         return ""
-    rates = [c.fps for c in cams if c.fps > 0]
-    period_ms = 1e3 / max(rates) if rates else float("nan")
     return (f"{100 * missing / slots:.0f}% of the cameras' places in the multi-frames are empty though "
             f"{lost} frames were lost, and the spread reaches the tolerance: the cameras seem to free-run "
-            f"at their own phases; --tolerance-ms {max(period_ms - 2.0, 0.5 * period_ms):.0f} (nearly a frame "
-            f"period) gives one image per camera per frame (docs/capture.md, \"Synchronisation\")")
+            f"at their own phases; --free-running groups one image per camera per frame period, following "
+            f"each camera's phase (a recorded session: polycam replay SESSION --out SESSION2 --free-running; "
+            f"docs/capture.md, \"Synchronisation\")")

@@ -131,7 +131,7 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
            tolerance_ns: int | None = None, wait_ns: int | None = None, queue_frames: int = 32,
            png_threads: int = 3, stop_event: threading.Event | None = None,
            on_update: Callable[[CaptureStats], None] | None = None, update_interval: float = 0.5,
-           writer_factory: Callable[..., Any] | None = None) -> CaptureResult:
+           writer_factory: Callable[..., Any] | None = None, free_running: bool = False) -> CaptureResult:
     """Capture from ``source`` into the session folder ``out`` (see the module docstring).
 
     rig: the rig (copied into the session); the source's cameras must be among its cameras.
@@ -139,6 +139,9 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     frames: stop after this many multi-frames; seconds: after this span of frame timestamps [s].
     tolerance_ns / wait_ns: synchroniser settings (defaults: half the shortest frame
         period; two of the longest frame periods).
+    free_running: the cameras have no common trigger: one image per camera per frame period, the
+        boundaries between frames in the largest gap between their phases (:class:`Synchronizer`'s
+        ``period_ns``, the shortest frame period; ``tolerance_ns`` is then not used).
     queue_frames: capacity of the writer queue [multi-frames].
     writer_factory: ``factory(out, rig, overwrite=...)`` → a SessionWriter (tests inject
         failing writers); default :class:`polycam.session.SessionWriter`.
@@ -158,10 +161,13 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
         raise CaptureError(f"source camera {unknown[0]!r} is not in the rig {rig.name!r}")
     fps = [rig.camera(c).fps for c in ids]
     tol = default_tolerance_ns(fps) if tolerance_ns is None else int(tolerance_ns)
+    period = int(round(1e9 / max(fps))) if free_running else None
+    if period is not None:
+        tol = period
     wait = int(round(2e9 / min(fps))) if wait_ns is None else int(wait_ns)
     stats = CaptureStats(ids, tol)
     stats.queue_size = queue_frames
-    sync = Synchronizer(tuple(ids), tol, wait)
+    sync = Synchronizer(tuple(ids), tol, wait, period_ns=period)
     stop_event = stop_event or threading.Event()
 
     session = None

@@ -19,6 +19,22 @@ of a recorded session regroups it identically):
 The multi-frame timestamp is the median of its members' timestamps (the lower
 median for an even count), raised to one nanosecond after the previous
 multi-frame's if needed so frame timestamps strictly increase.
+
+**Free-running cameras** (``period_ns`` given; ``polycam capture --free-running``): cameras
+without a common trigger have their phases anywhere in a frame period, which no tolerance
+under a period groups, and their timestamps jitter (USB transfer, scheduling) by more than
+the gaps between 20 cameras' phases, so the timestamps alone cannot say which frame an
+image belongs to. Instead each camera's phase is tracked: the first multi-frame takes each
+camera's first frame within one period of the earliest timestamp; its *reference time* is
+the median of its members' timestamps, and a camera's phase is its timestamp minus the
+reference time (then the median over its last :data:`PHASE_FRAMES` multi-frames). The next
+multi-frame's reference time is the last one plus a period, and a camera's frame belongs to
+it when its timestamp minus the camera's phase lies within half a period of it (earlier:
+late, discarded; later: the camera is missing from this one). A camera seen for the first
+time gets the phase that puts its frame nearest the reference time. The reference time then
+follows the cameras (the median of their timestamps minus their phases), so a frame rate a
+little off the nominal one does not drift out of the windows. Rule 3's waiting applies with
+each camera's window end.
 """
 
 from __future__ import annotations
@@ -27,9 +43,14 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .source import Frame
 
-__all__ = ["MultiFrame", "Synchronizer", "default_tolerance_ns"]
+__all__ = ["MultiFrame", "Synchronizer", "default_tolerance_ns", "PHASE_FRAMES"]
+
+PHASE_FRAMES = 15
+"""Free-running grouping: a camera's phase is the median over its last this many multi-frames."""
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +85,9 @@ class Synchronizer:
     wait_ns: int
     """[ns] how far past a group's window another camera's frames may run before a
     camera that has not delivered counts as missing."""
+    period_ns: int | None = None
+    """[ns] free-running cameras at this frame period: phase-tracked grouping (module docstring);
+    None: the anchor rule with ``tolerance_ns``."""
     late: dict[str, int] = field(init=False)
     """Camera id → frames discarded because their multi-frame was already emitted
     (or because their timestamp did not increase)."""
@@ -79,6 +103,10 @@ class Synchronizer:
         self._watermark = -1            # [ns] latest timestamp delivered by any camera
         self._last_frame_ns = -1
         self.late = {c: 0 for c in self.cameras}
+        if self.period_ns is not None and self.period_ns <= 0:
+            raise ValueError("period must be > 0")
+        self._ref_ns: int | None = None          # [ns] free-running: the next multi-frame's reference time
+        self._phases: dict[str, deque[int]] = {c: deque(maxlen=PHASE_FRAMES) for c in self.cameras}
 
     # -- input
 
@@ -122,11 +150,13 @@ class Synchronizer:
     def _emit_ready(self, final: bool) -> list[MultiFrame]:
         out: list[MultiFrame] = []
         while True:
+            if self.period_ns is not None and self._ref_ns is not None:
+                return out + self._emit_free_running(final)
             heads = [q[0].timestamp_ns for q in self._pending.values() if q]
             if not heads:
                 return out
             t0 = min(heads)
-            t_end = t0 + self.tolerance_ns
+            t_end = t0 + (self.tolerance_ns if self.period_ns is None else self.period_ns - 1)
             if not final:
                 for c in self.cameras:
                     if self._pending[c] or c in self._lost:
@@ -134,7 +164,73 @@ class Synchronizer:
                     if self._watermark > t_end + self.wait_ns:
                         continue  # given up on c for this window
                     return out  # c may still deliver a frame for this window
-            out.append(self._take(t0, t_end))
+            if self.period_ns is None:
+                out.append(self._take(t0, t_end))
+                continue
+            # the first free-running multi-frame: each camera's first frame in the period; a camera's
+            # next frame, jittered into it, stays for the next (judged by its phase)
+            members = {c: q.popleft() for c, q in self._pending.items() if q and q[0].timestamp_ns <= t_end}
+            for c, f in members.items():
+                self._done_until[c] = int(f.timestamp_ns)
+            self._track(members, {c: int(f.timestamp_ns) for c, f in members.items()})
+            out.append(self._multiframe(members))
+
+    # -- free-running cameras
+
+    def _phase(self, c: str) -> int | None:
+        """[ns] camera c's phase (its timestamps minus the reference times), None before its first frame."""
+        ph = self._phases[c]
+        return int(np.median(ph)) if ph else None
+
+    def _track(self, members: dict[str, Frame], shown: dict[str, int]) -> None:
+        """After a multi-frame: its reference time (the median of members' timestamps minus their phases;
+        ``shown``: those values), each member's phase, and the next reference time a period on."""
+        ref = int(np.median(list(shown.values())))
+        for c, f in members.items():
+            self._phases[c].append(int(f.timestamp_ns) - ref)
+        self._ref_ns = ref + int(self.period_ns)
+
+    def _emit_free_running(self, final: bool) -> list[MultiFrame]:
+        out: list[MultiFrame] = []
+        P = int(self.period_ns)
+        while True:
+            heads = {c: q[0] for c, q in self._pending.items() if q}
+            if not heads:
+                return out
+            phase = {c: self._phase(c) for c in self.cameras}
+            ref = self._ref_ns
+            for c, f in heads.items():                # a camera's first frame: the phase nearest ref
+                if phase[c] is None:
+                    phase[c] = (int(f.timestamp_ns) - ref + P // 2) % P - P // 2
+            # nothing for whole periods (every camera paused): skip to the earliest frame's period
+            u_min = min(int(f.timestamp_ns) - phase[c] for c, f in heads.items())
+            if u_min >= ref + P // 2:
+                self._ref_ns = ref = ref + (u_min - ref + P // 2) // P * P
+            if not final:
+                for c in self.cameras:
+                    if self._pending[c] or c in self._lost:
+                        continue
+                    end = ref + P // 2 + (phase[c] or 0)
+                    if self._watermark > end + self.wait_ns:
+                        continue  # given up on c for this multi-frame
+                    return out
+            members: dict[str, Frame] = {}
+            shown: dict[str, int] = {}
+            for c in self.cameras:
+                q = self._pending[c]
+                while q and int(q[0].timestamp_ns) - phase[c] < ref - P // 2:     # behind its window
+                    q.popleft()
+                    self.late[c] += 1
+                if q and int(q[0].timestamp_ns) - phase[c] < ref + P // 2:
+                    members[c] = q.popleft()
+                    shown[c] = int(members[c].timestamp_ns) - phase[c]
+                if phase[c] is not None:
+                    self._done_until[c] = max(self._done_until[c], ref + P // 2 + phase[c] - 1)
+            if not members:                             # only stale frames were pending
+                self._ref_ns = ref + P
+                continue
+            self._track(members, shown)
+            out.append(self._multiframe(members))
 
     def _take(self, t0: int, t_end: int) -> MultiFrame:
         members: dict[str, Frame] = {}
@@ -146,6 +242,9 @@ class Synchronizer:
                 q.popleft()
                 self.late[c] += 1
             self._done_until[c] = max(self._done_until[c], t_end)
+        return self._multiframe(members)
+
+    def _multiframe(self, members: dict[str, Frame]) -> MultiFrame:
         ts = sorted(f.timestamp_ns for f in members.values())
         stamp = ts[(len(ts) - 1) // 2]
         if stamp <= self._last_frame_ns:

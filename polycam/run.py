@@ -53,9 +53,6 @@ __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "
            "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS", "run_grid", "session_grid"]
 
 _REPO = Path(__file__).resolve().parents[1]
-FREE_RUNNING_MARGIN_NS = 2_000_000
-"""[ns] the capture tolerance for free-running mock cameras is a frame period less this (the
-advice of ``capture.display.free_running_hint``)."""
 DEFAULT_RIG = _REPO / "rigs" / "mock5x5.toml"
 DEFAULT_BOARD = _REPO / "rigs" / "boards" / "charuco_5x7.toml"
 DEFAULT_BOARD_FACES = _REPO / "rigs" / "boards" / "charuco_7x9.toml"
@@ -406,18 +403,15 @@ def _record_mock(rig, path: Path, frames: int, models: dict, board, supersample:
     the way ``polycam capture --rig RIG --fast`` does (``capture.record`` on a simulated
     clock, nothing lost), rendering with ``models`` (and showing ``board`` if given), then
     add the mock's ground truth. Free-running mock cameras (``[mock] sync_spread_ms``) are grouped
-    with a tolerance of nearly a frame period, as docs/capture.md advises for them. Returns counts
-    for the summary."""
+    by their phases, as ``polycam capture --free-running`` does. Returns counts for the summary."""
     from capture.mock import MockSource
     from capture.recorder import record
 
     src = MockSource(rig, realtime=False, frames=frames, supersample=supersample, models=models, board=board)
     on_update = (lambda st: advance(st.written, frames)) if advance is not None else None
     free = board is None and rig.mock is not None and rig.mock.sync_spread_ms > 0
-    period_ns = 1e9 / max(float(c.fps) for c in rig.cameras)
-    tolerance = int(max(period_ns - FREE_RUNNING_MARGIN_NS, 0.5 * period_ns)) if free else None
     res = record(src, rig, path, frames=frames, overwrite=True, on_update=on_update, update_interval=0.25,
-                 tolerance_ns=tolerance)
+                 free_running=free)
     st = res.stats
     if res.status != "complete" or st.written < frames:
         raise _fail("board" if board is not None else "capture",

@@ -198,7 +198,7 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
 
 def test_run_free_running_cameras_are_grouped_and_corrected(tmp_path, capsys, monkeypatch):
     """Mock cameras at their own phases within ±12 ms (beyond the capture's default tolerance): the run
-    records them with nearly a frame period of tolerance (every multi-frame complete), sees that they are
+    records them grouped by their phases (--free-running: every multi-frame complete), sees that they are
     not synchronised, resamples each frame again with the cameras where they captured and solves again
     (measured: median error translation / rotation 5.4 / 7.5 % against 7.1 / 12.9 % uncorrected, the
     synchronised run 5.1 / 10.5 %: the calibration's error dominates these small rigs)."""
