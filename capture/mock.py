@@ -185,11 +185,13 @@ class _RayTraced:
 
     def pose_at(self, t_rel_ns: float) -> np.ndarray:
         """(4, 4) ``T_world_rig`` at ``t_rel_ns`` after the start, between the trajectory's poses
-        (:func:`polycam.trajectory.pose_at`; held at its ends)."""
+        (:func:`polycam.trajectory.pose_at`): within a frame period beyond its ends its first and last
+        steps go on (an unsynchronised camera's first and last frames), farther the pose holds still."""
         from polycam.trajectory import pose_at
 
         ts = self.trajectory.timestamps_ns
-        return pose_at(self.trajectory, min(max(int(ts[0]) + float(t_rel_ns), float(ts[0])), float(ts[-1])))
+        t = int(ts[0]) + float(t_rel_ns)
+        return pose_at(self.trajectory, min(max(t, ts[0] - self.period_ns), ts[-1] + self.period_ns))
 
     def radiance_at(self, k: int, t_rel_ns: float) -> np.ndarray:
         """Camera k's radiance at its own moment ``t_rel_ns`` (an unsynchronised camera's)."""
