@@ -63,6 +63,7 @@ __all__ = [
     "SYNC_AS_IF_TOGETHER",
     "sync_warning",
     "capture_times",
+    "frame_times",
     "CAPTURE_OFFSET_FRAMES",
 ]
 
@@ -549,6 +550,7 @@ class Session:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self._capture_times: np.ndarray | None = None
+        self._frame_times: np.ndarray | None = None
         if not self.path.is_dir():
             raise FormatError(self.path, "no such session folder")
         self._read_session_toml()
@@ -743,10 +745,19 @@ class Session:
         timestamp jitter taken out (:func:`capture_times`: the frame's timestamp plus the camera's
         running median offset from it); -1 where it has none. Computed once per session."""
         if self._capture_times is None:
-            times = capture_times(self.timestamps_ns, self.cam_timestamps)
+            times = capture_times(self.frame_times_ns(), self.cam_timestamps)
             times.setflags(write=False)
             self._capture_times = times
         return self._capture_times
+
+    def frame_times_ns(self) -> np.ndarray:
+        """(F,) int64 [ns]: the frames' times without the jitter of their timestamps (:func:`frame_times`),
+        the times :meth:`capture_times_ns` and the correction of unsynchronised cameras refer to."""
+        if self._frame_times is None:
+            times = frame_times(self.timestamps_ns)
+            times.setflags(write=False)
+            self._frame_times = times
+        return self._frame_times
 
     def timestamp_jitter_ns(self) -> float:
         """[ns] RMS of the image timestamps about :meth:`capture_times_ns` (0 without images): the
@@ -849,6 +860,31 @@ def _normal_range(n: int) -> float:
     return float(np.sum(1.0 - cdf ** n - (1.0 - cdf) ** n) * (x[1] - x[0]))
 
 
+def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
+    """The frames' times without the jitter their timestamps inherit from their images' (a frame's
+    timestamp is the median of its images'): each frame's time on the frame clock (the first frame's time
+    plus a whole number of median frame intervals) plus a line fitted through the timestamps' offsets from
+    it over ``window`` frames around it (least squares, offsets beyond three robust stds left out). (F,) int64 [ns] → (F,) int64 [ns], non-decreasing where the intervals
+    are."""
+    ts = np.asarray(timestamps_ns, np.int64)
+    if ts.size < 3:
+        return ts.copy()
+    steps = np.diff(ts).astype(np.float64)
+    ticks = np.concatenate([[0.0], np.cumsum(np.maximum(np.round(steps / np.median(steps)), 1.0))])
+    period = float(np.polyfit(ticks, ts - ts[0], 1)[0])           # frame intervals, a lost frame two
+    clock = ts[0] + ticks * period
+    half = max(int(window), 1) // 2
+    off = (ts - clock).astype(np.float64)
+    smooth = np.empty_like(off)
+    for f in range(ts.size):                      # a line through the window's offsets (a rate off the
+        lo, hi = max(f - half, 0), min(f + half + 1, ts.size)        # nominal one drifts them linearly)
+        x, y = ticks[lo:hi] - ticks[f], off[lo:hi]
+        keep = np.abs(y - np.median(y)) <= 3.0 * max(1.4826 * np.median(np.abs(y - np.median(y))), 1.0)
+        A = np.stack([np.ones(int(keep.sum())), x[keep]], axis=1)
+        smooth[f] = np.linalg.lstsq(A, y[keep], rcond=None)[0][0]
+    return np.round(clock + smooth).astype(np.int64)
+
+
 def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
                   window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
     """When each camera captured its image of each frame, from the image timestamps without their jitter.
@@ -860,8 +896,9 @@ def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
     restarted wherever it jumps by more than half the frame interval (the capture's grouping moved to
     the camera's next image: its phase drifted past the tolerance).
 
-    timestamps_ns: (F,) int64 [ns] frame timestamps. cam_timestamps: (F, C) int64 [ns] image timestamps,
-    -1 where a camera has no image. Returns (F, C) int64 [ns], -1 where ``cam_timestamps`` is."""
+    timestamps_ns: (F,) int64 [ns] frame times (:func:`frame_times`: the timestamps without their jitter).
+    cam_timestamps: (F, C) int64 [ns] image timestamps, -1 where a camera has no image. Returns (F, C) int64
+    [ns], -1 where ``cam_timestamps`` is."""
     frames = np.asarray(timestamps_ns, np.int64)
     stamps = np.asarray(cam_timestamps, np.int64)
     out = np.full(stamps.shape, -1, np.int64)

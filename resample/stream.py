@@ -280,8 +280,8 @@ class SessionLightField:
 def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.ndarray) -> dict:
     """Camera id → its model in the rig frame at frame ``t``'s time, moved to where the camera was when
     it captured its image of that frame: by the share ``d / Δt`` of the motion to the next frame (``d``
-    = its capture time minus the frame's timestamp, the capture time its image's timestamp without
-    the jitter, :meth:`Session.capture_times_ns`; ``Δt`` the frame interval), or back along the previous
+    = its capture time minus the frame's time, both without their timestamps' jitter,
+    :meth:`Session.capture_times_ns` and :meth:`Session.frame_times_ns`; ``Δt`` the frame interval), or back along the previous
     one for an image taken early (the first and last frames extrapolate their one neighbour's): the
     poses :func:`polycam.trajectory.pose_at` interpolates, which the synthetic sessions render.
     ``T_prev_next``: (T - 1, 4, 4) rig motion per
@@ -295,7 +295,7 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
 
     if len(session) < 2:
         return dict(models)
-    rel = Trajectory.from_relative(session.timestamps_ns, np.asarray(T_prev_next, np.float64))
+    rel = Trajectory.from_relative(session.frame_times_ns(), np.asarray(T_prev_next, np.float64))
     T_t_world = T_inverse(rel.T_world_rig[t])
     out = dict(models)
     captured = session.capture_times_ns()[t]

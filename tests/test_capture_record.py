@@ -336,7 +336,7 @@ def test_free_running_cameras_are_grouped_by_their_phases(tmp_path):
     assert whole.stats.complete >= 28 and sum(c.late for c in whole.stats.per_camera.values()) <= 2
     assert "hint" not in summary(whole.stats, "b", whole.status)
     s = open_session(tmp_path / "b")
-    phase = (s.capture_times_ns() - s.timestamps_ns[:, None])[s.cam_timestamps.min(axis=1) >= 0]
+    phase = (s.capture_times_ns() - s.frame_times_ns()[:, None])[s.cam_timestamps.min(axis=1) >= 0]
     assert np.abs(phase - np.median(phase, axis=0)).max() < 2e6 and np.ptp(np.median(phase, axis=0)) > 20e6
     # the split session regrouped by replay (the command line): every image was recorded
     from polycam.cli import main

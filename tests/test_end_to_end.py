@@ -151,7 +151,7 @@ def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypat
     # free-running mock cameras (phases within ±7 ms) whose timestamps jitter (2 ms std), recorded by the
     # capture as from hardware: polycam motion corrects with the capture times (each camera's running
     # median offset, polycam.session.capture_times); moving each camera by its raw timestamp instead
-    # errs more than not correcting (measured: 2.23 % corrected, 3.45 % not, 6.35 % with raw timestamps)
+    # errs more than not correcting (measured: 1.81 % corrected, 2.36 % not, 3.73 % with raw timestamps)
     from capture import MockSource, record
     from polycam.evaluate import pair_errors
     from polycam.session import Session
@@ -160,8 +160,8 @@ def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypat
     (tmp_path / "rig.toml").write_text(text.replace("jitter_ms = 0.0", "jitter_ms = 2.0\nsync_spread_ms = 7.0")
                                        .replace("seed = 1", "seed = 3"))
     rig = load_rig(tmp_path / "rig.toml")
-    src = MockSource(rig, realtime=False, frames=6)
-    record(src, rig, tmp_path / "s", frames=6)
+    src = MockSource(rig, realtime=False, frames=8)
+    record(src, rig, tmp_path / "s", frames=8)
     src.write_truth(tmp_path / "s")
     truth = read_tum(tmp_path / "s" / "groundtruth.tum")
     err = {}
@@ -173,7 +173,7 @@ def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypat
         assert "not synchronised" in capsys.readouterr().out
         e = pair_errors(read_tum(tmp_path / f"{mode}.tum"), truth)
         err[mode] = float(np.median(e.t_err / e.t_true))
-    assert err["auto"] < 0.8 * err["off"] and err["raw"] > 1.5 * err["auto"], err
+    assert err["auto"] < 0.85 * err["off"] and err["raw"] > 1.6 * err["auto"], err
 
 
 def test_motion_corrects_unsynchronised_cameras(tmp_path, capsys):
