@@ -192,7 +192,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         capture_motion = np.stack([r.T_prev_next for r in results])   # a failed pair: the identity
         first = store
         store = SessionLightField(first.session, models=first.models, grid=first.grid,
-                                  options=first.resampler.options, capture_motion=capture_motion)
+                                  options=first.options, capture_motion=capture_motion)
         t0 = time.perf_counter()
         with _progress(f"motion {src.name}, cameras where they captured", len(store) - 1) as advance:
             try:
@@ -208,7 +208,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         results, line, _ = add_calibration_share(
             store.path, store.models, store.grid, results, draws=args.calib_draws,
             bar=lambda total: _progress(f"calibration draws {src.name}", total), cov=calib_cov,
-            resample_options=store.resampler.options, motion_options=opts, scale_selection=scale_selection,
+            resample_options=store.options, motion_options=opts, scale_selection=scale_selection,
             capture_motion=capture_motion)
         print("  " + line)
     write_tum(args.out, traj)

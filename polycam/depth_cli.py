@@ -135,15 +135,16 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
     return open_lightfield(src)
 
 
-def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int):
+def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int, trajectory=None):
     """(4, 4) ``T_rig0_rig1`` between the poses of a TUM trajectory at two frame times
-    (each matched within :data:`polycam.trajectory.MATCH_TOLERANCE_NS`)."""
+    (each matched within :data:`polycam.trajectory.MATCH_TOLERANCE_NS`); ``trajectory``: the file's
+    :class:`~polycam.trajectory.Trajectory` when already read (``path`` then names it in errors)."""
     from .errors import InputError
     from .geometry import T_inverse
     from .trajectory import poses_at_times, read_tum
 
     try:
-        T0, T1 = poses_at_times(read_tum(path), [t0_ns, t1_ns])
+        T0, T1 = poses_at_times(trajectory if trajectory is not None else read_tum(path), [t0_ns, t1_ns])
     except ValueError as e:
         raise InputError(f"{path}: {e}") from None
     return T_inverse(T0) @ T1
@@ -192,7 +193,10 @@ def cmd_depth(args: argparse.Namespace) -> int:
         M = None
         motion = {"motion_source": "none (stereo only)"}
     elif args.traj:
-        M = pair_motion_from_trajectory(args.traj, int(ts[i]), int(ts[i + 1]))
+        from .trajectory import read_tum
+
+        given = read_tum(args.traj)                 # read once: the pairs around i may need it again
+        M = pair_motion_from_trajectory(args.traj, int(ts[i]), int(ts[i + 1]), given)
         motion = {"motion_source": str(args.traj)}
     else:
         res = estimate_motion(L0, L1, grid, W0=W0, W1=W1, index=i, options=opts)
@@ -216,13 +220,13 @@ def cmd_depth(args: argparse.Namespace) -> int:
         for p in (i - 1, i + 1):
             if 0 <= p < n - 1:
                 if args.traj:
-                    capture[p] = pair_motion_from_trajectory(args.traj, int(ts[p]), int(ts[p + 1]))
+                    capture[p] = pair_motion_from_trajectory(args.traj, int(ts[p]), int(ts[p + 1]), given)
                 else:
                     (La, Wa), (Lb, Wb) = read(p), read(p + 1)
                     near = estimate_motion(La, Lb, grid, W0=Wa, W1=Wb, index=p, options=opts)
                     if near:
                         capture[p] = near.T_prev_next
-        store = SessionLightField(store.session, models=store.models, grid=grid, options=store.resampler.options,
+        store = SessionLightField(store.session, models=store.models, grid=grid, options=store.options,
                                   camera_noise=False, capture_motion=capture)
         get_w = store.weights
         (L0, W0), (L1, W1) = read(i), read(j)

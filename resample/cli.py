@@ -62,14 +62,16 @@ def cmd_resample(args: argparse.Namespace) -> int:
     if args.scheduler is not None and args.workers is not None:
         raise InputError("resample: give either --scheduler or --workers, not both")
     capture_motion = None
+    source = session
     if args.sync_motion is not None:
         from polycam.geometry import T_inverse
         from polycam.session import open_session
         from polycam.trajectory import poses_at_times, read_tum
 
         traj = read_tum(args.sync_motion)
+        source = open_session(session)              # opened once: resample_session takes it as it is
         try:
-            T_world_rig = poses_at_times(traj, open_session(session).timestamps_ns)
+            T_world_rig = poses_at_times(traj, source.timestamps_ns)
         except ValueError as e:
             raise InputError(f"{args.sync_motion}: {e}") from None
         capture_motion = T_inverse(T_world_rig[:-1]) @ T_world_rig[1:]          # T_prev_next per pair
@@ -80,7 +82,7 @@ def cmd_resample(args: argparse.Namespace) -> int:
     if scheduler is None and args.workers == 0:
         scheduler = "sync"
     with _progress(f"resampling {session.name}", None) as advance:   # total: set by the first callback
-        s = resample_session(session, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
+        s = resample_session(source, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
                              options=ResampleOptions(view_fill=args.view_fill), scheduler=scheduler,
                              workers=args.workers or None, overwrite=args.overwrite, capture_motion=capture_motion,
                              progress=advance)

@@ -36,6 +36,7 @@ import numpy as np
 from polycam.errors import InputError
 from polycam.lightfield import LightFieldGrid
 from polycam.lfstore import camera_positions_attr
+from polycam.session import Session
 
 __all__ = ["ResampleSummary", "resample_session", "open_calibration"]
 
@@ -186,12 +187,13 @@ def _camera_noise_attr(sess, resampler) -> dict | None:
     return {"sigma": sigma, "images": n} if n else None
 
 
-def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
+def resample_session(session_path: str | os.PathLike | Session, out: str | os.PathLike, *,
                      calib_dir: str | os.PathLike | None = None, grid: LightFieldGrid | None = None,
                      options=None, uv_step_px: float = 1.0, scheduler: str | None = None,
                      workers: int | None = None, overwrite: bool = False, capture_motion=None,
                      progress: Progress | None = None) -> ResampleSummary:
-    """Resample every frame of a session into the light-field store ``out`` (see the module
+    """Resample every frame of a session (a folder, or one already opened with
+    :func:`polycam.session.open_session`) into the light-field store ``out`` (see the module
     docstring). ``scheduler``: ``"sync"``, ``"local"``, an address, or None (automatic:
     ``workers == 0`` → sync, ``workers`` given → local, else by job size). ``workers``:
     local worker processes (default: the number of cores). ``capture_motion``: (T - 1, 4, 4)
@@ -206,7 +208,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
     from .resampler import ResampleOptions, Resampler, noise_cameras
     from .store import FrameStore
 
-    sess = open_session(session_path)
+    sess = session_path if isinstance(session_path, Session) else open_session(session_path)
     n = len(sess)
     if n == 0:
         raise InputError(f"{sess.path}: the session has no frames")
@@ -239,7 +241,7 @@ def resample_session(session_path: str | os.PathLike, out: str | os.PathLike, *,
         resampler = Resampler(models, grid, channels=channels, options=options)
         t_geo = time.perf_counter() - t0
         _check_faces_reached(resampler.geometry, sess.path)      # before the store is created
-        attrs = {"resample": {"session": str(Path(session_path).resolve()),
+        attrs = {"resample": {"session": str(Path(sess.path).resolve()),
                               "grid": "given" if grid_given else "auto",
                               "kernel": {"radius_xy": options.kernel.radius_xy,
                                          "radius_uv": options.kernel.radius_uv,

@@ -74,7 +74,7 @@ class SessionLightField:
                  capture_motion=None):
         from .grid import auto_grid
         from .pipeline import _channels_of, open_calibration
-        from .resampler import Resampler, noise_cameras
+        from .resampler import ResampleOptions, noise_cameras
 
         self.session = session_path if isinstance(session_path, Session) else open_session(session_path)
         if len(self.session) == 0:
@@ -87,10 +87,14 @@ class SessionLightField:
         self.grid = grid if grid is not None else auto_grid(self.models, uv_step_px=uv_step_px,
                                                             xy_oversample=xy_oversample)
         self.channels = _channels_of(self.session)
-        t0 = time.perf_counter()
-        self.resampler = Resampler(self.models, self.grid, channels=self.channels, options=options)
-        self.seconds_geometry = time.perf_counter() - t0
-        """[s] time spent building the splat geometry."""
+        self.options = options or ResampleOptions()
+        """The :class:`~resample.resampler.ResampleOptions` every frame is resampled with."""
+        self._resampler = None
+        self.seconds_geometry = 0.0
+        """[s] time spent building the session's splat geometry (with ``capture_motion`` only when
+        :attr:`resampler` is asked for: each frame then builds its own)."""
+        if capture_motion is None:
+            _ = self.resampler              # built now: its cost and warnings come before the frames
         self.seconds_frames = 0.0
         """[s] time spent resampling frames so far."""
         self.frames_resampled = 0
@@ -111,6 +115,17 @@ class SessionLightField:
         self.capture_motion = None if capture_motion is None else np.asarray(capture_motion, np.float64)
         if self.capture_motion is not None and self.capture_motion.shape != (len(self.session) - 1, 4, 4):
             raise ValueError(f"capture_motion must be ({len(self.session) - 1}, 4, 4), got {self.capture_motion.shape}")
+
+    @property
+    def resampler(self):
+        """The :class:`~resample.resampler.Resampler` of the session's camera models (built on first use)."""
+        if self._resampler is None:
+            from .resampler import Resampler
+
+            t0 = time.perf_counter()
+            self._resampler = Resampler(self.models, self.grid, channels=self.channels, options=self.options)
+            self.seconds_geometry += time.perf_counter() - t0
+        return self._resampler
 
     @property
     def timestamps_ns(self) -> np.ndarray:
@@ -163,7 +178,7 @@ class SessionLightField:
 
             models = models_at_capture(self.models, self.session, t, self.capture_motion)
             self._frame_resampler = (t, Resampler(models, self.grid, channels=self.channels,
-                                                  options=self.resampler.options))
+                                                  options=self.options))
         return self._frame_resampler[1]
 
     def _estimate_camera_noise(self, t: int, images: dict) -> None:
@@ -172,7 +187,7 @@ class SessionLightField:
         images have been estimated."""
         from .resampler import images_noise_sigma
 
-        cams = [c for c in self.resampler.cameras if c in self.noise_cameras and images.get(c) is not None]
+        cams = [c for c in self.models if c in self.noise_cameras and images.get(c) is not None]
         if not cams or len(self.camera_noise) >= NOISE_IMAGES:
             return
         k = min(NOISE_CAMERAS_PER_FRAME, len(cams))
@@ -295,8 +310,10 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
 
     if len(session) < 2:
         return dict(models)
-    rel = Trajectory.from_relative(session.frame_times_ns(), np.asarray(T_prev_next, np.float64))
-    T_t_world = T_inverse(rel.T_world_rig[t])
+    lo, hi = max(t - 1, 0), min(t + 1, len(session) - 1)      # frame t and its neighbours: a capture lies
+    rel = Trajectory.from_relative(session.frame_times_ns()[lo:hi + 1],       # within a frame of its frame
+                                   np.asarray(T_prev_next[lo:hi], np.float64))
+    T_t_world = T_inverse(rel.T_world_rig[t - lo])
     out = dict(models)
     captured = session.capture_times_ns()[t]
     for k, cam in enumerate(session.cameras):
