@@ -107,6 +107,7 @@ class Synchronizer:
             raise ValueError("period must be > 0")
         self._ref_ns: int | None = None          # [ns] free-running: the next multi-frame's reference time
         self._phases: dict[str, deque[int]] = {c: deque(maxlen=PHASE_FRAMES) for c in self.cameras}
+        self._phase: dict[str, int | None] = {c: None for c in self.cameras}   # [ns] their medians (None: unseen)
 
     # -- input
 
@@ -177,17 +178,13 @@ class Synchronizer:
 
     # -- free-running cameras
 
-    def _phase(self, c: str) -> int | None:
-        """[ns] camera c's phase (its timestamps minus the reference times), None before its first frame."""
-        ph = self._phases[c]
-        return int(np.median(ph)) if ph else None
-
     def _track(self, members: dict[str, Frame], shown: dict[str, int]) -> None:
         """After a multi-frame: its reference time (the median of members' timestamps minus their phases;
         ``shown``: those values), each member's phase, and the next reference time a period on."""
         ref = int(np.median(list(shown.values())))
         for c, f in members.items():
             self._phases[c].append(int(f.timestamp_ns) - ref)
+            self._phase[c] = int(np.median(self._phases[c]))
         self._ref_ns = ref + int(self.period_ns)
 
     def _emit_free_running(self, final: bool) -> list[MultiFrame]:
@@ -197,7 +194,7 @@ class Synchronizer:
             heads = {c: q[0] for c, q in self._pending.items() if q}
             if not heads:
                 return out
-            phase = {c: self._phase(c) for c in self.cameras}
+            phase = dict(self._phase)
             ref = self._ref_ns
             for c, f in heads.items():                # a camera's first frame: the phase nearest ref
                 if phase[c] is None:
