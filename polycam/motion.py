@@ -198,6 +198,7 @@ __all__ = [
     "PairResult",
     "estimate_motion",
     "estimate_trajectory",
+    "frame_view_disparity",
     "free_work_buffers",
     "discontinuity_weight",
     "ScaledEigen",
@@ -1139,6 +1140,16 @@ def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray |
     return finite_frame(name, L, W, who="motion")
 
 
+def _options_filters(opts: MotionOptions) -> dict:
+    """Axis ("x", "y", "u", "v") → the derivative filter ``opts.filters`` names for it."""
+    fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
+    try:
+        return {k: FILTERS[fnames.get(k, "fs5")] for k in "xyuv"}
+    except KeyError as e:
+        raise InputError(f"motion: unknown derivative filter {e.args[0]!r}; expected one of "
+                         f"{sorted(FILTERS)}") from None
+
+
 def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
                     W0: np.ndarray | None = None, W1: np.ndarray | None = None,
                     T_init: np.ndarray | None = None, options: MotionOptions | None = None,
@@ -1155,12 +1166,7 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     W1 = None if W1 is None else _check_frame(f"weights of frame {index + 1}", W1, grid)
     L0 = _check_frame(f"frame {index}", L0, grid, W0)
     L1 = _check_frame(f"frame {index + 1}", L1, grid, W1)
-    fnames = opts.filters if isinstance(opts.filters, dict) else {k: opts.filters for k in "xyuv"}
-    try:
-        filters = {k: FILTERS[fnames.get(k, "fs5")] for k in "xyuv"}
-    except KeyError as e:
-        raise InputError(f"motion: unknown derivative filter {e.args[0]!r}; expected one of "
-                         f"{sorted(FILTERS)}") from None
+    filters = _options_filters(opts)
     M = np.eye(4) if T_init is None else np.asarray(T_init, float).copy()
     linear = _linear_unsupported(grid, opts)
     if linear:
@@ -1207,11 +1213,33 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     A level that halves (x, y) with (u, v) (``pyramid_xy``) keeps the disparity per
     view step: the search stops before it."""
     thr = opts.max_view_disparity
+    if not math.isfinite(thr):
+        return 0, math.nan
+    d = _measured_disparity(levels)
+    if not math.isfinite(d):
+        return 0, math.nan
+    g0 = levels[0].grid
+    k = 0
+    while d * _per_view(levels[k].grid, g0) > thr:
+        if k + 1 >= len(levels) and not _add_level(levels, opts, radius, _tail_array):
+            break
+        if _per_view(levels[k + 1].grid, g0) >= _per_view(levels[k].grid, g0):
+            break                 # (x, y) halved with (u, v) (pyramid_xy): no nearer the threshold
+        k += 1
+    while len(levels) < k + opts.levels and _add_level(levels, opts, radius, _tail_array):
+        pass
+    if k:
+        log.debug("disparity %.2f samples per view step: the solve stops at (u, v) level %d", d, k)
+    return k, d
+
+
+def _measured_disparity(levels: list) -> float:
+    """Disparity per view step of ``levels`` (finest first) in the finest level's (u, v) samples, as
+    :func:`_aliasing_start` describes (NaN: not measured: too few views, no usable rays)."""
     g0 = levels[0].grid
     single = g0.single_view_axis
-    counts = [g0.x.count, g0.y.count]
-    if not math.isfinite(thr) or any(n < 3 and not (single and n == 1) for n in counts):
-        return 0, math.nan
+    if any(n < 3 and not (single and n == 1) for n in (g0.x.count, g0.y.count)):
+        return math.nan
     from .scales import VIEW_DISPARITY_AGREE, view_disparity
 
     m = min(2, len(levels) - 1)
@@ -1232,20 +1260,8 @@ def _aliasing_start(levels: list, opts: MotionOptions, radius: dict) -> tuple[in
     # (one frame as both: their mean carries its whole noise, twice that of two frames' mean)
     d_faces = view_disparity(L, L, sub, W0=W, noise_var=2.0 * _noise_variance(lev), agree=VIEW_DISPARITY_AGREE)
     if not np.any(np.isfinite(d_faces)):
-        return 0, math.nan
-    d = float(np.nanmax(d_faces)) / _per_view(g, g0)          # finest level's samples per its view step
-    k = 0
-    while d * _per_view(levels[k].grid, g0) > thr:
-        if k + 1 >= len(levels) and not _add_level(levels, opts, radius, _tail_array):
-            break
-        if _per_view(levels[k + 1].grid, g0) >= _per_view(levels[k].grid, g0):
-            break                 # (x, y) halved with (u, v) (pyramid_xy): no nearer the threshold
-        k += 1
-    while len(levels) < k + opts.levels and _add_level(levels, opts, radius, _tail_array):
-        pass
-    if k:
-        log.debug("disparity %.2f samples per view step: the solve stops at (u, v) level %d", d, k)
-    return k, d
+        return math.nan
+    return float(np.nanmax(d_faces)) / _per_view(g, g0)          # finest level's samples per its view step
 
 
 def _per_view(g: LightFieldGrid, g0: LightFieldGrid) -> float:
@@ -1255,6 +1271,25 @@ def _per_view(g: LightFieldGrid, g0: LightFieldGrid) -> float:
     if g0.single_view_axis == "x":
         return (g.y.step / g0.y.step) / (g.v.step / g0.v.step)
     return (g.x.step / g0.x.step) / (g.u.step / g0.u.step)
+
+
+def frame_view_disparity(L: np.ndarray, grid: LightFieldGrid, W: np.ndarray | None = None,
+                         options: MotionOptions | None = None) -> float:
+    """Disparity per view step of one light-field frame, in ``grid``'s (u, v) samples: what the
+    solver measures to choose its finest (u, v) level (``MotionOptions.max_view_disparity``; the
+    pair's ``PairResult.view_disparity``), here for a frame alone, e.g. to choose how finely to
+    resample a session (:func:`polycam.run.choose_uv_step`).
+
+    ``L``: (F, Ny, Nx, Nv, Nu) intensities (a trailing colour axis is averaged); ``W``: optional
+    confidences of the same dims. NaN when it cannot be measured (fewer than 3 views along x or
+    y, no texture). Raises :class:`InputError` for unusable input (NaNs, mismatched dims).
+    """
+    opts = options or MotionOptions()
+    W = None if W is None else _check_frame("weights", W, grid)
+    L = _check_frame("frame", L, grid, W)
+    radius = {k: fp.radius for k, fp in _options_filters(opts).items()}
+    levels = _pyramid(L, L, W, W, grid, replace(opts, levels=3), radius)
+    return _measured_disparity(levels)
 
 
 def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: dict, index: int,

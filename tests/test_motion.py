@@ -17,8 +17,8 @@ import polycam.motion as pm
 from polycam.errors import InputError
 from polycam.geometry import T_from_rt, T_inverse, rt_from_T
 from polycam.lightfield import Axis, LightFieldGrid
-from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory, free_work_buffers,
-                            ray_motion_coefficients, solve_ray_motion, warp_lightfield)
+from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory, frame_view_disparity,
+                            free_work_buffers, ray_motion_coefficients, solve_ray_motion, warp_lightfield)
 from polycam.derivatives import plenoptic_derivatives
 from polycam.eq5 import _RHO_NONE
 from polycam.trajectory import Trajectory
@@ -1274,6 +1274,25 @@ def test_views_far_apart_stop_at_a_coarser_level(scene):
     xy = estimate_motion(X0, X1, wide, options=MotionOptions(pyramid_xy=True))
     assert xy.uv_level == 0 and xy.view_disparity > 0.75
     assert estimate_motion(X0, X1, wide).uv_level == 1
+
+
+def test_frame_view_disparity_is_the_solvers_measure():
+    """polycam.motion.frame_view_disparity measures one frame as the solver measures a pair (from
+    its first frame): the same number, the views' true disparity, NaN without 3 views along x or y,
+    and a clear error for a frame that does not fit the grid."""
+    room = Scene(seed=3)
+    rt = np.array([0.002, -0.003, 0.001, 0.03, -0.02, 0.01])
+    for spacing in (0.2, 0.015):
+        grid = make_grid(("+z",), views=5, directions=96, spacing=spacing)
+        L0 = room.render(grid, np.eye(4))
+        d = frame_view_disparity(L0, grid)
+        assert d == estimate_motion(L0, room.render(grid, T_from_rt(rt)), grid).view_disparity
+        assert d == pytest.approx(_centre_view_disparity(grid), rel=MOTION_VIEW_DISPARITY_RTOL)
+        assert frame_view_disparity(L0, grid, np.ones(grid.shape, np.float32)) == d
+    two = make_grid(("+z",), views=2, directions=96, spacing=0.02)
+    assert math.isnan(frame_view_disparity(room.render(two, np.eye(4)), two))
+    with pytest.raises(InputError, match="dims"):
+        frame_view_disparity(L0[:, :3], grid)
 
 
 def test_noise_does_not_make_views_look_far_apart(scene, rng):
