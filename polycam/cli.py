@@ -134,7 +134,7 @@ def cmd_synth_session(args: argparse.Namespace) -> int:
 
 
 def cmd_motion(args: argparse.Namespace) -> int:
-    from .depth_cli import open_source, solver_options
+    from .depth_cli import open_source, solver_options, uv_step_line
     from .errors import InputError
     from .motion_options import describe_options
 
@@ -164,6 +164,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
         F, Ny, Nx, Nv, Nu = store.grid.shape
         print(f"resampling {src} on the fly: {len(store.resampler.cameras)} calibrated cameras onto "
               f"{F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions (geometry {store.seconds_geometry:.1f} s)")
+        if args.uv_step is None:
+            print("  " + uv_step_line(store))
         from .session import SYNC_AS_IF_TOGETHER, sync_warning
 
         unsync = sync_warning(store.session)
@@ -514,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
     pm.add_argument("source", metavar="LF.zarr|SESSION",
                     help="light-field store, or a recorded session (resampled on the fly, frame by frame)")
     pm.add_argument("--out", required=True, help="output trajectory TRAJ.tum (T_world_rig per frame)")
-    add_source_options(pm)
+    add_source_options(pm, uv_step_default="auto")
     pm.add_argument("--report", metavar="DIR", help="also write per-pair diagnostics (pairs.csv) and plots")
     pm.add_argument("--scale-selection", choices=("on", "off"), default="off",
                     help="pre-smooth (u, v) at the scale where the four depth estimates agree (Sect. 4.1), "

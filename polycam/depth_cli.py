@@ -18,16 +18,29 @@ from .cliargs import positive_int as _positive_int
 from .motion_options import PRESETS, options_from_strings
 
 __all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
-           "add_solver_options", "solver_options"]
+           "uv_step_line", "add_solver_options", "solver_options"]
 
 
-def add_source_options(p: argparse.ArgumentParser) -> None:
+def _uv_step(text: str) -> float | None:
+    """``--uv-step``: ``auto`` (None) or a positive number of camera pixels."""
+    if text == "auto":
+        return None
+    try:
+        return _positive_float(text)
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"{e} (or auto)") from None
+
+
+def add_source_options(p: argparse.ArgumentParser, uv_step_default: str = "1") -> None:
     """``--calib``, ``--uv-step`` and ``--xy-oversample``: how a SESSION source is resampled on
-    the fly (see :func:`open_source`); shared by the verbs that read a store or a session."""
+    the fly (see :func:`open_source`); shared by the verbs that read a store or a session.
+    ``uv_step_default``: ``--uv-step``'s default (``auto`` or a number of pixels)."""
     p.add_argument("--calib", metavar="CALIB_DIR",
                    help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
-    p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
-                   help="sessions: direction spacing of the automatic grid in camera pixels (default 1)")
+    p.add_argument("--uv-step", type=_uv_step, default=_uv_step(uv_step_default), metavar="PX|auto",
+                   help="sessions: direction spacing of the automatic grid in camera pixels, or auto: 1, or 2 "
+                        "where the views are more than 0.6 of a 1-pixel sample apart for the scene (docs/motion.md, "
+                        f"\"The direction step\"; default {uv_step_default})")
     p.add_argument("--xy-oversample", type=_positive_int, default=None, metavar="N",
                    help="sessions: viewpoints of the automatic grid per camera spacing (default: 2, one "
                         "between neighbouring cameras, or 4 where 2 gives fewer than 5 views along x or y, "
@@ -102,12 +115,14 @@ def add_parsers(sub) -> None:
     p.set_defaults(func=cmd_depth)
 
 
-def open_source(source: str | Path, *, calib: str | None = None, uv_step: float = 1.0,
+def open_source(source: str | Path, *, calib: str | None = None, uv_step: float | None = 1.0,
                 xy_oversample: int | None = None):
     """A light-field store, or a session resampled on the fly (resample.stream.SessionLightField,
-    on the automatic grid of ``uv_step`` camera pixels and ``xy_oversample`` viewpoints per camera
-    spacing; None: :func:`polycam.run.session_grid`'s rule, as ``polycam run``): anything with
-    ``grid``, ``timestamps_ns``, ``frame(i)``, ``weights(i)``, ``groundtruth()``."""
+    on the automatic grid of ``uv_step`` camera pixels (None: :func:`polycam.run.choose_uv_step`'s
+    rule, ``--uv-step auto``) and ``xy_oversample`` viewpoints per camera spacing (None:
+    :func:`polycam.run.session_grid`'s rule, as ``polycam run``): anything with ``grid``,
+    ``timestamps_ns``, ``frame(i)``, ``weights(i)``, ``groundtruth()``; a session's also has
+    ``uv_step_px`` and ``uv_disparity`` (the auto rule's measure, NaN when not used)."""
     from .errors import InputError
 
     src = Path(source)
@@ -117,15 +132,21 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
         from resample.pipeline import open_calibration   # the CLI layer may import stages
         from resample.stream import SessionLightField
 
-        from .run import session_grid
+        from .run import choose_uv_step, session_grid
         from .session import open_session
 
         session = open_session(src)
         if len(session) == 0:
             raise InputError(f"{session.path}: the session has no frames")
         models = open_calibration(session, calib)
-        grid, _ = session_grid(models, uv_step, xy_oversample)
-        return SessionLightField(session, models=models, grid=grid)     # (opened and validated once)
+        store, disparity = None, math.nan
+        if uv_step is None:
+            uv_step, disparity, store = choose_uv_step(session, models, xy_oversample)
+        if store is None:
+            grid, _ = session_grid(models, uv_step, xy_oversample)
+            store = SessionLightField(session, models=models, grid=grid)     # (opened and validated once)
+        store.uv_step_px, store.uv_disparity = float(uv_step), disparity
+        return store
     if calib is not None:
         raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
     if not src.exists():
@@ -133,6 +154,13 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
     from .lfstore import open_lightfield
 
     return open_lightfield(src)
+
+
+def uv_step_line(store) -> str:
+    """One line on the direction step ``--uv-step auto`` chose for a session ``store`` (:func:`open_source`)."""
+    d = store.uv_disparity
+    return (f"directions every {store.uv_step_px:g} camera pixel(s) (--uv-step auto: "
+            + (f"{d:.2f} samples per view step)" if math.isfinite(d) else "disparity not measurable: the finest step)"))
 
 
 def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int, trajectory=None):
@@ -166,6 +194,8 @@ def cmd_depth(args: argparse.Namespace) -> int:
     check_output_folder(args.out, "--out")
     src = Path(args.source)
     store = open_source(src, calib=args.calib, uv_step=args.uv_step, xy_oversample=args.xy_oversample)
+    if args.uv_step is None and hasattr(store, "uv_disparity"):
+        print(uv_step_line(store))
     n = len(store.timestamps_ns)
     i = args.frame
     stereo = args.stereo_only

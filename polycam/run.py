@@ -50,7 +50,8 @@ from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
 
 __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
-           "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS", "run_grid", "session_grid"]
+           "DEFAULT_BOARD_FACES", "write_ply", "UNUSABLE", "MIN_VIEWS", "run_grid", "session_grid",
+           "choose_uv_step", "AUTO_UV_STEPS_PX", "AUTO_UV_MAX_DISPARITY"]
 
 _REPO = Path(__file__).resolve().parents[1]
 DEFAULT_RIG = _REPO / "rigs" / "mock5x5.toml"
@@ -587,6 +588,50 @@ def session_grid(models: dict, uv_step_px: float, xy_oversample: int | None = No
         every = 4
         grid = auto_grid(models, uv_step_px=uv_step_px, xy_oversample=every)
     return grid, every
+
+
+AUTO_UV_STEPS_PX = (1.0, 2.0)
+"""The direction steps [camera pixels] ``--uv-step auto`` chooses from (:func:`choose_uv_step`)."""
+AUTO_UV_MAX_DISPARITY = 0.6
+"""``--uv-step auto``: the finest of :data:`AUTO_UV_STEPS_PX` whose disparity per view step is at most
+this many of its samples. The solver's own limit (``MotionOptions.max_view_disparity``, 0.75) stops
+aliasing from biasing the estimate; between ~0.6 and it, a 1-pixel step's finest level gives errors
+like a 2-pixel step's with a covariance 2x too small (the bias coherent over the image is shared
+with the level above it, so neither the residuals nor the level change show it), and a 1-pixel
+grid reduced by the solver's pyramid comes out worse than a 2-pixel grid resampled from the images
+(docs/motion.md, "The direction step")."""
+AUTO_UV_PROBE_FRAMES = 3
+"""Frames (first, middle, last) whose median disparity :func:`choose_uv_step` uses."""
+
+
+def choose_uv_step(session, models: dict, xy_oversample: int | None = None):
+    """(uv_step_px, disparity, store) of ``--uv-step auto`` for an opened ``session`` with camera
+    ``models``: the finest step of :data:`AUTO_UV_STEPS_PX` whose disparity per view step (the
+    solver's measure, :func:`polycam.motion.frame_view_disparity`, median over
+    :data:`AUTO_UV_PROBE_FRAMES` frames resampled at the coarsest step) is at most
+    :data:`AUTO_UV_MAX_DISPARITY` samples of that step, else the coarsest (the solver's pyramid goes
+    on from there); ``disparity`` in the chosen step's samples (NaN: not measurable, e.g. no texture,
+    and the finest step is chosen); ``store`` the :class:`resample.stream.SessionLightField` of the
+    coarsest step when that is chosen (its frames already resampled), else None."""
+    import numpy as np
+    from resample.stream import SessionLightField
+
+    from .motion import frame_view_disparity
+
+    coarse = AUTO_UV_STEPS_PX[-1]
+    grid, _ = session_grid(models, coarse, xy_oversample)
+    store = SessionLightField(session, models=models, grid=grid)
+    n = len(store)
+    picks = sorted({round(i * (n - 1) / max(AUTO_UV_PROBE_FRAMES - 1, 1)) for i in range(AUTO_UV_PROBE_FRAMES)})
+    d = [frame_view_disparity(store.frame(i), grid, store.weights(i)) for i in picks]
+    d = [x for x in d if math.isfinite(x)]
+    if not d:
+        return AUTO_UV_STEPS_PX[0], math.nan, None
+    d_coarse = float(np.median(d))
+    for step in AUTO_UV_STEPS_PX[:-1]:
+        if d_coarse * coarse / step <= AUTO_UV_MAX_DISPARITY:
+            return step, d_coarse * coarse / step, None
+    return coarse, d_coarse, store
 
 
 def _camera_indices(n: int, every: int, h: int | None = None) -> list[int]:

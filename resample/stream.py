@@ -86,6 +86,12 @@ class SessionLightField:
                         self.session.path, ", ".join(missing))
         self.grid = grid if grid is not None else auto_grid(self.models, uv_step_px=uv_step_px,
                                                             xy_oversample=xy_oversample)
+        self.uv_step_px: float | None = uv_step_px if grid is None else None
+        """Direction step of the grid [camera pixels] when known (the automatic grid's, or as set by
+        whoever chose the grid: :func:`polycam.depth_cli.open_source`)."""
+        self.uv_disparity = math.nan
+        """Disparity per view step [grid samples] that chose ``uv_step_px`` (``--uv-step auto``,
+        :func:`polycam.run.choose_uv_step`; NaN: not chosen that way)."""
         self.channels = _channels_of(self.session)
         self.options = options or ResampleOptions()
         """The :class:`~resample.resampler.ResampleOptions` every frame is resampled with."""

@@ -58,7 +58,7 @@ def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys
     assert main(["info", str(tmp_path / "lf.zarr")]) == 0
     assert "the cameras' sensor noise" in capsys.readouterr().out
     assert main(["motion", str(session), "--out", str(tmp_path / "direct.tum"), "--calib", str(session / "calib"),
-                 "--report", str(tmp_path / "rep")]) == 0
+                 "--report", str(tmp_path / "rep"), "--uv-step", "1"]) == 0     # polycam resample's step
     out = capsys.readouterr().out
     assert "resampling" in out and "against" in out
     assert "grey levels in the cameras' images" in out and "per resampled sample" in out   # not the solver's estimate
@@ -72,6 +72,44 @@ def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys
     err = pair_errors(a, read_tum(session / "groundtruth.tum"))
     assert np.median(err.t_rel) < E2E_SMALL_RIG_MOTION_REL
     assert np.median(err.w_rel) < E2E_SMALL_RIG_MOTION_REL
+
+
+def test_motion_chooses_the_direction_step(session, tmp_path, capsys):
+    """--uv-step auto (polycam motion's default): 2 pixels where a 1-pixel grid's views are more than
+    AUTO_UV_MAX_DISPARITY samples apart for the scene (the 2-pixel grid's store, already opened, is
+    kept), else 1; the finest step where the disparity cannot be measured (one camera)."""
+    from polycam.depth_cli import open_source
+    from polycam.run import AUTO_UV_MAX_DISPARITY, choose_uv_step, session_grid
+    from polycam.session import open_session
+    from resample.pipeline import open_calibration
+
+    def choose(path):
+        s = open_session(path)
+        models = open_calibration(s, None)
+        return (*choose_uv_step(s, models), models)
+
+    step, d, store, models = choose(session)                  # 2 cm apart in a room: far apart
+    assert step == 2.0 and AUTO_UV_MAX_DISPARITY / 2 < d < 1.0
+    assert store.grid == session_grid(models, 2.0)[0]
+    for name, rows, cols, pitch in (("near", 3, 3, 0.005), ("one", 1, 1, 0.02)):
+        (tmp_path / f"{name}.toml").write_text(mock_grid_rig_text(name, 64, 48, rows, cols, pitch))
+        path = synth_session(load_rig(tmp_path / f"{name}.toml"), tmp_path / name, frames=2, seed=1)
+        step, d, store, _ = choose(path)
+        assert step == 1.0 and store is None
+        assert (0.0 < d <= AUTO_UV_MAX_DISPARITY) if name == "near" else np.isnan(d)
+    auto = open_source(session)                                # the library's default stays 1 pixel
+    assert auto.uv_step_px == 1.0 and np.isnan(auto.uv_disparity)
+    auto = open_source(session, uv_step=None)
+    assert auto.uv_step_px == 2.0 and auto.uv_disparity > AUTO_UV_MAX_DISPARITY / 2
+    assert main(["motion", str(session), "--out", str(tmp_path / "auto.tum")]) == 0
+    out = capsys.readouterr().out
+    assert "25x33 directions" in out and "directions every 2 camera pixel(s) (--uv-step auto: 0." in out
+    assert main(["motion", str(session), "--out", str(tmp_path / "one.tum"), "--uv-step", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "49x65 directions" in out and "--uv-step auto" not in out
+    with pytest.raises(SystemExit) as e:                       # bad usage: argparse, exit 2
+        main(["motion", str(session), "--out", str(tmp_path / "t.tum"), "--uv-step", "fine"])
+    assert e.value.code == 2 and "or auto" in capsys.readouterr().err
 
 
 def test_covariance_counts_the_camera_arrays_model_error(tmp_path):
