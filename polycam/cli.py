@@ -160,7 +160,12 @@ def cmd_motion(args: argparse.Namespace) -> int:
             raise InputError(f"{args.calib or src / 'calib'}: {e}") from None
     truth_name = src / "groundtruth.tum"
     unsync = ""
+    grid = None                                         # a session: how it is resampled (the report's [grid])
     if hasattr(store, "resampler"):
+        grid = {"shape": list(store.grid.shape), "uv_step": "auto" if args.uv_step is None else args.uv_step,
+                "uv_step_px": store.uv_step_px}
+        if math.isfinite(store.uv_disparity):
+            grid["uv_disparity"] = store.uv_disparity
         F, Ny, Nx, Nv, Nu = store.grid.shape
         print(f"resampling {src} on the fly: {len(store.resampler.cameras)} calibrated cameras onto "
               f"{F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions (geometry {store.seconds_geometry:.1f} s)")
@@ -258,7 +263,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from .motion_report import write_motion_report
 
         written = write_motion_report(args.report, results, traj, truth, store.timestamps_ns, options=opts,
-                                      scale_selection=scale_selection, preset=args.preset)
+                                      scale_selection=scale_selection, preset=args.preset, grid=grid)
         print(f"report in {args.report}: {', '.join(written)}")
     return 0
 

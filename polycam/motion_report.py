@@ -77,12 +77,13 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
 def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairResult], traj,
                         truth=None, timestamps_ns: np.ndarray | None = None,
                         options: MotionOptions | None = None, scale_selection: bool | None = None,
-                        preset: str | None = None) -> list[str]:
+                        preset: str | None = None, grid: dict | None = None) -> list[str]:
     """A report folder: ``pairs.csv``, ``trajectory.png``, with a ground truth
     ``errors.png`` (each pair's error beside the norm of its reported standard
     deviations), and with ``options`` ``options.toml`` (the solver's settings: every
     :class:`~polycam.motion.MotionOptions` field under ``[motion]``, ``scale_selection`` and
-    ``preset`` (the ``--preset`` the options started from) too when given, so that
+    ``preset`` (the ``--preset`` the options started from) too when given, and ``grid`` (how a
+    session was resampled on the fly, e.g. its direction step) under ``[grid]``, so that
     a report says how it was made). Returns the names of the
     files written.
 
@@ -110,7 +111,9 @@ def write_motion_report(report_dir: str | os.PathLike, results: Sequence[PairRes
             doc["scale_selection"] = bool(scale_selection)
         if preset is not None:
             doc["preset"] = preset
-        atomic_write_text(report / "options.toml", "# polycam motion: the solver's settings (MotionOptions)\n"
-                          + tomli_w.dumps({"motion": doc}))
+        tables = {"motion": doc} if grid is None else {"motion": doc, "grid": dict(grid)}
+        atomic_write_text(report / "options.toml", "# polycam motion: the solver's settings (MotionOptions)"
+                          + (" and the grid a session was resampled on" if grid is not None else "") + "\n"
+                          + tomli_w.dumps(tables))
         written.append("options.toml")
     return written

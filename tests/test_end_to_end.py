@@ -101,9 +101,14 @@ def test_motion_chooses_the_direction_step(session, tmp_path, capsys):
     assert auto.uv_step_px == 1.0 and np.isnan(auto.uv_disparity)
     auto = open_source(session, uv_step=None)
     assert auto.uv_step_px == 2.0 and auto.uv_disparity > AUTO_UV_MAX_DISPARITY / 2
-    assert main(["motion", str(session), "--out", str(tmp_path / "auto.tum")]) == 0
+    assert main(["motion", str(session), "--out", str(tmp_path / "auto.tum"), "--report", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
     assert "25x33 directions" in out and "directions every 2 camera pixel(s) (--uv-step auto: 0." in out
+    import tomllib
+
+    grid = tomllib.loads((tmp_path / "rep" / "options.toml").read_text())["grid"]   # the report says how
+    assert grid["uv_step"] == "auto" and grid["uv_step_px"] == 2.0 and grid["shape"] == [1, 5, 5, 25, 33]
+    assert grid["uv_disparity"] == pytest.approx(auto.uv_disparity)
     assert main(["motion", str(session), "--out", str(tmp_path / "one.tum"), "--uv-step", "1"]) == 0
     out = capsys.readouterr().out
     assert "49x65 directions" in out and "--uv-step auto" not in out
