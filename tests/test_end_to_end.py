@@ -115,6 +115,8 @@ def test_motion_chooses_the_direction_step(session, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:                       # bad usage: argparse, exit 2
         main(["motion", str(session), "--out", str(tmp_path / "t.tum"), "--uv-step", "fine"])
     assert e.value.code == 2 and "or auto" in capsys.readouterr().err
+    assert main(["depth", str(session), "--out", str(tmp_path / "d"), "--uv-step", "auto"]) == 0   # depth: on request
+    assert "directions every 2 camera pixel(s) (--uv-step auto" in capsys.readouterr().out
 
 
 def test_covariance_counts_the_camera_arrays_model_error(tmp_path):
