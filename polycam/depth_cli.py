@@ -18,10 +18,10 @@ from .cliargs import positive_int as _positive_int
 from .motion_options import PRESETS, options_from_strings
 
 __all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
-           "uv_step_line", "add_solver_options", "solver_options"]
+           "uv_step_arg", "uv_step_line", "add_solver_options", "solver_options"]
 
 
-def _uv_step(text: str) -> float | None:
+def uv_step_arg(text: str) -> float | None:
     """``--uv-step``: ``auto`` (None) or a positive number of camera pixels."""
     if text == "auto":
         return None
@@ -37,7 +37,7 @@ def add_source_options(p: argparse.ArgumentParser, uv_step_default: str = "1") -
     ``uv_step_default``: ``--uv-step``'s default (``auto`` or a number of pixels)."""
     p.add_argument("--calib", metavar="CALIB_DIR",
                    help="sessions: folder of <camera>.cameramodel files (default: SESSION/calib)")
-    p.add_argument("--uv-step", type=_uv_step, default=_uv_step(uv_step_default), metavar="PX|auto",
+    p.add_argument("--uv-step", type=uv_step_arg, default=uv_step_arg(uv_step_default), metavar="PX|auto",
                    help="sessions: direction spacing of the automatic grid in camera pixels, or auto: 1, or 2 "
                         "where the views are more than 0.6 of a 1-pixel sample apart for the scene (docs/motion.md, "
                         f"\"The direction step\"; default {uv_step_default})")

@@ -93,10 +93,11 @@ class RunOptions:
     """Std of the true cameras' relative focal-length offsets."""
     lensmodel: str = "opencv4"
     """mrcal lens model solved for."""
-    uv_step_px: float = 2.0
+    uv_step_px: float | None = 2.0
     """(u, v) grid step in camera pixels: 2 gives 4x fewer rays than the cameras' resolution
     (motion 4x faster, the same accuracy on the mock rig: 10.8% / 4.9% vs 9.6% / 6.3% median
-    per-pair error with 1)."""
+    per-pair error with 1); None: chosen from the session (:func:`choose_uv_step`, ``--uv-step
+    auto``: 1 where the views are close for the scene, e.g. a row of cameras)."""
     xy_oversample: int | None = None
     """Viewpoints of the light-field grid per camera spacing (``resample.auto_grid``).
     None: 2 (the resampler fills the view between two cameras from the plane-sweep depth,
@@ -252,18 +253,25 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
 
     t0 = time.perf_counter()
     with bar("4/6 resample", None) as adv, _stage("resample"):
-        grid, xy_oversample = run_grid(cal.models, opts)
+        uv_step, uv_disparity = opts.uv_step_px, math.nan
+        if uv_step is None:                          # --uv-step auto: from the session's own frames
+            uv_step, uv_disparity, _ = choose_uv_step(sess, cal.models, opts.xy_oversample)
+        grid, xy_oversample = session_grid(cal.models, uv_step, opts.xy_oversample)
         rs = resample_session(out / "session", out / "lightfield.zarr", calib_dir=out / "calib", grid=grid,
                               scheduler="sync", overwrite=True, progress=adv)
     s = time.perf_counter() - t0
     F, Ny, Nx, Nv, Nu = rs.grid.shape
     noise_grey = 255.0 * rs.camera_noise_sigma                 # NaN: no estimate
-    summary["resample"] = {"faces": F, "views": [Ny, Nx], "directions": [Nv, Nu], "mean_W": rs.mean_W,
-                           "missing_images": rs.missing_images, "seconds": s,
+    summary["resample"] = {"faces": F, "views": [Ny, Nx], "directions": [Nv, Nu], "uv_step_px": uv_step,
+                           **({"uv_disparity": uv_disparity} if math.isfinite(uv_disparity) else {}),
+                           "mean_W": rs.mean_W, "missing_images": rs.missing_images, "seconds": s,
                            **({"camera_noise_grey": noise_grey} if math.isfinite(noise_grey) else {})}
     noise = (f", the cameras' sensor noise {noise_grey:.2f} grey levels" if math.isfinite(noise_grey)
              else ", the cameras' sensor noise not estimated (MJPG)" if rs.compressed_cameras else "")
-    echo(f"resample  {out / 'lightfield.zarr'}: {F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions, "
+    chosen = (f" (every {uv_step:g} camera pixel(s), --uv-step auto: "
+              + (f"{uv_disparity:.2f} samples per view step)" if math.isfinite(uv_disparity) else "not measurable)")
+              if opts.uv_step_px is None else "")
+    echo(f"resample  {out / 'lightfield.zarr'}: {F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions{chosen}, "
          f"mean confidence W {rs.mean_W:.2f}, {rs.missing_images} missing images{noise} ({s:.1f} s)")
     if not rs.mean_W >= UNUSABLE["resample_mean_W"]:
         raise _fail("resample", f"mean confidence W {rs.mean_W:.2f} below {UNUSABLE['resample_mean_W']}: "
@@ -570,7 +578,10 @@ def write_ply(path: str | os.PathLike, points, values=None) -> None:
 
 def run_grid(models: dict, opts: RunOptions):
     """(grid, views per camera spacing) of ``polycam run``'s light field for cameras ``models``:
-    :func:`session_grid` with ``opts.uv_step_px`` and ``opts.xy_oversample``."""
+    :func:`session_grid` with ``opts.uv_step_px`` (a number: ``auto`` needs the session's frames,
+    :func:`choose_uv_step`) and ``opts.xy_oversample``."""
+    if opts.uv_step_px is None:
+        raise ValueError("run_grid: uv_step_px None (auto) is chosen from a session: use choose_uv_step")
     return session_grid(models, opts.uv_step_px, opts.xy_oversample)
 
 
@@ -833,6 +844,8 @@ Files: {', '.join(written)}.
 
 def add_parsers(sub) -> None:
     """Add the ``run`` verb (registered through polycam/cli.py's STAGE_CLIS)."""
+    from .depth_cli import uv_step_arg
+
     p = sub.add_parser("run", help="the whole chain on a mock rig: board, calibrate, capture, resample, "
                                    "motion, depth, report",
                        description="Capture a board session and a motion session of a mock rig, calibrate "
@@ -849,8 +862,10 @@ def add_parsers(sub) -> None:
                    help="board frames (default 25; for a rig whose cameras look through several faces, 12 per "
                         "pair of adjacent faces: 144 for the nested cube, a third of them held across an edge)")
     p.add_argument("--seed", type=int, default=None, help="default: the rig's [mock] seed")
-    p.add_argument("--uv-step", type=_positive_float, default=RunOptions.uv_step_px, metavar="PX",
-                   help="direction spacing of the light field in camera pixels (default 2)")
+    p.add_argument("--uv-step", type=uv_step_arg, default=RunOptions.uv_step_px, metavar="PX|auto",
+                   help="direction spacing of the light field in camera pixels (default 2), or auto: 1, or 2 where "
+                        "the views are more than 0.6 of a 1-pixel sample apart for the scene (docs/motion.md, "
+                        "\"The direction step\")")
     p.add_argument("--xy-oversample", type=_positive_int, default=None, metavar="N",
                    help="light-field viewpoints per camera spacing (default: 2, one depth-filled view "
                         f"between cameras, or 4 when 2 gives fewer than {MIN_VIEWS} views along x or y)")

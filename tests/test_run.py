@@ -142,12 +142,33 @@ def test_run_linear_rig_end_to_end(tmp_path, capsys):
     assert code == 0, cap.err
     summary = tomllib.loads((out / "report" / "summary.toml").read_text())
     assert sorted(summary["resample"]["views"]) == [1, 9]
+    assert summary["resample"]["uv_step_px"] == 2.0 and "uv_disparity" not in summary["resample"]
     assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
     from polycam.evaluate import pair_errors
 
     err = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
     assert np.median(err.t_rel) < E2E_RUN_MOTION_REL and np.median(err.w_rel) < E2E_RUN_MOTION_REL
     assert summary["depth"]["points"] > 1000
+
+
+def test_run_chooses_the_direction_step_on_request(tmp_path, capsys):
+    """`polycam run --uv-step auto`: the step polycam motion SESSION would choose (a row of cameras 2 cm
+    apart in the room: views close for the scene, 1 pixel), in the resample line and the summary."""
+    import tomllib
+
+    from polycam.run import AUTO_UV_MAX_DISPARITY
+
+    (tmp_path / "rig.toml").write_text(mock_grid_rig_text("row", 160, 120, rows=1, cols=3))
+    out = tmp_path / "run"
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "2",
+                 "--uv-step", "auto", "--calib-draws", "0"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    r = tomllib.loads((out / "report" / "summary.toml").read_text())["resample"]
+    assert r["uv_step_px"] == 1.0 and 0.0 < r["uv_disparity"] <= AUTO_UV_MAX_DISPARITY
+    assert r["directions"][1] > 150                             # about one direction per camera pixel
+    line = next(x for x in cap.out.splitlines() if x.startswith("resample"))
+    assert "(every 1 camera pixel(s), --uv-step auto: 0." in line, cap.out
 
 
 def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, capsys):
