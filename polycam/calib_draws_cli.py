@@ -20,7 +20,7 @@ import numpy as np
 from .calib_spread import antithetic_covariance, pair_vectors, with_calibration
 from .lightfield import LightFieldGrid
 
-__all__ = ["calibration_draws", "add_calibration_share", "calibration_line"]
+__all__ = ["calibration_draws", "add_calibration_share", "calibration_line", "share_line", "quiet_logger"]
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
     for k in range(draws):
         z = rng.standard_normal(cov.dim)
         for sign, acc in ((1.0, plus), (-1.0, minus)):
-            with _quiet("resample"):                  # its warnings repeat the nominal resampling's
+            with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
                 lf = SessionLightField(session_path, models=drawn_models(models, cov, sign * z, factor), grid=grid,
                                        options=resample_options, camera_noise=False, capture_motion=capture_motion)
                 _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
@@ -86,7 +86,7 @@ def add_calibration_share(session_path: str | os.PathLike, models: dict, grid: L
 
 
 @contextmanager
-def _quiet(name: str):
+def quiet_logger(name: str):
     """Only errors from logger ``name`` (and its children) inside the block."""
     logger = logging.getLogger(name)
     level = logger.level
@@ -101,14 +101,21 @@ def calibration_line(results, draws: int, fewest: int, seconds: float) -> str:
     """How large the calibration's share of the reported std is (median over the pairs that have it;
     ``fewest``: the fewest draws in which a pair was re-solved)."""
     from .calib_spread import calibration_std
+
+    return share_line("calibration", "its uncertainty", calibration_std(results), results, draws, fewest, seconds)
+
+
+def share_line(what: str, source: str, part_std: np.ndarray, results, draws: int, fewest: int, seconds: float) -> str:
+    """``what: N draws from SOURCE (...): its std per pair ..., a% / b% of the reported std``: how large a
+    measured part of the covariance is (``part_std``: (P, 6) its standard deviations, NaN rows where not
+    measured; medians over the pairs that have it)."""
     from .evaluate import std_norms
 
-    cal = calibration_std(results)
-    have = np.all(np.isfinite(cal), axis=1)
+    have = np.all(np.isfinite(part_std), axis=1)
     if not have.any():
-        return f"calibration: {draws} draws, no pair re-solved ({seconds:.0f} s)"
-    (ct, cr), (tt, tr) = std_norms(cal[have]), std_norms(np.stack([r.std for r in results])[have])
+        return f"{what}: {draws} draws, no pair re-solved ({seconds:.0f} s)"
+    (ct, cr), (tt, tr) = std_norms(part_std[have]), std_norms(np.stack([r.std for r in results])[have])
     few = f"; a pair solved in only {fewest} of them" if fewest < draws else ""
-    return (f"calibration: {draws} draws from its uncertainty ({2 * draws} re-solves, {seconds:.0f} s{few}): "
+    return (f"{what}: {draws} draws from {source} ({2 * draws} re-solves, {seconds:.0f} s{few}): "
             f"its std per pair {1e3 * np.median(ct):.3f} mm, {1e3 * np.degrees(np.median(cr)):.2f} mdeg (median), "
             f"{100 * np.median(ct / tt):.0f}% / {100 * np.median(cr / tr):.0f}% of the reported std")

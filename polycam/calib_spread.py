@@ -1,4 +1,5 @@
-"""The calibration's share of a frame pair's motion covariance, from re-solves with drawn models.
+"""The calibration's share of a frame pair's motion covariance, from re-solves with drawn models
+(and, the same way, the share of unsynchronised cameras' capture times: :func:`with_capture_timing`).
 
 The camera models' error is the same in every pair of a session, so the solver's residuals cannot
 show it. Re-solving the pairs with models drawn from the calibration's uncertainty
@@ -20,7 +21,8 @@ import numpy as np
 from .geometry import r_from_R
 from .motion import PairResult
 
-__all__ = ["pair_vectors", "antithetic_covariance", "with_calibration", "calibration_std"]
+__all__ = ["pair_vectors", "antithetic_covariance", "with_calibration", "calibration_std", "with_capture_timing",
+           "capture_timing_std"]
 
 
 def pair_vectors(results: Sequence[PairResult]) -> np.ndarray:
@@ -54,21 +56,47 @@ def antithetic_covariance(plus: np.ndarray, minus: np.ndarray) -> tuple[np.ndarr
     return C, n
 
 
-def with_calibration(results: Sequence[PairResult], C: np.ndarray) -> list[PairResult]:
-    """The results with ``C`` (P, 6, 6) added to their ``covariance`` and kept as
-    ``covariance_calibration`` (pairs whose ``C`` is not finite are returned unchanged)."""
+def _with_part(results: Sequence[PairResult], C: np.ndarray, part: str) -> list[PairResult]:
+    """The results with ``C`` (P, 6, 6) added to their ``covariance`` and kept as the field ``part``
+    (pairs whose ``C`` is not finite are returned unchanged)."""
     C = np.asarray(C, float)
     if C.shape != (len(results), 6, 6):
         raise ValueError(f"C must be ({len(results)}, 6, 6), got {C.shape}")
-    return [replace(r, covariance=r.covariance + c, covariance_calibration=c.copy()) if np.all(np.isfinite(c)) else r
+    return [replace(r, covariance=r.covariance + c, **{part: c.copy()}) if np.all(np.isfinite(c)) else r
             for r, c in zip(results, C)]
+
+
+def _part_std(results: Sequence[PairResult], part: str) -> np.ndarray:
+    """(P, 6) standard deviations of (t [m], r [rad]) from each pair's covariance field ``part``;
+    NaN rows where it was not measured."""
+    out = np.full((len(results), 6), np.nan)
+    for k, r in enumerate(results):
+        C = getattr(r, part)
+        if C is not None:
+            out[k] = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    return out
+
+
+def with_calibration(results: Sequence[PairResult], C: np.ndarray) -> list[PairResult]:
+    """The results with ``C`` (P, 6, 6) added to their ``covariance`` and kept as
+    ``covariance_calibration`` (pairs whose ``C`` is not finite are returned unchanged)."""
+    return _with_part(results, C, "covariance_calibration")
 
 
 def calibration_std(results: Sequence[PairResult]) -> np.ndarray:
     """(P, 6) standard deviations of (t [m], r [rad]) from each pair's ``covariance_calibration``;
     NaN rows where it was not measured."""
-    out = np.full((len(results), 6), np.nan)
-    for k, r in enumerate(results):
-        if r.covariance_calibration is not None:
-            out[k] = np.sqrt(np.clip(np.diag(r.covariance_calibration), 0.0, None))
-    return out
+    return _part_std(results, "covariance_calibration")
+
+
+def with_capture_timing(results: Sequence[PairResult], C: np.ndarray) -> list[PairResult]:
+    """The results with ``C`` (P, 6, 6) added to their ``covariance`` and kept as ``covariance_sync``:
+    the spread over capture times drawn from their uncertainty (unsynchronised cameras,
+    :mod:`polycam.sync_draws_cli`; pairs whose ``C`` is not finite are returned unchanged)."""
+    return _with_part(results, C, "covariance_sync")
+
+
+def capture_timing_std(results: Sequence[PairResult]) -> np.ndarray:
+    """(P, 6) standard deviations of (t [m], r [rad]) from each pair's ``covariance_sync``; NaN rows
+    where it was not measured."""
+    return _part_std(results, "covariance_sync")

@@ -209,6 +209,18 @@ def cmd_motion(args: argparse.Namespace) -> int:
                 raise InputError(f"{src}: {e}") from None
         print(f"  second pass: every frame resampled with each camera where it captured its image "
               f"({time.perf_counter() - t0:.1f} s)")
+        if args.sync_draws:
+            from .sync_draws_cli import add_capture_timing_share
+
+            results, line = add_capture_timing_share(
+                store.session, store.models, store.grid, capture_motion, results, draws=args.sync_draws,
+                bar=lambda total: _progress(f"capture-time draws {src.name}", total),
+                resample_options=store.options, motion_options=opts, scale_selection=scale_selection)
+            print("  " + line)
+    elif args.sync_draws:
+        print("  capture-time draws skipped: " + ("no second pass (--sync-correct off)" if unsync else
+                                                  "the cameras are synchronised" if hasattr(store, "resampler")
+                                                  else "a light-field store keeps no capture times"))
     if calib_cov is not None:
         from .calib_draws_cli import add_calibration_share
 
@@ -537,6 +549,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "median): solve a second time with every frame resampled with each camera where it "
                          "captured its image, its share of the first pass's motion (auto, the default), or not "
                          "(off; docs/motion.md, \"Unsynchronised cameras\")")
+    pm.add_argument("--sync-draws", type=_nonneg_int, default=0, metavar="N",
+                    help="with that second pass: re-solve it with N sets of the cameras' capture times drawn from "
+                         "their uncertainty (the jitter of their timestamps), each at +δ and −δ (2N re-solves), and "
+                         "add the estimates' spread to each pair's covariance (default 0; docs/motion.md, "
+                         "\"Unsynchronised cameras\")")
     add_solver_options(pm)
     pm.set_defaults(func=cmd_motion)
 

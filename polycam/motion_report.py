@@ -4,7 +4,8 @@ One row per frame pair ``(i, i+1)``::
 
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
     std_noise_t,std_noise_r,level_change_t,level_change_r,std_calib_t,std_calib_r,sigma,noise_sigma,
-    uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason
+    uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason,
+    std_sync_t,std_sync_r
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
 the square roots of the covariance diagonal; ``std_noise_t`` [m] and ``std_noise_r`` [rad] the
@@ -13,7 +14,10 @@ norms (√Σ of the squares over the three axes) of the part of them the residua
 the change from the coarser (u, v) level's estimate that the covariance adds as model error
 (``PairResult.level_change``; empty with one level), ``std_calib_t`` [m] and ``std_calib_r`` [rad]
 the norms of the part the calibration's error explains (``PairResult.covariance_calibration``,
-``polycam motion --calib-draws``; empty when not measured); ``sigma`` the robust residual scale and
+``polycam motion --calib-draws``; empty when not measured), ``std_sync_t`` [m] and ``std_sync_r`` [rad]
+(the last columns) those of the part unsynchronised cameras' capture times explain
+(``PairResult.covariance_sync``, ``polycam motion --sync-draws``; empty when not measured); ``sigma`` the
+robust residual scale and
 ``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
 :class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not
 given); ``uv_level`` the (u, v) pyramid level the estimate comes from and ``view_disparity``
@@ -32,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .calib_spread import calibration_std
+from .calib_spread import calibration_std, capture_timing_std
 from .evaluate import std_norms
 from .motion import MotionOptions, PairResult
 from .tomlio import atomic_write_text
@@ -44,7 +48,7 @@ PAIR_REPORT_COLUMNS = (
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
     "std_noise_t", "std_noise_r", "level_change_t", "level_change_r", "std_calib_t", "std_calib_r",
     "sigma", "noise_sigma", "uv_level", "view_disparity", "condition", "inlier_fraction", "num_rays", "iterations",
-    "ok", "unobservable", "reason",
+    "ok", "unobservable", "reason", "std_sync_t", "std_sync_r",
 )
 
 
@@ -58,6 +62,7 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(PAIR_REPORT_COLUMNS)
     cal_t, cal_r = std_norms(calibration_std(results))
+    sync_t, sync_r = std_norms(capture_timing_std(results))
     for k, r in enumerate(results):
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
@@ -70,7 +75,8 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
                     f"{r.sigma:.6g}", f"{r.noise_sigma:.6g}", r.uv_level,
                     f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
-                    ";".join(r.unobservable), r.reason])
+                    ";".join(r.unobservable), r.reason,
+                    *(f"{v[k]:.6g}" if np.isfinite(v[k]) else "" for v in (sync_t, sync_r))])
     atomic_write_text(path_csv, buf.getvalue())
 
 

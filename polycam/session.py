@@ -777,8 +777,14 @@ class Session:
         have = int(np.count_nonzero(np.any(self.cam_timestamps >= 0, axis=0)))
         if have < 2:
             return 0.0
+        return self.capture_time_std_ns() * _normal_range(have)
+
+    def capture_time_std_ns(self) -> float:
+        """[ns] the std of each camera's capture time (:meth:`capture_times_ns`) as an estimate: its
+        running median of n of the jittered timestamps (~1.25 jitter / sqrt(n)), n the session's frames
+        up to :data:`CAPTURE_OFFSET_FRAMES`."""
         n = min(len(self), CAPTURE_OFFSET_FRAMES)
-        return _MEDIAN_STD * self.timestamp_jitter_ns() / math.sqrt(n) * _normal_range(have)
+        return _MEDIAN_STD * self.timestamp_jitter_ns() / math.sqrt(max(n, 1))
 
     def capture_spread_ns(self) -> np.ndarray:
         """(F,) int64 [ns]: per frame, the latest minus the earliest of its cameras' capture times

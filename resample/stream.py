@@ -64,14 +64,16 @@ class SessionLightField:
         motion): each frame is then resampled with every camera moved to where it was when it captured
         its image, its share of the motion to the neighbouring frame (:func:`models_at_capture`), for
         cameras that are not synchronised (:func:`polycam.session.sync_warning`); a splat geometry per
-        frame, so several times the resampling's cost.
+        frame, so several times the resampling's cost; capture_offsets_ns: with ``capture_motion``, (C,)
+        [ns] added to each camera's capture time (the session's camera order; a draw from the capture
+        times' uncertainty, :mod:`polycam.sync_draws_cli`).
     Raises InputError for a session without frames or without a calibration.
     """
 
     def __init__(self, session_path: str | os.PathLike | Session, *, calib_dir: str | os.PathLike | None = None,
                  grid: LightFieldGrid | None = None, uv_step_px: float = 1.0, xy_oversample: int = 2,
                  options=None, models: dict | None = None, camera_noise: bool = True,
-                 capture_motion=None):
+                 capture_motion=None, capture_offsets_ns=None):
         from .grid import auto_grid
         from .pipeline import _channels_of, open_calibration
         from .resampler import ResampleOptions, noise_cameras
@@ -121,6 +123,10 @@ class SessionLightField:
         self.capture_motion = None if capture_motion is None else np.asarray(capture_motion, np.float64)
         if self.capture_motion is not None and self.capture_motion.shape != (len(self.session) - 1, 4, 4):
             raise ValueError(f"capture_motion must be ({len(self.session) - 1}, 4, 4), got {self.capture_motion.shape}")
+        self.capture_offsets_ns = None if capture_offsets_ns is None else np.asarray(capture_offsets_ns, np.float64)
+        if self.capture_offsets_ns is not None and self.capture_offsets_ns.shape != (len(self.session.cameras),):
+            raise ValueError(f"capture_offsets_ns must be ({len(self.session.cameras)},), "
+                             f"got {self.capture_offsets_ns.shape}")
 
     @property
     def resampler(self):
@@ -182,7 +188,7 @@ class SessionLightField:
         if self._frame_resampler is None or self._frame_resampler[0] != t:
             from .resampler import Resampler
 
-            models = models_at_capture(self.models, self.session, t, self.capture_motion)
+            models = models_at_capture(self.models, self.session, t, self.capture_motion, self.capture_offsets_ns)
             self._frame_resampler = (t, Resampler(models, self.grid, channels=self.channels,
                                                   options=self.options))
         return self._frame_resampler[1]
@@ -298,7 +304,8 @@ class SessionLightField:
         return float(np.mean(list(self.w_sums.values()))) if self.w_sums else float("nan")
 
 
-def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.ndarray) -> dict:
+def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.ndarray,
+                      capture_offsets_ns: np.ndarray | None = None) -> dict:
     """Camera id → its model in the rig frame at frame ``t``'s time, moved to where the camera was when
     it captured its image of that frame: by the share ``d / Δt`` of the motion to the next frame (``d``
     = its capture time minus the frame's time, both without their timestamps' jitter,
@@ -307,7 +314,8 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     poses :func:`polycam.trajectory.pose_at` interpolates, which the synthetic sessions render.
     ``T_prev_next``: (T - 1, 4, 4) rig motion per
     frame pair (frame i to i + 1, as :class:`polycam.motion.PairResult`); models: camera id → mrcal
-    cameramodel (rig frame; the session's cameras without an image keep theirs)."""
+    cameramodel (rig frame; the session's cameras without an image keep theirs); capture_offsets_ns:
+    (C,) [ns] added to the cameras' capture times (session camera order), or None."""
     import mrcal
 
     from polycam.cameras import T_rig_cam_of
@@ -326,6 +334,8 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
         stamp = int(captured[k])
         if cam not in models or stamp < 0:
             continue
+        if capture_offsets_ns is not None:
+            stamp += int(round(capture_offsets_ns[k]))
         D = T_t_world @ pose_at(rel, stamp)                  # the rig at the capture, in the rig at frame t
         m = models[cam]
         out[cam] = mrcal.cameramodel(intrinsics=m.intrinsics(), imagersize=m.imagersize(),

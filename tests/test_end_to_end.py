@@ -186,6 +186,12 @@ def test_models_at_capture_follow_the_capture_times(tmp_path):
         for k, cam in enumerate(s.cameras):
             want = T_inverse(T[t]) @ pose_at(gt, int(s.cam_timestamps[t, k])) @ T_rig_cam_of(models[cam])
             np.testing.assert_allclose(T_rig_cam_of(moved[cam]), want, atol=1e-12)
+    # a capture time moved (a draw of --sync-draws): the camera where the rig was at the moved time
+    offsets = np.linspace(-3e6, 3e6, len(s.cameras))
+    moved = models_at_capture(models, s, 1, motion, offsets)
+    for k, cam in enumerate(s.cameras):
+        want = T_inverse(T[1]) @ pose_at(gt, int(s.cam_timestamps[1, k] + offsets[k])) @ T_rig_cam_of(models[cam])
+        np.testing.assert_allclose(T_rig_cam_of(moved[cam]), want, atol=1e-12)
     s0 = open_session(synth_session(load_rig(tmp_path / "rig.toml"), tmp_path / "s0", frames=2, seed=1))
     same = models_at_capture(s0.calibration(), s0, 1, motion[:1])
     for cam, m in s0.calibration().items():
@@ -219,6 +225,24 @@ def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypat
         e = pair_errors(read_tum(tmp_path / f"{mode}.tum"), truth)
         err[mode] = float(np.median(e.t_err / e.t_true))
     assert err["auto"] < 0.85 * err["off"] and err["raw"] > 1.6 * err["auto"], err
+    # --sync-draws: the capture times' uncertainty (their running medians of 8 jittered stamps) re-solved
+    # and added to the covariance, as its own part (pairs.csv std_sync_t, _r)
+    import csv
+
+    monkeypatch.undo()
+    assert main(["motion", str(tmp_path / "s"), "--out", str(tmp_path / "d.tum"), "--sync-draws", "1",
+                 "--report", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    assert "capture times: 1 draws from their uncertainty (" in out and "2 re-solves" in out, out
+    sigma_ms = float(out.split("their uncertainty (")[1].split(" ms per camera")[0])
+    assert 0.5 < sigma_ms < 1.5                    # 1.25 x 2 ms / sqrt(8) = 0.89 ms
+    with open(tmp_path / "rep" / "pairs.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert all(float(r["std_sync_t"]) > 0 and float(r["std_sync_r"]) > 0 for r in rows)
+    np.testing.assert_allclose(read_tum(tmp_path / "d.tum").T_world_rig, read_tum(tmp_path / "auto.tum").T_world_rig)
+    assert main(["motion", str(tmp_path / "s"), "--out", str(tmp_path / "d0.tum"), "--sync-draws", "1",
+                 "--sync-correct", "off"]) == 0
+    assert "capture-time draws skipped: no second pass (--sync-correct off)" in capsys.readouterr().out
 
 
 def test_motion_corrects_unsynchronised_cameras(tmp_path, capsys):
