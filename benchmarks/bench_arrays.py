@@ -85,6 +85,18 @@ def add_keep_option(ap: argparse.ArgumentParser) -> None:
                                                "when already there)")
 
 
+def room_sessions(root: Path, rigs, seeds, frames: int):
+    """(rig name, seed, session folder) of a ``polycam synth session`` of the room per rig under rigs/
+    and seed, in ``root`` (rendered once: a folder already there is reused)."""
+    for name in rigs:
+        rig = load_rig(REPO / "rigs" / f"{name}.toml")
+        for seed in seeds:
+            session = root / f"{name}_seed{seed}_f{frames}"
+            if not (session / "groundtruth.tum").exists():
+                synth_session(rig, session, frames=frames, seed=seed, scene="room", overwrite=True)
+            yield name, seed, session
+
+
 def sessions_root(keep: Path | None, prefix: str):
     """(root, tmp): ``keep``, or a temporary folder named ``prefix...`` and its handle to clean up."""
     if keep is not None:
@@ -120,18 +132,13 @@ def main() -> None:
     print(f"| rig | seed | {label} | disparity [samples / view step] | level | translation "
           "| rotation | ATE [mm] | solve s / pair | failed |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for name in args.rigs:
-        rig = load_rig(REPO / "rigs" / f"{name}.toml")
-        for seed in args.seeds:
-            session = root / f"{name}_seed{seed}_f{args.frames}"
-            if not (session / "groundtruth.tum").exists():
-                synth_session(rig, session, frames=args.frames, seed=seed, scene="room", overwrite=True)
-            for thr, dv, sc, lg in settings:
-                r = solve(session, thr, args.uv_step, dv, sc, lg == "on", args.run_grid)
-                rows.append((name, seed, (thr, dv, sc, lg), r))
-                print(f"| {name} | {seed} | {setting_text((thr, dv, sc, lg))} | {r['disparity']:.2f} | {r['level']} | {100 * r['t']:.2f} % "
-                      f"| {100 * r['w']:.2f} % | {1e3 * r['ate']:.3f} | {r['seconds']:.2f} | {r['failed']} |",
-                      flush=True)
+    for name, seed, session in room_sessions(root, args.rigs, args.seeds, args.frames):
+        for thr, dv, sc, lg in settings:
+            r = solve(session, thr, args.uv_step, dv, sc, lg == "on", args.run_grid)
+            rows.append((name, seed, (thr, dv, sc, lg), r))
+            print(f"| {name} | {seed} | {setting_text((thr, dv, sc, lg))} | {r['disparity']:.2f} | {r['level']} "
+                  f"| {100 * r['t']:.2f} % | {100 * r['w']:.2f} % | {1e3 * r['ate']:.3f} | {r['seconds']:.2f} "
+                  f"| {r['failed']} |", flush=True)
     print(f"\nmedian over the seeds; ATE ratio against {label} = "
           f"{setting_text(settings[-1])} (the same sessions, this run):\n")
     print(f"| rig | {label} | translation | rotation | ATE [mm] | ATE ratio (per seed) |")

@@ -33,13 +33,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from bench_arrays import add_keep_option, sessions_root  # noqa: E402
+from bench_arrays import add_keep_option, room_sessions, sessions_root  # noqa: E402  (this folder)
 from polycam.depth_cli import open_source  # noqa: E402
 from polycam.evaluate import pair_errors  # noqa: E402
 from polycam.geometry import r_from_R  # noqa: E402
 from polycam.motion import estimate_trajectory  # noqa: E402
-from polycam.rig import load_rig  # noqa: E402
-from polycam.synth import synth_session  # noqa: E402
 
 
 def solve(session: Path, step: str) -> dict:
@@ -77,18 +75,13 @@ def main() -> None:
     print("| rig | seed | --uv-step | step [px] | disparity [samples / view step] | level | translation | rotation "
           "| error / std t, ω (RMS) | open + solve [s] |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for name in args.rigs:
-        rig = load_rig(REPO / "rigs" / f"{name}.toml")
-        for seed in args.seeds:
-            session = root / f"{name}_seed{seed}_f{args.frames}"
-            if not (session / "groundtruth.tum").exists():
-                synth_session(rig, session, frames=args.frames, seed=seed, scene="room", overwrite=True)
-            for step in args.steps:
-                r = solve(session, step)
-                rows.append((name, seed, step, r))
-                print(f"| {name} | {seed} | {step} | {r['step']:g} | {r['disparity']:.2f} | {r['level']} "
-                      f"| {100 * r['t']:.2f} % | {100 * r['w']:.2f} % | {r['z_t']:.2f}, {r['z_w']:.2f} "
-                      f"| {r['seconds']:.1f} |", flush=True)
+    for name, seed, session in room_sessions(root, args.rigs, args.seeds, args.frames):
+        for step in args.steps:
+            r = solve(session, step)
+            rows.append((name, seed, step, r))
+            print(f"| {name} | {seed} | {step} | {r['step']:g} | {r['disparity']:.2f} | {r['level']} "
+                  f"| {100 * r['t']:.2f} % | {100 * r['w']:.2f} % | {r['z_t']:.2f}, {r['z_w']:.2f} "
+                  f"| {r['seconds']:.1f} |", flush=True)
     print(f"\nmedian over the seeds; ratios against --uv-step {args.steps[0]} (the same sessions, this run):\n")
     print("| rig | --uv-step | translation | rotation | error / std t, ω | translation ratio | time ratio |")
     print("|---|---|---|---|---|---|---|")
