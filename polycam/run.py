@@ -46,7 +46,6 @@ from typing import Callable
 
 from .cliargs import check_output_folder
 from .cliargs import nonneg_int as _nonneg_int
-from .cliargs import positive_float as _positive_float
 from .cliargs import positive_int as _positive_int
 
 __all__ = ["RunOptions", "run_chain", "add_parsers", "cmd_run", "DEFAULT_RIG", "DEFAULT_BOARD",
