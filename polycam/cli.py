@@ -197,6 +197,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from resample.stream import SessionLightField   # the CLI layer may import stages
 
         capture_motion = np.stack([r.T_prev_next for r in results])   # a failed pair: the identity
+        motion_covariance = np.stack([r.covariance for r in results])  # (--sync-draws draws it)
         first = store
         store = SessionLightField(first.session, models=first.models, grid=first.grid,
                                   options=first.options, capture_motion=capture_motion)
@@ -214,6 +215,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
 
             results, line = add_capture_timing_share(
                 store.session, store.models, store.grid, capture_motion, results, draws=args.sync_draws,
+                motion_covariance=motion_covariance,
                 bar=lambda total: _progress(f"capture-time draws {src.name}", total),
                 resample_options=store.options, motion_options=opts, scale_selection=scale_selection)
             print("  " + line)
@@ -550,8 +552,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "captured its image, its share of the first pass's motion (auto, the default), or not "
                          "(off; docs/motion.md, \"Unsynchronised cameras\")")
     pm.add_argument("--sync-draws", type=_nonneg_int, default=0, metavar="N",
-                    help="with that second pass: re-solve it with N sets of the cameras' capture times drawn from "
-                         "their uncertainty (the jitter of their timestamps), each at +δ and −δ (2N re-solves), and "
+                    help="with that second pass: re-solve it with N sets of the cameras' capture times (the jitter "
+                         "of their timestamps) and the first pass's motion drawn from their uncertainty, each at +δ "
+                         "and −δ (2N re-solves), and "
                          "add the estimates' spread to each pair's covariance (default 0; docs/motion.md, "
                          "\"Unsynchronised cameras\")")
     add_solver_options(pm)

@@ -1,13 +1,14 @@
 """``--sync-draws``: an unsynchronised session's corrected motion re-solved with its cameras' capture
-times drawn from their uncertainty, for that uncertainty's share of each pair's covariance
-(docs/motion.md, "Unsynchronised cameras").
+times and the first pass's motion drawn from their uncertainty, for that uncertainty's share of each
+pair's covariance (docs/motion.md, "Unsynchronised cameras").
 
 The correction (:class:`resample.stream.SessionLightField` with ``capture_motion``) moves each camera
 to where it was at its capture time, which is estimated: each camera's running median offset of its
 jittered timestamps (:meth:`polycam.session.Session.capture_times_ns`, std
 :meth:`~polycam.session.Session.capture_time_std_ns` per camera). The error that leaves is the same
 in the pairs around a frame and the solver's residuals do not show it; antithetic re-solves with
-every camera's capture time moved by ``±δ_k`` (δ_k drawn per camera from that std) measure it as the
+every camera's capture time moved by ``±δ_k`` (δ_k drawn per camera from that std), and the first
+pass's motion that moves the cameras by ``±`` a draw from its covariance, measure it as the
 calibration draws do (:func:`polycam.calib_spread.antithetic_covariance`).
 
 CLI layer (``polycam motion SESSION``): it drives the resampling stage; the numerics are
@@ -29,13 +30,38 @@ from .lightfield import LightFieldGrid
 __all__ = ["capture_time_draws", "add_capture_timing_share"]
 
 
+def _motion_factors(motion_covariance: np.ndarray | None, pairs: int) -> np.ndarray:
+    """(P, 6, 6) square roots ``A`` (``A Aᵀ`` = the covariance) of each pair's (t, r) covariance; zero
+    where it is not finite (a failed pair) or not given."""
+    out = np.zeros((pairs, 6, 6))
+    if motion_covariance is None:
+        return out
+    for p, C in enumerate(np.asarray(motion_covariance, float)):
+        if np.all(np.isfinite(C)):
+            w, V = np.linalg.eigh(0.5 * (C + C.T))
+            out[p] = V * np.sqrt(np.clip(w, 0.0, None))
+    return out
+
+
+def _moved_motion(capture_motion: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """(P, 4, 4) ``capture_motion`` with each pair's (t [m], r [rad]) moved by ``dx`` (P, 6)."""
+    from .geometry import T_from_Rt, R_from_r, r_from_R
+
+    return np.stack([T_from_Rt(R_from_r(r_from_R(M[:3, :3]) + d[3:]), M[:3, 3] + d[:3])
+                     for M, d in zip(capture_motion, dx)])
+
+
 def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_motion: np.ndarray, *, draws: int,
-                       seed: int = 0, resample_options=None, motion_options=None, scale_selection: bool = False,
+                       motion_covariance: np.ndarray | None = None, seed: int = 0, resample_options=None,
+                       motion_options=None, scale_selection: bool = False,
                        progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """Re-solve every frame pair of an opened ``session`` (cameras ``models``, resampled onto ``grid`` with
     each camera moved by ``capture_motion``, (T - 1, 4, 4) ``T_prev_next`` per pair, as the corrected
     solve was) with ``draws`` sets of capture-time offsets, each at ``+δ`` and ``−δ`` (``2 draws``
-    re-solves; δ per camera normal with the session's :meth:`~polycam.session.Session.capture_time_std_ns`).
+    re-solves; δ per camera normal with the session's :meth:`~polycam.session.Session.capture_time_std_ns`)
+    and, with ``motion_covariance`` ((T - 1, 6, 6) the first pass's covariance of each pair's (t, r), the
+    estimate ``capture_motion`` is), ``capture_motion`` drawn from it at the same ``±``: the camera moved
+    by its share of an estimated motion is off by that share of the estimate's error too.
 
     Returns ((P, 6, 6) each pair's covariance of (t [m], r [rad]) over the draws, NaN where no draw
     solved it; (P,) the draws that did; the std [ns] drawn from). ``progress(done, total)`` after each
@@ -48,14 +74,17 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
     if draws < 1:
         raise ValueError(f"draws must be >= 1, got {draws}")
     sigma = session.capture_time_std_ns()
+    capture_motion = np.asarray(capture_motion, np.float64)
+    factors = _motion_factors(motion_covariance, len(capture_motion))
     rng = np.random.default_rng(seed)
     plus, minus = [], []
     for _ in range(draws):
         delta = sigma * rng.standard_normal(len(session.cameras))
+        dx = np.einsum("pij,pj->pi", factors, rng.standard_normal((len(capture_motion), 6)))
         for sign, acc in ((1.0, plus), (-1.0, minus)):
             with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
                 lf = SessionLightField(session, models=models, grid=grid, options=resample_options,
-                                       camera_noise=False, capture_motion=capture_motion,
+                                       camera_noise=False, capture_motion=_moved_motion(capture_motion, sign * dx),
                                        capture_offsets_ns=sign * delta)
                 _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
             acc.append(pair_vectors(results))

@@ -198,6 +198,26 @@ def test_models_at_capture_follow_the_capture_times(tmp_path):
         np.testing.assert_allclose(T_rig_cam_of(same[cam]), T_rig_cam_of(m), atol=1e-12)
 
 
+def test_sync_draws_draw_the_first_pass_motion_from_its_covariance():
+    """--sync-draws moves the first pass's motion by draws from its covariance: the factors square to
+    it (zero for a failed pair's infinite one), and a zero draw leaves the motion as it was."""
+    from polycam.geometry import T_from_rt
+    from polycam.sync_draws_cli import _motion_factors, _moved_motion
+
+    rng = np.random.default_rng(5)
+    B = rng.standard_normal((6, 6)) * 1e-4
+    C = np.stack([B @ B.T, np.diag(np.full(6, np.inf))])
+    A = _motion_factors(C, 2)
+    np.testing.assert_allclose(A[0] @ A[0].T, C[0], rtol=1e-9, atol=1e-20)
+    assert not A[1].any() and not _motion_factors(None, 2).any()
+    M = T_from_rt(np.array([[0.01, -0.02, 0.03, 0.004, 0.001, -0.002], [0.0, 0.0, 0.0, 0.005, 0.0, 0.0]]))
+    np.testing.assert_allclose(_moved_motion(M, np.zeros((2, 6))), M, atol=1e-15)
+    dx = np.array([[1e-4, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 1e-3]])
+    moved = _moved_motion(M, dx)
+    np.testing.assert_allclose(moved[0][:3, 3] - M[0][:3, 3], [1e-4, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(moved[1][:3, :3], T_from_rt(np.array([0, 0, 1e-3, 0, 0, 0]))[:3, :3], atol=1e-15)
+
+
 def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypatch):
     # free-running mock cameras (phases within ±7 ms) whose timestamps jitter (2 ms std), recorded by the
     # capture as from hardware: polycam motion corrects with the capture times (each camera's running
