@@ -18,7 +18,7 @@ from .cliargs import positive_int as _positive_int
 from .motion_options import PRESETS, options_from_strings
 
 __all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
-           "uv_step_arg", "uv_step_line", "add_solver_options", "solver_options"]
+           "uv_step_arg", "uv_step_line", "uv_step_reason", "add_solver_options", "solver_options"]
 
 
 def uv_step_arg(text: str) -> float | None:
@@ -156,11 +156,16 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
     return open_lightfield(src)
 
 
+def uv_step_reason(disparity: float) -> str:
+    """``--uv-step auto: ...``: what the rule chose its step by (``disparity`` [samples per view step],
+    NaN: not measurable)."""
+    return ("--uv-step auto: " + (f"{disparity:.2f} samples per view step" if math.isfinite(disparity)
+                                  else "disparity not measurable: the finest step"))
+
+
 def uv_step_line(store) -> str:
     """One line on the direction step ``--uv-step auto`` chose for a session ``store`` (:func:`open_source`)."""
-    d = store.uv_disparity
-    return (f"directions every {store.uv_step_px:g} camera pixel(s) (--uv-step auto: "
-            + (f"{d:.2f} samples per view step)" if math.isfinite(d) else "disparity not measurable: the finest step)"))
+    return f"directions every {store.uv_step_px:g} camera pixel(s) ({uv_step_reason(store.uv_disparity)})"
 
 
 def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int, trajectory=None):

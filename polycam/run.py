@@ -252,6 +252,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
 
     t0 = time.perf_counter()
     with bar("4/6 resample", None) as adv, _stage("resample"):
+        from .depth_cli import uv_step_reason
+
         uv_step, uv_disparity = opts.uv_step_px, math.nan
         if uv_step is None:                          # --uv-step auto: from the session's own frames
             uv_step, uv_disparity, _ = choose_uv_step(sess, cal.models, opts.xy_oversample)
@@ -267,9 +269,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
                            **({"camera_noise_grey": noise_grey} if math.isfinite(noise_grey) else {})}
     noise = (f", the cameras' sensor noise {noise_grey:.2f} grey levels" if math.isfinite(noise_grey)
              else ", the cameras' sensor noise not estimated (MJPG)" if rs.compressed_cameras else "")
-    chosen = (f" (every {uv_step:g} camera pixel(s), --uv-step auto: "
-              + (f"{uv_disparity:.2f} samples per view step)" if math.isfinite(uv_disparity) else "not measurable)")
-              if opts.uv_step_px is None else "")
+    chosen = f" (every {uv_step:g} camera pixel(s), {uv_step_reason(uv_disparity)})" if opts.uv_step_px is None else ""
     echo(f"resample  {out / 'lightfield.zarr'}: {F} face(s) x {Ny}x{Nx} views x {Nv}x{Nu} directions{chosen}, "
          f"mean confidence W {rs.mean_W:.2f}, {rs.missing_images} missing images{noise} ({s:.1f} s)")
     if not rs.mean_W >= UNUSABLE["resample_mean_W"]:
@@ -632,7 +632,8 @@ def choose_uv_step(session, models: dict, xy_oversample: int | None = None):
     grid, _ = session_grid(models, coarse, xy_oversample)
     store = SessionLightField(session, models=models, grid=grid)
     n = len(store)
-    picks = sorted({round(i * (n - 1) / max(AUTO_UV_PROBE_FRAMES - 1, 1)) for i in range(AUTO_UV_PROBE_FRAMES)})
+    picks = sorted({round(i * (n - 1) / max(AUTO_UV_PROBE_FRAMES - 1, 1)) for i in range(AUTO_UV_PROBE_FRAMES)},
+                   reverse=True)        # frame 0 last: the store keeps it for the solve, which reads it first
     d = [frame_view_disparity(store.frame(i), grid, store.weights(i)) for i in picks]
     d = [x for x in d if math.isfinite(x)]
     if not d:
