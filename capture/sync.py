@@ -31,10 +31,15 @@ reference time (then the median over its last :data:`PHASE_FRAMES` multi-frames)
 multi-frame's reference time is the last one plus a period, and a camera's frame belongs to
 it when its timestamp minus the camera's phase lies within half a period of it (earlier:
 late, discarded; later: the camera is missing from this one). A camera seen for the first
-time gets the phase that puts its frame nearest the reference time. The reference time then
-follows the cameras (the median of their timestamps minus their phases), so a frame rate a
-little off the nominal one does not drift out of the windows. Rule 3's waiting applies with
-each camera's window end.
+time gets the phase, of those that keep the phases' span the narrowest, that puts its frame
+nearest the reference time. The reference time then follows the cameras (the median of
+their timestamps minus their phases), so a frame rate a little off the nominal one does not
+drift out of the windows. Cameras' clocks differ too (crystals tens to hundreds of ppm
+apart: over minutes their phases drift by a period or more): when the phases span more than
+:data:`PHASE_WRAP` periods, the one furthest from the reference time moves by a whole
+period, so each multi-frame's images stay within about a period of each other however long
+the capture (a slower camera is then missing from one multi-frame, a faster one has one
+image discarded as late). Rule 3's waiting applies with each camera's window end.
 """
 
 from __future__ import annotations
@@ -47,10 +52,15 @@ import numpy as np
 
 from .source import Frame
 
-__all__ = ["MultiFrame", "Synchronizer", "default_tolerance_ns", "PHASE_FRAMES"]
+__all__ = ["MultiFrame", "Synchronizer", "default_tolerance_ns", "PHASE_FRAMES", "PHASE_WRAP"]
 
 PHASE_FRAMES = 15
 """Free-running grouping: a camera's phase is the median over its last this many multi-frames."""
+
+PHASE_WRAP = 1.125
+"""Free-running grouping: [periods] when the cameras' phases span more than this (their clocks ran apart),
+the phase furthest from the reference time moves by a whole period (a period and a margin: the first
+multi-frame's phases span less than one, and the jitter must not move a phase back and forth)."""
 
 log = logging.getLogger(__name__)
 
@@ -180,12 +190,46 @@ class Synchronizer:
 
     def _track(self, members: dict[str, Frame], shown: dict[str, int]) -> None:
         """After a multi-frame: its reference time (the median of members' timestamps minus their phases;
-        ``shown``: those values), each member's phase, and the next reference time a period on."""
+        ``shown``: those values), each member's phase, and the next reference time a period on; then
+        :meth:`_wrap_phases`."""
         ref = int(np.median(list(shown.values())))
         for c, f in members.items():
             self._phases[c].append(int(f.timestamp_ns) - ref)
             self._phase[c] = int(np.median(self._phases[c]))
         self._ref_ns = ref + int(self.period_ns)
+        self._wrap_phases()
+
+    def _first_phase(self, offset: int) -> int:
+        """[ns] the phase of a camera seen for the first time after the first multi-frame, from its first
+        timestamp's ``offset`` from the reference time: the value modulo the period that keeps the known
+        phases' span the narrowest (so that :meth:`_wrap_phases` need not move it), of those the nearest
+        the reference time."""
+        P = int(self.period_ns)
+        known = [p for p in self._phase.values() if p is not None]
+        base = (offset + P // 2) % P - P // 2
+        cands = (base - P, base, base + P)
+        if not known:
+            return base
+        lo, hi = min(known), max(known)
+        return min(cands, key=lambda p: (max(hi, p) - min(lo, p), abs(p)))
+
+    def _wrap_phases(self) -> None:
+        """Cameras whose clocks run apart: while the settled phases (over :data:`PHASE_FRAMES`
+        multi-frames) span more than :data:`PHASE_WRAP` periods, the one furthest from the reference
+        time moves by a whole period towards it. Its next image then belongs to the multi-frame after
+        (a slower camera: missing from one) or before (a faster one: one image discarded as late)."""
+        P = int(self.period_ns)
+        while True:
+            settled = {c: p for c, p in self._phase.items()
+                       if p is not None and len(self._phases[c]) == PHASE_FRAMES}
+            if len(settled) < 2 or max(settled.values()) - min(settled.values()) <= PHASE_WRAP * P:
+                return
+            c = max(settled, key=lambda k: abs(settled[k]))
+            shift = -P if settled[c] > 0 else P
+            self._phases[c] = deque((p + shift for p in self._phases[c]), maxlen=PHASE_FRAMES)
+            self._phase[c] = settled[c] + shift
+            log.info("%s: its phase drifted %.1f ms from the other cameras' reference; its images now go "
+                     "with the %s multi-frame", c, settled[c] / 1e6, "next" if shift < 0 else "previous")
 
     def _emit_free_running(self, final: bool) -> list[MultiFrame]:
         out: list[MultiFrame] = []
@@ -196,9 +240,9 @@ class Synchronizer:
                 return out
             phase = dict(self._phase)
             ref = self._ref_ns
-            for c, f in heads.items():                # a camera's first frame: the phase nearest ref
+            for c, f in heads.items():                # a camera's first frame: see _first_phase
                 if phase[c] is None:
-                    phase[c] = (int(f.timestamp_ns) - ref + P // 2) % P - P // 2
+                    phase[c] = self._first_phase(int(f.timestamp_ns) - ref)
             # nothing for whole periods (every camera paused): skip to the earliest frame's period
             u_min = min(int(f.timestamp_ns) - phase[c] for c, f in heads.items())
             if u_min >= ref + P // 2:

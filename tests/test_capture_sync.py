@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from capture.source import Frame
-from capture.sync import Synchronizer, default_tolerance_ns
+from capture.sync import PHASE_WRAP, Synchronizer, default_tolerance_ns
 
 P = 33_333_333  # [ns] 30 fps
 IMG = np.zeros((2, 2), np.uint8)
@@ -114,6 +114,37 @@ def test_grouping_does_not_depend_on_arrival_order(rng):
 def test_unknown_camera_is_an_error():
     with pytest.raises(KeyError):
         Synchronizer(("a",), 1, 1).add(frame("z", 0))
+
+
+def test_free_running_cameras_whose_clocks_run_apart(rng):
+    """period_ns, cameras' clocks up to ±500 ppm off (crystals differ), 1500 frames (50 s at 30 fps):
+    their phases drift up to 1.5 periods apart, yet every multi-frame's images were captured within
+    PHASE_WRAP periods and a little (tracking alone groups each camera's i-th frame: ~1.9 periods apart
+    by the end); a camera's images go to its multi-frames in order, none twice; a few multi-frames miss
+    a slower camera, and only cameras faster than the reference have a surplus image discarded as late."""
+    cams = tuple(f"c{k:02d}" for k in range(20))
+    phase = rng.uniform(0, P, len(cams))
+    period = P * (1 + rng.uniform(-500e-6, 500e-6, len(cams)))
+    frames, truth = [], {}
+    for k, c in enumerate(cams):
+        for i in range(1500):
+            truth[c, i] = 1_000_000_000 + phase[k] + i * period[k]
+            frames.append(frame(c, int(truth[c, i] + rng.normal(0, 2e6)), i))
+    frames.sort(key=lambda f: f.timestamp_ns)
+    sync = Synchronizer(cams, P - 1, 2 * P, period_ns=P)
+    mfs = run(sync, frames)
+    spread = [np.ptp([truth[c, f.sequence] for c, f in mf.frames.items()]) for mf in mfs]
+    assert max(spread) < (PHASE_WRAP + 0.1) * P
+    for c in cams:
+        seqs = [mf.frames[c].sequence for mf in mfs if c in mf.frames]
+        assert np.all(np.diff(seqs) > 0), c
+        assert len(seqs) + sync.late[c] == 1500, c
+    faster = [c for k, c in enumerate(cams) if period[k] < np.median(period)]   # than the reference time
+    assert sum(sync.late.values()) > 0 and all(sync.late[c] == 0 for c in cams if c not in faster)
+    assert 0 < sum(bool(mf.missing) for mf in mfs) < 0.05 * len(mfs)
+    tracked = Synchronizer(cams, P - 1, 2 * P, period_ns=P)
+    tracked._wrap_phases = lambda: None                    # the grouping without the wrap
+    assert max(np.ptp([truth[c, f.sequence] for c, f in mf.frames.items()]) for mf in run(tracked, frames)) > 1.5 * P
 
 
 def test_free_running_cameras_follow_their_phases(rng):
