@@ -21,6 +21,9 @@ It renders the rig's ``[mock]`` table (SPEC.md, rig file):
   the rig), and (``room`` / ``spheres``) show the scene at that moment
   (:func:`polycam.trajectory.pose_at`); ``start`` is then ``sync_spread_ms`` later, so that no
   timestamp comes before it. A board session ignores it (the board holds each pose for a frame).
+- ``clock_ppm``: free-running cameras' clocks: camera k's frame period is ``(1 + e_k 1e-6) / fps``, its
+  ``e_k`` uniform in ±``clock_ppm`` (seeded as above), so the cameras' phases drift apart over a long
+  capture as real webcams' do; its images show the scene at those moments. A board session ignores it.
 - ``drop_rate``: each frame is lost with this probability; its sequence number
   is used up, so the gap shows as a drop.
 - ``disconnect_after``: camera id → frame count after which that camera
@@ -66,7 +69,7 @@ __all__ = ["MockSource", "PatternRenderer", "pattern_sequence", "to_pixel_format
 
 log = logging.getLogger(__name__)
 
-_SALT_DROP, _SALT_JITTER, _SALT_NOISE, _SALT_PATTERN, _SALT_SYNC = 41, 42, 43, 44, 45
+_SALT_DROP, _SALT_JITTER, _SALT_NOISE, _SALT_PATTERN, _SALT_SYNC, _SALT_CLOCK = 41, 42, 43, 44, 45, 46
 _CODE_BITS = 32
 
 
@@ -291,7 +294,12 @@ class MockSource(FrameSource):
         self._offset = [int(round(np.random.default_rng([m.seed, _SALT_SYNC, r]).uniform(-spread, spread) * 1e6))
                         if spread > 0 else 0 for r in self._rig_index]      # [ns] each camera's capture phase
         self._t0 = (self._clock() + 1_000_000 if self.realtime else self.start_ns) + int(math.ceil(spread * 1e6))
-        self._period = [1e9 / float(c.fps) for c in self.cams]
+        ppm = m.clock_ppm if self.board is None else 0.0
+        rate = [1.0 + np.random.default_rng([m.seed, _SALT_CLOCK, r]).uniform(-ppm, ppm) * 1e-6 if ppm > 0 else 1.0
+                for r in self._rig_index]                                   # each camera's clock against the host's
+        self._period = [1e9 / float(c.fps) * q for c, q in zip(self.cams, rate)]
+        self._own_moment = [bool(o) or ppm > 0 for o in self._offset]    # images at the camera's own moment
+        self._unsynced = any(self._own_moment)
         self._next = [0] * len(self.cams)            # next frame index per camera
         self._last_ts = [-1] * len(self.cams)
         self._gone = [False] * len(self.cams)
@@ -307,7 +315,7 @@ class MockSource(FrameSource):
     def info(self) -> dict[str, Any]:
         m = self.mock
         return {"mock": {"scene": "board" if self.board is not None else m.scene, "motion": m.motion, "seed": m.seed, "noise": m.noise,
-                         "jitter_ms": m.jitter_ms, "sync_spread_ms": m.sync_spread_ms, "drop_rate": m.drop_rate,
+                         "jitter_ms": m.jitter_ms, "sync_spread_ms": m.sync_spread_ms, "clock_ppm": m.clock_ppm, "drop_rate": m.drop_rate,
                          "realtime": self.realtime}}
 
     # -- frames
@@ -399,7 +407,7 @@ class MockSource(FrameSource):
             from polycam.synth import quantize
 
             self._shown[(cam.id, ts)] = t_rel
-            rad = (self._renderer.radiance_at(k, t_rel) if self._offset[k] else
+            rad = (self._renderer.radiance_at(k, t_rel) if self._own_moment[k] else
                    self._renderer.radiance(k, self._renderer.index(t_rel)))
             rng = np.random.default_rng([m.seed, _SALT_NOISE, self._rig_index[k], i]) if m.noise > 0 else None
             if cam.pixel_format == "Y16":
@@ -420,7 +428,7 @@ class MockSource(FrameSource):
 
         - ``groundtruth.tum``: ``T_world_rig`` of the pose each frame shows, at the
           frame's timestamp (world = the rig at the trajectory's start; a board session's
-          rig stands still at the origin); with ``sync_spread_ms``, the rig at the median of the
+          rig stands still at the origin); with ``sync_spread_ms`` or ``clock_ppm``, the rig at the median of the
           moments its cameras captured the frame;
         - ``calib/<cam>.cameramodel``: the models the cameras were rendered with;
         - with a board: ``board_poses.tum`` (``T_rig_board`` per frame, as
@@ -449,7 +457,7 @@ class MockSource(FrameSource):
             if not shown:
                 raise CaptureError(f"{sess.path}: frame {f} was not delivered by this mock source")
             poses[f] = r.index(shown[0])
-            T_world_rig[f] = (r.pose_at(float(np.median(shown))) if any(self._offset) else
+            T_world_rig[f] = (r.pose_at(float(np.median(shown))) if self._unsynced else
                               r.trajectory.T_world_rig[poses[f]])
         path = Path(session_path)
         write_tum(path / "groundtruth.tum", Trajectory(sess.timestamps_ns.copy(), T_world_rig))

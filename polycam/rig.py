@@ -89,6 +89,9 @@ class MockSpec:
     sync_spread_ms: float = 0.0
     """[ms] free-running cameras: each captures at its own constant offset from the others, uniform in
     ±``sync_spread_ms`` (seeded), and its images show those moments (0: one trigger for all)."""
+    clock_ppm: float = 0.0
+    """[ppm] free-running cameras' clocks: each camera's frame period is off the nominal one by its own
+    amount, uniform in ±``clock_ppm`` (seeded), so the cameras' phases drift apart (0: one clock)."""
     drop_rate: float = 0.0
     """Probability in [0, 1] that a camera drops a frame."""
     disconnect_after: dict[str, int] = field(default_factory=dict)
@@ -102,6 +105,12 @@ class MockSpec:
     mjpg_quality: int = MJPG_QUALITY
     """JPEG quality (1–100) of the mock's and the synthetic sessions' ``MJPG`` cameras: their frames
     are JPEG-compressed and decoded as a webcam's are (:data:`MJPG_QUALITY`)."""
+
+    @property
+    def free_running(self) -> bool:
+        """The cameras have no common trigger (``sync_spread_ms`` or ``clock_ppm`` set): capture them
+        with the free-running grouping (``polycam capture --free-running``)."""
+        return self.sync_spread_ms > 0 or self.clock_ppm > 0
 
 
 @dataclass(frozen=True)
@@ -226,6 +235,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
             noise=m.number("noise", 0.0, min=0.0, max=1.0),
             jitter_ms=m.number("jitter_ms", 0.0, min=0.0),
             sync_spread_ms=m.number("sync_spread_ms", 0.0, min=0.0),
+            clock_ppm=m.number("clock_ppm", 0.0, min=0.0, max=1e5),
             drop_rate=m.number("drop_rate", 0.0, min=0.0, max=1.0),
             disconnect_after=disconnect,
             distance=m.number("distance", 4.0, min=0.0, open_min=True),

@@ -410,14 +410,14 @@ def _record_mock(rig, path: Path, frames: int, models: dict, board, supersample:
     """Record ``frames`` multi-frames of ``rig``'s mock driver into the session ``path``
     the way ``polycam capture --rig RIG --fast`` does (``capture.record`` on a simulated
     clock, nothing lost), rendering with ``models`` (and showing ``board`` if given), then
-    add the mock's ground truth. Free-running mock cameras (``[mock] sync_spread_ms``) are grouped
+    add the mock's ground truth. Free-running mock cameras (``[mock] sync_spread_ms``, ``clock_ppm``) are grouped
     by their phases, as ``polycam capture --free-running`` does. Returns counts for the summary."""
     from capture.mock import MockSource
     from capture.recorder import record
 
     src = MockSource(rig, realtime=False, frames=frames, supersample=supersample, models=models, board=board)
     on_update = (lambda st: advance(st.written, frames)) if advance is not None else None
-    free = board is None and rig.mock is not None and rig.mock.sync_spread_ms > 0
+    free = board is None and rig.mock is not None and rig.mock.free_running
     res = record(src, rig, path, frames=frames, overwrite=True, on_update=on_update, update_interval=0.25,
                  free_running=free)
     st = res.stats
