@@ -141,7 +141,8 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
         period; two of the longest frame periods).
     free_running: the cameras have no common trigger: one image per camera per frame period, the
         boundaries between frames in the largest gap between their phases (:class:`Synchronizer`'s
-        ``period_ns``, the shortest frame period; ``tolerance_ns`` is then not used).
+        ``period_ns``, the shortest frame period; ``tolerance_ns`` is then not used; a slower camera's
+        images go with the multi-frame nearest in time).
     queue_frames: capacity of the writer queue [multi-frames].
     writer_factory: ``factory(out, rig, overwrite=...)`` → a SessionWriter (tests inject
         failing writers); default :class:`polycam.session.SessionWriter`.
@@ -167,7 +168,8 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     wait = int(round(2e9 / min(fps))) if wait_ns is None else int(wait_ns)
     stats = CaptureStats(ids, tol)
     stats.queue_size = queue_frames
-    sync = Synchronizer(tuple(ids), tol, wait, period_ns=period)
+    own = {c: int(round(1e9 / f)) for c, f in zip(ids, fps)} if free_running else None
+    sync = Synchronizer(tuple(ids), tol, wait, period_ns=period, camera_periods_ns=own)
     stop_event = stop_event or threading.Event()
 
     session = None

@@ -39,7 +39,11 @@ apart: over minutes their phases drift by a period or more): when the phases spa
 :data:`PHASE_WRAP` periods, the one furthest from the reference time moves by a whole
 period, so each multi-frame's images stay within about a period of each other however long
 the capture (a slower camera is then missing from one multi-frame, a faster one has one
-image discarded as late). Rule 3's waiting applies with each camera's window end.
+image discarded as late). A camera at a slower nominal frame rate (``camera_periods_ns``, more
+than 1 % off the period: 25 fps among 30) has no phase that stays put; its images go to the
+multi-frame whose span they are nearest, centred on the middle of the tracked phases, and decide
+the multi-frames up to their own timestamp only. Rule 3's waiting applies with each camera's
+window end.
 """
 
 from __future__ import annotations
@@ -98,6 +102,10 @@ class Synchronizer:
     period_ns: int | None = None
     """[ns] free-running cameras at this frame period: phase-tracked grouping (module docstring);
     None: the anchor rule with ``tolerance_ns``."""
+    camera_periods_ns: dict[str, int] | None = None
+    """[ns] free-running grouping: camera id → its own nominal frame period where it differs from
+    ``period_ns`` (a slower camera): such a camera's phase against the multi-frames does not stay put,
+    so its images go to the multi-frame nearest in time (module docstring)."""
     late: dict[str, int] = field(init=False)
     """Camera id → frames discarded because their multi-frame was already emitted
     (or because their timestamp did not increase)."""
@@ -118,6 +126,10 @@ class Synchronizer:
         self._ref_ns: int | None = None          # [ns] free-running: the next multi-frame's reference time
         self._phases: dict[str, deque[int]] = {c: deque(maxlen=PHASE_FRAMES) for c in self.cameras}
         self._phase: dict[str, int | None] = {c: None for c in self.cameras}   # [ns] their medians (None: unseen)
+        # cameras at another frame rate (more than 1 % off period_ns): not phase-tracked
+        own = self.camera_periods_ns or {}
+        self._untracked = frozenset(c for c, q in own.items() if c in self._pending and self.period_ns is not None
+                                    and abs(int(q) - self.period_ns) > 0.01 * self.period_ns)
 
     # -- input
 
@@ -192,8 +204,11 @@ class Synchronizer:
         """After a multi-frame: its reference time (the median of members' timestamps minus their phases;
         ``shown``: those values), each member's phase, and the next reference time a period on; then
         :meth:`_wrap_phases`."""
-        ref = int(np.median(list(shown.values())))
+        tracked = [v for c, v in shown.items() if c not in self._untracked]
+        ref = int(np.median(tracked or list(shown.values())))
         for c, f in members.items():
+            if c in self._untracked:
+                continue
             self._phases[c].append(int(f.timestamp_ns) - ref)
             self._phase[c] = int(np.median(self._phases[c]))
         self._ref_ns = ref + int(self.period_ns)
@@ -241,8 +256,11 @@ class Synchronizer:
             phase = dict(self._phase)
             ref = self._ref_ns
             for c, f in heads.items():                # a camera's first frame: see _first_phase
-                if phase[c] is None:
+                if phase[c] is None and c not in self._untracked:
                     phase[c] = self._first_phase(int(f.timestamp_ns) - ref)
+            known = [p for c, p in phase.items() if p is not None and c not in self._untracked]
+            for c in self._untracked:                 # another frame rate: the frame nearest the middle of
+                phase[c] = (min(known) + max(known)) // 2 if known else 0       # the others' phases
             # nothing for whole periods (every camera paused): skip to the earliest frame's period
             u_min = min(int(f.timestamp_ns) - phase[c] for c, f in heads.items())
             if u_min >= ref + P // 2:
@@ -260,12 +278,18 @@ class Synchronizer:
             for c in self.cameras:
                 q = self._pending[c]
                 while q and int(q[0].timestamp_ns) - phase[c] < ref - P // 2:     # behind its window
+                    if c in self._untracked and (len(q) < 2 or int(q[1].timestamp_ns) - phase[c] >= ref + P // 2):
+                        break        # another frame rate: an image between two windows (the reference
+                                     # times jitter) goes with the next
                     q.popleft()
                     self.late[c] += 1
                 if q and int(q[0].timestamp_ns) - phase[c] < ref + P // 2:
                     members[c] = q.popleft()
                     shown[c] = int(members[c].timestamp_ns) - phase[c]
-                if phase[c] is not None:
+                if c in self._untracked:      # decided up to its image (a later one may go with the next)
+                    if c in members:
+                        self._done_until[c] = max(self._done_until[c], int(members[c].timestamp_ns))
+                elif phase[c] is not None:
                     self._done_until[c] = max(self._done_until[c], ref + P // 2 + phase[c] - 1)
             if not members:                             # only stale frames were pending
                 self._ref_ns = ref + P

@@ -65,6 +65,7 @@ __all__ = [
     "capture_times",
     "frame_times",
     "CAPTURE_OFFSET_FRAMES",
+    "OWN_RATE_TOLERANCE",
 ]
 
 log = logging.getLogger(__name__)
@@ -854,6 +855,10 @@ frame time: free-running cameras at one frame rate keep their phase for many fra
 median follows a steady drift (two cameras' rates 0.1 % apart: 1 ms in 31 frames at 30 Hz), while the
 timestamps jitter from frame to frame (the median of 31 has ~1/4 of their std)."""
 
+OWN_RATE_TOLERANCE = 0.01
+"""A camera whose images' median interval is further than this fraction from a whole number of frame
+intervals runs at another frame rate: :func:`capture_times` follows its own clock."""
+
 
 _MEDIAN_STD = math.sqrt(math.pi / 2)
 """The std of the median of n Gaussian samples, times sqrt(n) / their std (large n)."""
@@ -866,6 +871,13 @@ def _normal_range(n: int) -> float:
     return float(np.sum(1.0 - cdf ** n - (1.0 - cdf) ** n) * (x[1] - x[0]))
 
 
+def _clock_ticks(ts: np.ndarray) -> np.ndarray:
+    """(F,) float: increasing timestamps (F,) [ns] as ticks of their clock, whole numbers of the median
+    interval from the first (a lost frame between two counts two)."""
+    steps = np.diff(ts).astype(np.float64)
+    return np.concatenate([[0.0], np.cumsum(np.maximum(np.round(steps / np.median(steps)), 1.0))])
+
+
 def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
     """The frames' times without the jitter their timestamps inherit from their images' (a frame's
     timestamp is the median of its images'): each frame's time on the frame clock (the first frame's time
@@ -875,9 +887,8 @@ def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) 
     ts = np.asarray(timestamps_ns, np.int64)
     if ts.size < 3:
         return ts.copy()
-    steps = np.diff(ts).astype(np.float64)
-    ticks = np.concatenate([[0.0], np.cumsum(np.maximum(np.round(steps / np.median(steps)), 1.0))])
-    period = float(np.polyfit(ticks, ts - ts[0], 1)[0])           # frame intervals, a lost frame two
+    ticks = _clock_ticks(ts)
+    period = float(np.polyfit(ticks, ts - ts[0], 1)[0])
     clock = ts[0] + ticks * period
     half = max(int(window), 1) // 2
     off = (ts - clock).astype(np.float64)
@@ -891,6 +902,14 @@ def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) 
     return np.round(clock + smooth).astype(np.int64)
 
 
+def _image_interval(stamps_ns: np.ndarray) -> float:
+    """[ns] a camera's interval between images from its (F,) increasing image timestamps: the slope of a
+    line through them against their clock's ticks, which the timestamps' jitter moves far less than it
+    moves their median interval."""
+    ts = np.asarray(stamps_ns, np.int64)
+    return float(np.polyfit(_clock_ticks(ts), (ts - ts[0]).astype(np.float64), 1)[0])
+
+
 def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
                   window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
     """When each camera captured its image of each frame, from the image timestamps without their jitter.
@@ -900,7 +919,10 @@ def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
     from the other cameras that stays put for many frames. Per camera, the offset from the frame's
     timestamp is replaced by its running median over ``window`` frames (centred; fewer at the ends),
     restarted wherever it jumps by more than half the frame interval (the capture's grouping moved to
-    the camera's next image: its phase drifted past the tolerance).
+    the camera's next image: its phase drifted past the tolerance). A camera at another frame rate (its
+    images' median interval more than 1 % off a whole number of frame intervals: its offset from the
+    frames' times does not stay put) gets its own clock instead: :func:`frame_times` of its own image
+    timestamps.
 
     timestamps_ns: (F,) int64 [ns] frame times (:func:`frame_times`: the timestamps without their jitter).
     cam_timestamps: (F, C) int64 [ns] image timestamps, -1 where a camera has no image. Returns (F, C) int64
@@ -911,11 +933,17 @@ def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
     if stamps.size == 0:
         return out
     half = max(int(window), 1) // 2
-    jump = 0.5 * float(np.median(np.diff(frames))) if frames.size > 1 else math.inf
+    interval = float(np.median(np.diff(frames))) if frames.size > 1 else math.inf   # [ns] between frames
+    jump = 0.5 * interval
     for k in range(stamps.shape[1]):
         rows = np.flatnonzero(stamps[:, k] >= 0)
         if rows.size == 0:
             continue
+        if rows.size >= 3 and 0 < interval < math.inf:
+            step = _image_interval(stamps[rows, k]) / interval                    # [frame intervals]
+            if abs(step - round(step)) > OWN_RATE_TOLERANCE * step:
+                out[rows, k] = frame_times(stamps[rows, k], window)
+                continue
         offset = (stamps[rows, k] - frames[rows]).astype(np.float64)
         cuts = np.flatnonzero(np.abs(np.diff(offset)) > jump) + 1
         smooth = np.empty_like(offset)

@@ -354,6 +354,64 @@ def test_free_running_cameras_whose_clocks_drift_apart(tmp_path):
     assert np.ptp(drift) > 1.2 * P
 
 
+def test_free_running_cameras_at_other_frame_rates(tmp_path):
+    """A rig of 30 fps cameras with one at 25 and one at 15 fps ([[camera]] fps), free-running: recorded,
+    each image goes to the frame nearest in time (none late, within a period), and the session's capture
+    times follow each camera's own clock (polycam.session.capture_times: the 25 fps camera's offset from
+    the frames' times saws through a period, and a running median of it is 10 ms off)."""
+    from capture.mock import pattern_sequence
+    from polycam.session import capture_times
+
+    cams = "".join(f"""
+[[camera]]
+id = "c{k}"
+position = [{0.02 * k}, 0, 0]
+fps = {fps}
+""" for k, fps in enumerate((30, 30, 30, 15, 25)))
+    (tmp_path / "rig.toml").write_text(f"""
+[rig]
+name = "mixed"
+[defaults]
+driver = "mock"
+width = 64
+height = 48
+{cams}
+[mock]
+scene = "pattern"
+motion = "static"
+seed = 3
+sync_spread_ms = 8.0
+jitter_ms = 2.0
+""")
+    rig = load_rig(tmp_path / "rig.toml")
+    src = MockSource(rig, realtime=False, frames=300)
+    res = record(src, rig, tmp_path / "s", frames=250, free_running=True)
+    assert not any(c.late for c in res.stats.per_camera.values())
+    s = open_session(tmp_path / "s")
+    seq = np.full(s.cam_timestamps.shape, -1)
+    for f in range(len(s)):
+        for k, img in enumerate(s.read_frame(f).values()):
+            if img is not None:
+                seq[f, k] = pattern_sequence(img)
+    has = seq >= 0
+    assert has[:, 4].sum() > 200 and has[:, 3].sum() == 125
+    truth = np.array([[src._nominal(k, i) for k, i in enumerate(row)] for row in seq], np.float64)
+    spans = np.where(has, truth, np.nan)
+    assert np.nanmax(np.nanmax(spans, axis=1) - np.nanmin(spans, axis=1)) < 1e9 / 30
+    err = s.capture_times_ns()[has] - truth[has]
+    assert np.sqrt(np.mean(err ** 2)) < 0.8e6 and np.abs(err).max() < 2.5e6
+    running = capture_times(s.frame_times_ns(), s.cam_timestamps)[:, 4]
+    import polycam.session as ps
+
+    own, ps.OWN_RATE_TOLERANCE = ps.OWN_RATE_TOLERANCE, np.inf
+    try:
+        as_one_rate = capture_times(s.frame_times_ns(), s.cam_timestamps)[:, 4]
+    finally:
+        ps.OWN_RATE_TOLERANCE = own
+    assert np.sqrt(np.mean((as_one_rate - truth[:, 4])[has[:, 4]] ** 2)) > 5e6
+    assert np.array_equal(running, s.capture_times_ns()[:, 4])
+
+
 def test_free_running_cameras_are_grouped_by_their_phases(tmp_path):
     """Cameras at their own phases over a whole frame period ([mock] sync_spread_ms 16 at 30 Hz) with
     jittery timestamps (2 ms) are split across multi-frames by the default tolerance (half a period), and

@@ -147,6 +147,35 @@ def test_free_running_cameras_whose_clocks_run_apart(rng):
     assert max(np.ptp([truth[c, f.sequence] for c, f in mf.frames.items()]) for mf in run(tracked, frames)) > 1.5 * P
 
 
+def test_free_running_cameras_at_other_frame_rates(rng):
+    """camera_periods_ns: four cameras at 30 fps, one at 25 and one at 15, free-running, 2 ms jitter, 20 s:
+    the images go to multi-frames in order, the slower cameras' to the multi-frame nearest in time (within
+    a period of the others'), at most one in 200 discarded (where the jitter puts two of the 25 fps
+    camera's images, 40 ms apart, into one multi-frame's span); tracking the 25 fps camera's phase as if
+    it ran at 30 fps groups some images nearly two periods apart."""
+    cams = ("a", "b", "c", "d", "e25", "f15")
+    period = {c: P for c in cams[:4]} | {"e25": 40_000_000, "f15": 2 * P}
+    frames, truth = [], {}
+    for c in cams:
+        phase = rng.uniform(0, P)
+        for i in range(int(20e9 // period[c])):
+            truth[c, i] = 1_000_000_000 + phase + i * period[c]
+            frames.append(frame(c, int(truth[c, i] + rng.normal(0, 2e6)), i))
+    frames.sort(key=lambda f: f.timestamp_ns)
+    sync = Synchronizer(cams, P - 1, 4 * P, period_ns=P, camera_periods_ns=period)
+    mfs = run(sync, frames)
+    n = {c: int(20e9 // period[c]) for c in cams}
+    for c in cams:
+        seqs = [mf.frames[c].sequence for mf in mfs if c in mf.frames]
+        assert np.all(np.diff(seqs) > 0) and len(seqs) + sync.late[c] == n[c], c
+        assert sync.late[c] <= n[c] // 200, c
+    spread = [np.ptp([truth[c, f.sequence] for c, f in mf.frames.items()]) for mf in mfs]
+    assert max(spread) < 1.05 * P
+    blind = Synchronizer(cams, P - 1, 4 * P, period_ns=P)
+    got = run(blind, frames)
+    assert max(np.ptp([truth[c, f.sequence] for c, f in mf.frames.items()]) for mf in got) > 1.4 * P
+
+
 def test_free_running_cameras_follow_their_phases(rng):
     """period_ns: twenty cameras at phases anywhere in the period, timestamps jittered by 2 ms, their
     rate 0.05 % off the nominal one, frames arriving interleaved by time: every multi-frame holds one
