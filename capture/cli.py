@@ -58,8 +58,8 @@ def _recording(p: argparse.ArgumentParser) -> None:
     sync.add_argument("--tolerance-ms", type=_positive_float,
                       help="max timestamp spread of a multi-frame [ms] (default: half a frame period)")
     sync.add_argument("--free-running", action="store_true",
-                      help="cameras without a common trigger: one image per camera per frame period, the "
-                           "boundaries between frames in the largest gap between their phases")
+                      help="cameras without a common trigger: one image per camera per frame period, each "
+                           "camera's phase tracked (drifting clocks and slower cameras too; docs/capture.md)")
     p.add_argument("--queue", type=_positive_int, default=32, help="writer queue length [multi-frames] (default 32)")
     p.add_argument("--png-threads", type=_positive_int, default=3, help="PNG encoding and writing threads (default 3)")
     p.add_argument("--no-display", action="store_true", help="no live display")

@@ -429,7 +429,8 @@ class MockSource(FrameSource):
         - ``groundtruth.tum``: ``T_world_rig`` of the pose each frame shows, at the
           frame's timestamp (world = the rig at the trajectory's start; a board session's
           rig stands still at the origin); with ``sync_spread_ms`` or ``clock_ppm``, the rig at the median of the
-          moments its cameras captured the frame;
+          moments its cameras captured the frame (as the frame's timestamp: the lower median, of the
+          cameras at the fastest frame rate);
         - ``calib/<cam>.cameramodel``: the models the cameras were rendered with;
         - with a board: ``board_poses.tum`` (``T_rig_board`` per frame, as
           :func:`polycam.synth.synth_board_session` writes it) and ``board.toml`` (a copy
@@ -440,7 +441,7 @@ class MockSource(FrameSource):
         whose frames this source did not deliver.
         """
         from polycam.cameras import write_cameramodel
-        from polycam.session import open_session
+        from polycam.session import open_session, other_rate_cameras
         from polycam.tomlio import atomic_write_text
         from polycam.trajectory import Trajectory, tum_text, write_tum
 
@@ -451,13 +452,16 @@ class MockSource(FrameSource):
         poses = np.empty(len(sess), np.int64)
         T_world_rig = np.empty((len(sess), 4, 4))
         cams = list(sess.cameras)
+        slower = other_rate_cameras([sess.rig.camera(c).fps for c in cams])
         for f in range(len(sess)):
-            shown = [self._shown.get((c, int(ts))) for c, ts in zip(cams, sess.cam_timestamps[f]) if ts >= 0]
-            shown = [t for t in shown if t is not None]
+            moments = [(self._shown.get((c, int(ts))), o) for c, ts, o in zip(cams, sess.cam_timestamps[f], slower)
+                       if ts >= 0]
+            shown = [t for t, _ in moments if t is not None]
             if not shown:
                 raise CaptureError(f"{sess.path}: frame {f} was not delivered by this mock source")
-            poses[f] = r.index(shown[0])
-            T_world_rig[f] = (r.pose_at(float(np.median(shown))) if self._unsynced else
+            own = sorted([t for t, o in moments if t is not None and not o] or shown)   # as the frame's
+            poses[f] = r.index(shown[0])                                                # timestamp
+            T_world_rig[f] = (r.pose_at(float(own[(len(own) - 1) // 2])) if self._unsynced else
                               r.trajectory.T_world_rig[poses[f]])
         path = Path(session_path)
         write_tum(path / "groundtruth.tum", Trajectory(sess.timestamps_ns.copy(), T_world_rig))

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from polycam.rig import Rig
+from polycam.session import other_rate_cameras
 
 from .source import CameraLost, CaptureError, FrameSource
 from .stats import STATS_FILE, CaptureStats
@@ -139,10 +140,10 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     frames: stop after this many multi-frames; seconds: after this span of frame timestamps [s].
     tolerance_ns / wait_ns: synchroniser settings (defaults: half the shortest frame
         period; two of the longest frame periods).
-    free_running: the cameras have no common trigger: one image per camera per frame period, the
-        boundaries between frames in the largest gap between their phases (:class:`Synchronizer`'s
-        ``period_ns``, the shortest frame period; ``tolerance_ns`` is then not used; a slower camera's
-        images go with the multi-frame nearest in time).
+    free_running: the cameras have no common trigger: one image per camera per frame period, each
+        camera's phase tracked (:class:`Synchronizer`'s ``period_ns``, the shortest frame period;
+        ``tolerance_ns`` is then not used; a slower camera's images go with the multi-frame nearest in
+        time).
     queue_frames: capacity of the writer queue [multi-frames].
     writer_factory: ``factory(out, rig, overwrite=...)`` → a SessionWriter (tests inject
         failing writers); default :class:`polycam.session.SessionWriter`.
@@ -168,8 +169,8 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     wait = int(round(2e9 / min(fps))) if wait_ns is None else int(wait_ns)
     stats = CaptureStats(ids, tol)
     stats.queue_size = queue_frames
-    own = {c: int(round(1e9 / f)) for c, f in zip(ids, fps)} if free_running else None
-    sync = Synchronizer(tuple(ids), tol, wait, period_ns=period, camera_periods_ns=own)
+    slower = frozenset(c for c, o in zip(ids, other_rate_cameras(fps)) if o) if free_running else frozenset()
+    sync = Synchronizer(tuple(ids), tol, wait, period_ns=period, other_rate=slower)
     stop_event = stop_event or threading.Event()
 
     session = None

@@ -17,7 +17,8 @@ of a recorded session regroups it identically):
    missing and its frame, if it still arrives, is discarded as *late*.
 
 The multi-frame timestamp is the median of its members' timestamps (the lower
-median for an even count), raised to one nanosecond after the previous
+median for an even count; with free-running cameras at several frame rates, of the members at
+the multi-frames' rate), raised to one nanosecond after the previous
 multi-frame's if needed so frame timestamps strictly increase.
 
 **Free-running cameras** (``period_ns`` given; ``polycam capture --free-running``): cameras
@@ -39,8 +40,8 @@ apart: over minutes their phases drift by a period or more): when the phases spa
 :data:`PHASE_WRAP` periods, the one furthest from the reference time moves by a whole
 period, so each multi-frame's images stay within about a period of each other however long
 the capture (a slower camera is then missing from one multi-frame, a faster one has one
-image discarded as late). A camera at a slower nominal frame rate (``camera_periods_ns``, more
-than 1 % off the period: 25 fps among 30) has no phase that stays put; its images go to the
+image discarded as late). A camera at a slower nominal frame rate (``other_rate``: 25 fps among
+30) has no phase that stays put; its images go to the
 multi-frame whose span they are nearest, centred on the middle of the tracked phases, and decide
 the multi-frames up to their own timestamp only. Rule 3's waiting applies with each camera's
 window end.
@@ -102,10 +103,10 @@ class Synchronizer:
     period_ns: int | None = None
     """[ns] free-running cameras at this frame period: phase-tracked grouping (module docstring);
     None: the anchor rule with ``tolerance_ns``."""
-    camera_periods_ns: dict[str, int] | None = None
-    """[ns] free-running grouping: camera id → its own nominal frame period where it differs from
-    ``period_ns`` (a slower camera): such a camera's phase against the multi-frames does not stay put,
-    so its images go to the multi-frame nearest in time (module docstring)."""
+    other_rate: frozenset[str] = frozenset()
+    """Free-running grouping: the cameras at a slower frame rate than ``period_ns``
+    (:func:`polycam.session.other_rate_cameras`): such a camera's phase against the multi-frames does
+    not stay put, so its images go to the multi-frame nearest in time (module docstring)."""
     late: dict[str, int] = field(init=False)
     """Camera id → frames discarded because their multi-frame was already emitted
     (or because their timestamp did not increase)."""
@@ -126,10 +127,9 @@ class Synchronizer:
         self._ref_ns: int | None = None          # [ns] free-running: the next multi-frame's reference time
         self._phases: dict[str, deque[int]] = {c: deque(maxlen=PHASE_FRAMES) for c in self.cameras}
         self._phase: dict[str, int | None] = {c: None for c in self.cameras}   # [ns] their medians (None: unseen)
-        # cameras at another frame rate (more than 1 % off period_ns): not phase-tracked
-        own = self.camera_periods_ns or {}
-        self._untracked = frozenset(c for c, q in own.items() if c in self._pending and self.period_ns is not None
-                                    and abs(int(q) - self.period_ns) > 0.01 * self.period_ns)
+        self._untracked = frozenset(self.other_rate) if self.period_ns is not None else frozenset()
+        if self._untracked - set(self.cameras):
+            raise KeyError(f"other_rate: unknown camera {sorted(self._untracked - set(self.cameras))[0]!r}")
 
     # -- input
 
@@ -311,7 +311,9 @@ class Synchronizer:
 
     def _multiframe(self, members: dict[str, Frame]) -> MultiFrame:
         ts = sorted(f.timestamp_ns for f in members.values())
-        stamp = ts[(len(ts) - 1) // 2]
+        # the stamp: the median over the cameras at the multi-frames' rate (a slower camera's offset saws)
+        own = sorted(f.timestamp_ns for c, f in members.items() if c not in self._untracked) or ts
+        stamp = own[(len(own) - 1) // 2]
         if stamp <= self._last_frame_ns:
             stamp = self._last_frame_ns + 1
         self._last_frame_ns = stamp

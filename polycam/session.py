@@ -42,7 +42,7 @@ import threading
 import warnings
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -65,7 +65,8 @@ __all__ = [
     "capture_times",
     "frame_times",
     "CAPTURE_OFFSET_FRAMES",
-    "OWN_RATE_TOLERANCE",
+    "OTHER_RATE",
+    "other_rate_cameras",
 ]
 
 log = logging.getLogger(__name__)
@@ -744,9 +745,11 @@ class Session:
     def capture_times_ns(self) -> np.ndarray:
         """(F, C) int64 [ns]: when camera c captured its image of frame i, its image timestamp with the
         timestamp jitter taken out (:func:`capture_times`: the frame's timestamp plus the camera's
-        running median offset from it); -1 where it has none. Computed once per session."""
+        running median offset from it; a camera at a slower frame rate than the rig's fastest in
+        ``rig.toml``, its own clock); -1 where it has none. Computed once per session."""
         if self._capture_times is None:
-            times = capture_times(self.frame_times_ns(), self.cam_timestamps)
+            fps = [self.rig.camera(c).fps for c in self.cameras]
+            times = capture_times(self.frame_times_ns(), self.cam_timestamps, other_rate=other_rate_cameras(fps))
             times.setflags(write=False)
             self._capture_times = times
         return self._capture_times
@@ -855,9 +858,17 @@ frame time: free-running cameras at one frame rate keep their phase for many fra
 median follows a steady drift (two cameras' rates 0.1 % apart: 1 ms in 31 frames at 30 Hz), while the
 timestamps jitter from frame to frame (the median of 31 has ~1/4 of their std)."""
 
-OWN_RATE_TOLERANCE = 0.01
-"""A camera whose images' median interval is further than this fraction from a whole number of frame
-intervals runs at another frame rate: :func:`capture_times` follows its own clock."""
+OTHER_RATE = 0.01
+"""A camera whose nominal frame rate is further than this fraction below the fastest camera's runs at
+another rate (:func:`other_rate_cameras`)."""
+
+
+def other_rate_cameras(fps: Sequence[float]) -> list[bool]:
+    """(C,) per camera of nominal frame rates ``fps`` (C,) [Hz]: does it run at another rate than the
+    fastest (slower by more than :data:`OTHER_RATE`)? Free-running, such a camera's images have no phase
+    that stays put against the frames (``capture.sync``), and :func:`capture_times` follows its own clock."""
+    top = max(fps) if len(fps) else 0.0
+    return [float(f) < (1.0 - OTHER_RATE) * top for f in fps]
 
 
 _MEDIAN_STD = math.sqrt(math.pi / 2)
@@ -902,16 +913,8 @@ def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) 
     return np.round(clock + smooth).astype(np.int64)
 
 
-def _image_interval(stamps_ns: np.ndarray) -> float:
-    """[ns] a camera's interval between images from its (F,) increasing image timestamps: the slope of a
-    line through them against their clock's ticks, which the timestamps' jitter moves far less than it
-    moves their median interval."""
-    ts = np.asarray(stamps_ns, np.int64)
-    return float(np.polyfit(_clock_ticks(ts), (ts - ts[0]).astype(np.float64), 1)[0])
-
-
 def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
-                  window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
+                  window: int = CAPTURE_OFFSET_FRAMES, other_rate: Sequence[bool] | None = None) -> np.ndarray:
     """When each camera captured its image of each frame, from the image timestamps without their jitter.
 
     A camera's image timestamp is its capture time plus jitter (the time the driver stamps it at
@@ -919,31 +922,28 @@ def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
     from the other cameras that stays put for many frames. Per camera, the offset from the frame's
     timestamp is replaced by its running median over ``window`` frames (centred; fewer at the ends),
     restarted wherever it jumps by more than half the frame interval (the capture's grouping moved to
-    the camera's next image: its phase drifted past the tolerance). A camera at another frame rate (its
-    images' median interval more than 1 % off a whole number of frame intervals: its offset from the
-    frames' times does not stay put) gets its own clock instead: :func:`frame_times` of its own image
-    timestamps.
+    the camera's next image: its phase drifted past the tolerance). A camera at another frame rate
+    (``other_rate``, :func:`other_rate_cameras`: its offset from the frames' times saws through a period)
+    follows its own clock instead: :func:`frame_times` of its own image timestamps.
 
     timestamps_ns: (F,) int64 [ns] frame times (:func:`frame_times`: the timestamps without their jitter).
-    cam_timestamps: (F, C) int64 [ns] image timestamps, -1 where a camera has no image. Returns (F, C) int64
-    [ns], -1 where ``cam_timestamps`` is."""
+    cam_timestamps: (F, C) int64 [ns] image timestamps, -1 where a camera has no image. other_rate: (C,)
+    the cameras at another frame rate (default none). Returns (F, C) int64 [ns], -1 where
+    ``cam_timestamps`` is."""
     frames = np.asarray(timestamps_ns, np.int64)
     stamps = np.asarray(cam_timestamps, np.int64)
     out = np.full(stamps.shape, -1, np.int64)
     if stamps.size == 0:
         return out
     half = max(int(window), 1) // 2
-    interval = float(np.median(np.diff(frames))) if frames.size > 1 else math.inf   # [ns] between frames
-    jump = 0.5 * interval
+    jump = 0.5 * float(np.median(np.diff(frames))) if frames.size > 1 else math.inf
     for k in range(stamps.shape[1]):
         rows = np.flatnonzero(stamps[:, k] >= 0)
         if rows.size == 0:
             continue
-        if rows.size >= 3 and 0 < interval < math.inf:
-            step = _image_interval(stamps[rows, k]) / interval                    # [frame intervals]
-            if abs(step - round(step)) > OWN_RATE_TOLERANCE * step:
-                out[rows, k] = frame_times(stamps[rows, k], window)
-                continue
+        if other_rate is not None and other_rate[k]:
+            out[rows, k] = frame_times(stamps[rows, k], window)
+            continue
         offset = (stamps[rows, k] - frames[rows]).astype(np.float64)
         cuts = np.flatnonzero(np.abs(np.diff(offset)) > jump) + 1
         smooth = np.empty_like(offset)

@@ -57,7 +57,7 @@ def test_mock_session_carries_its_trajectory_and_models(tmp_path):
 def test_mock_unsynchronised_cameras(tmp_path):
     """[mock] sync_spread_ms: free-running cameras, each at its own constant phase within the spread,
     their images the scene at those moments; the capture groups them into frames as it would real
-    cameras, and the truth is the rig at the median of a frame's moments."""
+    cameras, and the truth is the rig at the (lower) median of a frame's moments, as its timestamp."""
     from polycam.session import sync_warning
     from polycam.synth import CameraArrayRenderer, quantize, scene_for_rig
     from polycam.trajectory import pose_at
@@ -84,9 +84,48 @@ def test_mock_unsynchronised_cameras(tmp_path):
             np.testing.assert_array_equal(s.read_frame(f)[cam], want)
     gt = s.groundtruth()
     for f in range(5):
-        moment = float(np.median(s.cam_timestamps[f])) - start
+        moment = float(np.sort(s.cam_timestamps[f])[0]) - start      # the lower median, as the frame's stamp
         np.testing.assert_allclose(gt.T_world_rig[f], pose_at(traj, moment), atol=1e-9)
     assert not np.allclose(gt.T_world_rig[2], traj.T_world_rig[2])
+
+
+def test_mock_cameras_at_their_own_clocks_and_rates(tmp_path):
+    """[mock] clock_ppm and a camera at 25 fps among 30 ([[camera]] fps): each image shows the scene at
+    its camera's own moment (its clock's period, its rate); recorded free-running, a frame's timestamp is
+    the median of the 30 fps cameras' and the truth the rig at the median of their moments, so that a
+    slower camera's sawing offset moves neither."""
+    from polycam.synth import CameraArrayRenderer, quantize, scene_for_rig
+    from polycam.trajectory import pose_at
+
+    text = mock_grid_rig_text("rates1x3", 32, 24, rows=1, cols=3).replace("noise = 0.004", "noise = 0.0")
+    grid = text[text.index("[grid]"):text.index("[mock]")]
+    cams = "".join(f"""[[camera]]
+id = "cam{k}"
+position = [{0.02 * (k - 1)}, 0.0, 0.0]
+fps = {25 if k == 2 else 30}
+""" for k in range(3))
+    path = tmp_path / "rig.toml"
+    path.write_text(text.replace(grid, cams) + "sync_spread_ms = 10.0\nclock_ppm = 3000.0\nstep_t = 0.02\n")
+    rig = load_rig(path)
+    src = MockSource(rig, realtime=False, frames=8)
+    record(src, rig, tmp_path / "s", frames=6, free_running=True)
+    src.write_truth(tmp_path / "s")
+    s = open_session(tmp_path / "s")
+    start = src._t0
+    period = [src._nominal(k, 1) - src._nominal(k, 0) for k in range(3)]
+    assert abs(period[2] - 40e6) < 0.2e6 and abs(period[0] - period[1]) > 10_000       # rate; clocks apart
+    traj = trajectory_for_rig(rig, 8, seed=1)
+    renderer = CameraArrayRenderer(rig, s.calibration(), scene_for_rig(rig, seed=1), supersample=1)
+    for f in (1, 4):
+        for k, cam in enumerate(s.cameras):
+            if s.cam_timestamps[f, k] >= 0:
+                want = quantize(renderer.render_camera(cam, pose_at(traj, int(s.cam_timestamps[f, k]) - start)), 8)
+                np.testing.assert_array_equal(s.read_frame(f)[cam], want)
+    gt = s.groundtruth()
+    for f in range(len(s)):
+        fast = s.cam_timestamps[f, :2][s.cam_timestamps[f, :2] >= 0]
+        assert s.timestamps_ns[f] == np.sort(fast)[(len(fast) - 1) // 2]
+        np.testing.assert_allclose(gt.T_world_rig[f], pose_at(traj, float(s.timestamps_ns[f]) - start), atol=1e-9)
 
 
 def test_mock_renders_with_the_given_models(tmp_path):

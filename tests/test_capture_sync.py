@@ -148,7 +148,7 @@ def test_free_running_cameras_whose_clocks_run_apart(rng):
 
 
 def test_free_running_cameras_at_other_frame_rates(rng):
-    """camera_periods_ns: four cameras at 30 fps, one at 25 and one at 15, free-running, 2 ms jitter, 20 s:
+    """other_rate: four cameras at 30 fps, one at 25 and one at 15, free-running, 2 ms jitter, 20 s:
     the images go to multi-frames in order, the slower cameras' to the multi-frame nearest in time (within
     a period of the others'), at most one in 200 discarded (where the jitter puts two of the 25 fps
     camera's images, 40 ms apart, into one multi-frame's span); tracking the 25 fps camera's phase as if
@@ -162,7 +162,7 @@ def test_free_running_cameras_at_other_frame_rates(rng):
             truth[c, i] = 1_000_000_000 + phase + i * period[c]
             frames.append(frame(c, int(truth[c, i] + rng.normal(0, 2e6)), i))
     frames.sort(key=lambda f: f.timestamp_ns)
-    sync = Synchronizer(cams, P - 1, 4 * P, period_ns=P, camera_periods_ns=period)
+    sync = Synchronizer(cams, P - 1, 4 * P, period_ns=P, other_rate=frozenset({"e25", "f15"}))
     mfs = run(sync, frames)
     n = {c: int(20e9 // period[c]) for c in cams}
     for c in cams:
