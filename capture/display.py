@@ -113,10 +113,13 @@ speaks (with few frames lost and the spread at the tolerance)."""
 def free_running_hint(stats: CaptureStats) -> str:
     """'' or why many multi-frames are incomplete although few frames were lost: cameras that free-run
     at their own phases, spread over more than the tolerance, are split across multi-frames (their
-    grouping: ``--free-running``, :class:`capture.sync.Synchronizer`'s ``period_ns``)."""
+    grouping: ``--free-running``, :class:`capture.sync.Synchronizer`'s ``period_ns``). The places a
+    slower camera leaves empty by its rate (its delivered fps against the fastest's) do not count."""
     cams = list(stats.per_camera.values())
     slots = stats.multiframes * len(cams)
-    missing = sum(c.missing for c in cams)
+    top = max((c.fps for c in cams), default=0.0)
+    by_rate = sum(stats.multiframes * (1.0 - c.fps / top) for c in cams if 0 < c.fps < top) if top > 0 else 0.0
+    missing = sum(c.missing for c in cams) - by_rate
     lost = sum(c.dropped + c.late + c.overflow + c.unwritten for c in cams)
     if len(cams) < 2 or slots == 0 or missing < FREE_RUNNING_MISSING * slots or missing < 2 * lost:
         return ""

@@ -404,6 +404,28 @@ jitter_ms = 2.0
     assert np.sqrt(np.mean((as_one_rate - truth[:, 4])[has[:, 4]] ** 2)) > 5e6
 
 
+def test_no_free_running_hint_for_places_a_slower_camera_leaves_empty():
+    """Two 30 fps cameras and one at 15 fps, frames spread to the tolerance: the 15 fps camera is missing
+    from every other multi-frame by its rate (a third of all places), which is not the free-running
+    pattern the hint names; the same empty places with every camera at 30 fps are."""
+    from capture.display import free_running_hint
+    from capture.stats import CaptureStats
+
+    def run(slow_fps: float) -> str:
+        st = CaptureStats(["a", "b", "c"], 33_000_000)
+        for i in range(60):
+            t = 1_000_000_000 + i * 33_333_333
+            st.frame("a", t, i)
+            st.frame("b", t + 30_000_000, i)
+            if slow_fps == 30 or i % 2 == 0:
+                st.frame("c", t, i if slow_fps == 30 else i // 2)
+            st.multiframe(t, 30_000_000, ("c",) if i % 2 else ())
+        return free_running_hint(st)
+
+    assert run(15.0) == ""
+    assert "--free-running" in run(30.0)
+
+
 def test_free_running_cameras_are_grouped_by_their_phases(tmp_path):
     """Cameras at their own phases over a whole frame period ([mock] sync_spread_ms 16 at 30 Hz) with
     jittery timestamps (2 ms) are split across multi-frames by the default tolerance (half a period), and
