@@ -40,11 +40,10 @@ apart: over minutes their phases drift by a period or more): when the phases spa
 :data:`PHASE_WRAP` periods, the one furthest from the reference time moves by a whole
 period, so each multi-frame's images stay within about a period of each other however long
 the capture (a slower camera is then missing from one multi-frame, a faster one has one
-image discarded as late). A camera at a slower nominal frame rate (``other_rate``: 25 fps among
-30) has no phase that stays put; its images go to the
-multi-frame whose span they are nearest, centred on the middle of the tracked phases, and decide
-the multi-frames up to their own timestamp only. Rule 3's waiting applies with each camera's
-window end.
+image discarded as late). A camera at a slower nominal frame rate (``other_rate``: 25 fps
+among 30) has no phase that stays put: its images go to the multi-frame whose span they are
+nearest, centred on the middle of the tracked phases, and decide the multi-frames up to their
+own timestamp only. Rule 3's waiting applies with each camera's window end.
 """
 
 from __future__ import annotations
