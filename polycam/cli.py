@@ -406,6 +406,21 @@ def _level_line(results) -> str:
             "(--option max_view_disparity=inf forces the finest; docs/motion.md, \"Camera arrays\")")
 
 
+def _slower_cameras_line(session) -> str:
+    """``polycam info``: the cameras at a slower frame rate than the rig's fastest
+    (:func:`polycam.session.other_rate_cameras`), whose capture times follow their own clocks; ''
+    without."""
+    from .session import other_rate_cameras
+
+    fps = [session.rig.camera(c).fps for c in session.cameras]
+    slower = [(c, f) for c, f, o in zip(session.cameras, fps, other_rate_cameras(fps)) if o]
+    if not slower:
+        return ""
+    rates = "/".join(f"{f:g}" for f in sorted({f for _, f in slower}, reverse=True))
+    return (f"  {_camera_group([c for c, _ in slower])} at {rates} fps against {max(fps):g}: missing from some "
+            f"frames, their capture times from their own clocks (docs/capture.md, \"Synchronisation\")")
+
+
 def _own_sampling_line(results, resampled: bool, session: bool) -> str:
     """On resampled frames (``resampled``: with confidences W), pairs solved at the grid's own view
     sampling (``uv_level`` 0) at :data:`OWN_SAMPLING_NOTE_DISPARITY` or more samples per view step: a
@@ -452,6 +467,9 @@ def cmd_info(args: argparse.Namespace) -> int:
                   f"(median; {float(spread.max()):.2f} ms at most); the timestamps jitter "
                   f"{s.timestamp_jitter_ns() / 1e6:.2f} ms (RMS) about them, which alone spreads them "
                   f"~{s.jitter_spread_ns() / 1e6:.2f} ms")
+            slower = _slower_cameras_line(s)
+            if slower:
+                print(slower)
             unsync = sync_warning(s)
             if unsync:
                 print("  warning: " + unsync + SYNC_AS_IF_TOGETHER)

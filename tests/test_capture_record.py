@@ -354,11 +354,12 @@ def test_free_running_cameras_whose_clocks_drift_apart(tmp_path):
     assert np.ptp(drift) > 1.2 * P
 
 
-def test_free_running_cameras_at_other_frame_rates(tmp_path):
+def test_free_running_cameras_at_other_frame_rates(tmp_path, capsys):
     """A rig of 30 fps cameras with one at 25 and one at 15 fps ([[camera]] fps), free-running: recorded,
     each image goes to the frame nearest in time (none late, within a period), and the session's capture
     times follow each camera's own clock (polycam.session.capture_times: the 25 fps camera's offset from
-    the frames' times saws through a period, and a running median of it is 10 ms off)."""
+    the frames' times saws through a period, and a running median of it is 10 ms off); polycam info
+    names the slower cameras."""
     from capture.mock import pattern_sequence
     from polycam.session import capture_times
 
@@ -402,6 +403,11 @@ jitter_ms = 2.0
     assert np.sqrt(np.mean(err ** 2)) < 0.8e6 and np.abs(err).max() < 2.5e6
     as_one_rate = capture_times(s.frame_times_ns(), s.cam_timestamps)[:, 4]
     assert np.sqrt(np.mean((as_one_rate - truth[:, 4])[has[:, 4]] ** 2)) > 5e6
+    from polycam.cli import main
+
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "s")]) == 0
+    assert "2 cameras (c3, c4) at 25/15 fps against 30: missing from some frames" in capsys.readouterr().out
 
 
 def test_no_free_running_hint_for_places_a_slower_camera_leaves_empty():
