@@ -279,10 +279,13 @@ _MOMENT_TOL = 1e-6
 
 
 @numba.njit(cache=True, parallel=True)
-def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain, data, wsum, nlinear,
-                 determined):
-    """Per cell: kernel sum, the equivalent-kernel weights of its samples and whether the
-    local-linear fit is determined (exact for linear light fields)."""
+def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain, pixel, indices, data, wsum,
+                 nlinear, determined):
+    """Per cell: kernel sum, the equivalent-kernel weights of its samples (computed in float64, written
+    to ``data`` as float32) with their input pixels (``indices[j] = pixel[sample_of[j]]``, int32) and
+    whether the local-linear fit is determined (exact for linear light fields). Writing the final
+    arrays here, not through float64 / int64 copies of every entry, keeps the build's memory traffic
+    (and its first-touch page faults) to a third."""
     Ny, Nx, Nv, Nu = dims[1], dims[2], dims[3], dims[4]
     nrows = indptr.shape[0] - 1
     for cell in numba.prange(nrows):
@@ -296,6 +299,7 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
         rest //= Nv
         b = rest % Nx
         a = (rest // Nx) % Ny
+        w = np.empty(j1 - j0)                  # the cell's weights, float64 until written out
         centre = np.array([a, b, e, g], np.float64)
         n_ax = np.array([Ny, Nx, Nv, Nu])
         N = np.zeros((5, 5))
@@ -308,7 +312,7 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
             for ax in range(4):
                 k *= _tent(coord[s, ax], centre[ax], radii[ax], n_ax[ax])
                 phi[ax + 1] = (coord[s, ax] - centre[ax]) / radii[ax] if n_ax[ax] > 1 else 0.0
-            data[j] = k
+            w[j - j0] = k
             ksum += k
             if linear:
                 for p in range(5):
@@ -333,7 +337,7 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
                     for ax in range(4):
                         if n_ax[ax] > 1:
                             dot += gvec[ax + 1] * (coord[s, ax] - centre[ax]) / radii[ax]
-                    gain += abs(data[j] * dot)
+                    gain += abs(w[j - j0] * dot)
                 if gain <= max_gain:
                     for ax in range(4):
                         phi[ax + 1] = 0.0           # reused: first moments of the equivalent kernel
@@ -343,10 +347,10 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
                         for ax in range(4):
                             if n_ax[ax] > 1:
                                 dot += gvec[ax + 1] * (coord[s, ax] - centre[ax]) / radii[ax]
-                        data[j] = data[j] * dot
+                        w[j - j0] = w[j - j0] * dot
                         for ax in range(4):
                             if n_ax[ax] > 1:
-                                phi[ax + 1] += data[j] * (coord[s, ax] - centre[ax]) / radii[ax]
+                                phi[ax + 1] += w[j - j0] * (coord[s, ax] - centre[ax]) / radii[ax]
                     done = True
                     nlinear[cell] = 1
                     worst = 0.0
@@ -356,7 +360,10 @@ def _row_weights(indptr, sample_of, coord, dims, radii, linear, ridge, max_gain,
                         determined[cell] = 1
         if not done:
             for j in range(j0, j1):
-                data[j] = data[j] / ksum
+                w[j - j0] = w[j - j0] / ksum
+        for j in range(j0, j1):
+            data[j] = w[j - j0]
+            indices[j] = pixel[sample_of[j]]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -459,21 +466,22 @@ def _geometry_from_samples(grid: LightFieldGrid, layout: CameraLayout, kernel: K
     indptr = np.zeros(ncells + 1, np.int64)
     np.cumsum(counts, out=indptr[1:])
     nnz = int(indptr[-1])
-    sample_of = np.empty(nnz, np.int64)
+    if layout.num_pixels >= 2**31:
+        raise ValueError("more than 2^31 input pixels per frame are not supported")
+    sample_of = np.empty(nnz, np.int32 if smp.pixel.shape[0] < 2**31 else np.int64)
     cursor = indptr[:-1].copy()
     _fill_rows(smp.face, coord, dims, radii, kernel.min_weight, cursor, sample_of)
-    data64 = np.empty(nnz, np.float64)
+    indices = np.empty(nnz, np.int32)
+    data = np.empty(nnz, np.float32)
     wsum = np.zeros(ncells, np.float64)
     nlin = np.zeros(ncells, np.int8)
     det = np.zeros(ncells, np.int8)
     _row_weights(indptr, sample_of, coord, dims, radii, kernel.linear, kernel.ridge, kernel.max_gain,
-                 data64, wsum, nlin, det)
-    if layout.num_pixels >= 2**31:
-        raise ValueError("more than 2^31 input pixels per frame are not supported")
-    indices = smp.pixel[sample_of].astype(np.int32)
+                 smp.pixel, indices, data, wsum, nlin, det)
+    del sample_of
     reached = int(np.count_nonzero(counts))
     geo = SplatGeometry(grid=grid, layout=layout, kernel=kernel, indptr=indptr, indices=indices,
-                        data=data64.astype(np.float32), w0=wsum.astype(np.float32).reshape(grid.shape),
+                        data=data, w0=wsum.astype(np.float32).reshape(grid.shape),
                         determined=det.astype(bool).reshape(grid.shape), num_samples=int(smp.pixel.shape[0]),
                         linear_fraction=float(nlin.sum()) / reached if reached else 0.0)
     log.info("splat geometry: %d pixels -> %d samples -> %d cells reached of %d, %d entries "
