@@ -339,15 +339,14 @@ def test_own_sampling_line_notes_the_band_where_the_std_is_small():
     from polycam.cli import OWN_SAMPLING_NOTE_DISPARITY, _own_sampling_line
 
     fine, near = SimpleNamespace(uv_level=0, view_disparity=0.4), SimpleNamespace(uv_level=0, view_disparity=0.72)
-    assert _own_sampling_line([fine, fine], True, True) == ""
-    assert _own_sampling_line([fine, near], False, True) == ""             # frames without W: not measured there
-    assert _own_sampling_line([SimpleNamespace(uv_level=1, view_disparity=0.7)], True, True) == ""
-    assert _own_sampling_line([SimpleNamespace(uv_level=0, view_disparity=float("nan"))], True, True) == ""
-    line = _own_sampling_line([fine, near, near], True, True)
-    assert "2 of 3 pairs" in line and "0.72 samples" in line and "--uv-step auto or 2" in line
-    assert "polycam resample --uv-step 2" in _own_sampling_line([near], True, False)
+    assert _own_sampling_line([fine, fine], True) == ""
+    assert _own_sampling_line([fine, near], False) == ""             # frames without W: not measured there
+    assert _own_sampling_line([SimpleNamespace(uv_level=1, view_disparity=0.7)], True) == ""
+    assert _own_sampling_line([SimpleNamespace(uv_level=0, view_disparity=float("nan"))], True) == ""
+    line = _own_sampling_line([fine, near, near], True)
+    assert "2 of 3 pairs" in line and "0.72 samples" in line and "too small" in line
     edge = SimpleNamespace(uv_level=0, view_disparity=OWN_SAMPLING_NOTE_DISPARITY)
-    assert "1 of 1 pairs" in _own_sampling_line([edge], True, True)
+    assert "1 of 1 pairs" in _own_sampling_line([edge], True)
 
 
 @pytest.fixture(scope="module")
