@@ -34,17 +34,6 @@ NOISY_HINT_GREY = 1.0
 integrated pixels the defaults are 1.3–2.3x the bound there, the noise options 1.1–1.4x; "Which
 preset": not on every kind of frame, so a hint, not an automatic choice)."""
 
-OWN_SAMPLING_NOTE_DISPARITY = 0.55
-"""[samples per view step] resampled frames whose pairs were solved at the grid's own view sampling
-(``PairResult.uv_level`` 0) with at least this disparity per view step get a note from ``polycam
-motion``: up to the solver's limit (``MotionOptions.max_view_disparity``) the views' sampling biases
-the finest level and the one above it alike, so the reported std measured 1.6–2.9x too small there on
-grids of 1 and 2 camera pixels per direction (not on the four sessions measured at 4 pixels;
-docs/motion.md, "The direction step")."""
-OWN_SAMPLING_NOTE_MAX_STEP_PX = 2.0
-"""[camera pixels] a session's grid with a coarser direction step gets no such note (not measured
-there)."""
-
 STAGE_CLIS = ("capture.cli", "calib.cli", "resample.cli", "polycam.run", "polycam.design_cli", "polycam.depth_cli")
 """Modules whose ``add_parsers(subparsers)`` add the pipeline stages' verbs."""
 
@@ -261,9 +250,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from resample.resampler import compressed_note
 
         print("  " + compressed_note(store.compressed_cameras, len(store.session.cameras)))
-    step = getattr(store, "uv_step_px", None)           # a session's grid: its direction step
-    levels = _level_line(results) or _own_sampling_line(
-        results, bool(getattr(store, "has_weights", False)) and not (step and step > OWN_SAMPLING_NOTE_MAX_STEP_PX))
+    levels = _level_line(results)
     if levels:
         print(levels)
     truth = store.groundtruth()
@@ -424,20 +411,6 @@ def _slower_cameras_line(session) -> str:
     rates = "/".join(f"{f:g}" for f in sorted({f for _, f in slower}, reverse=True))
     return (f"  {_camera_group([c for c, _ in slower])} at {rates} fps against {max(fps):g}: missing from some "
             f"frames, their capture times from their own clocks (docs/capture.md, \"Synchronisation\")")
-
-
-def _own_sampling_line(results, resampled: bool) -> str:
-    """On resampled frames (``resampled``: with confidences W, a direction step where it was measured),
-    pairs solved at the grid's own view sampling (``uv_level`` 0) at :data:`OWN_SAMPLING_NOTE_DISPARITY`
-    or more samples per view step: a note that their std is likely too small; '' otherwise."""
-    near = [r.view_disparity for r in results
-            if r.uv_level == 0 and math.isfinite(r.view_disparity) and r.view_disparity >= OWN_SAMPLING_NOTE_DISPARITY]
-    if not resampled or not near:
-        return ""
-    return (f"  note: {len(near)} of {len(results)} pairs solved at the grid's own view sampling with "
-            f"{statistics.median(near):.2f} samples of disparity per view step (median), near the solver's "
-            f"limit: there the reported std measured 1.6-2.9x too small on resampled arrays (docs/motion.md, "
-            f"\"The direction step\")")
 
 
 def cmd_info(args: argparse.Namespace) -> int:

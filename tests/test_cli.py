@@ -333,22 +333,6 @@ def test_level_line_names_the_coarse_levels():
     assert "max_view_disparity=inf" in line
 
 
-def test_own_sampling_line_notes_the_band_where_the_std_is_small():
-    from types import SimpleNamespace
-
-    from polycam.cli import OWN_SAMPLING_NOTE_DISPARITY, _own_sampling_line
-
-    fine, near = SimpleNamespace(uv_level=0, view_disparity=0.4), SimpleNamespace(uv_level=0, view_disparity=0.72)
-    assert _own_sampling_line([fine, fine], True) == ""
-    assert _own_sampling_line([fine, near], False) == ""             # frames without W: not measured there
-    assert _own_sampling_line([SimpleNamespace(uv_level=1, view_disparity=0.7)], True) == ""
-    assert _own_sampling_line([SimpleNamespace(uv_level=0, view_disparity=float("nan"))], True) == ""
-    line = _own_sampling_line([fine, near, near], True)
-    assert "2 of 3 pairs" in line and "0.72 samples" in line and "too small" in line
-    edge = SimpleNamespace(uv_level=0, view_disparity=OWN_SAMPLING_NOTE_DISPARITY)
-    assert "1 of 1 pairs" in _own_sampling_line([edge], True)
-
-
 @pytest.fixture(scope="module")
 def two_frame_lightfield(tmp_path_factory) -> Path:
     return _small_lightfield(tmp_path_factory.mktemp("lf2"), 2)
