@@ -92,8 +92,8 @@ def test_mock_unsynchronised_cameras(tmp_path):
 def test_mock_cameras_at_their_own_clocks_and_rates(tmp_path):
     """[mock] clock_ppm and a camera at 25 fps among 30 ([[camera]] fps): each image shows the scene at
     its camera's own moment (its clock's period, its rate); recorded free-running, a frame's timestamp is
-    the median of the 30 fps cameras' and the truth the rig at the median of their moments, so that a
-    slower camera's sawing offset moves neither."""
+    the (lower) median of the 30 fps cameras' and the truth the rig at that moment, so that a slower
+    camera's sawing offset moves neither."""
     from polycam.synth import CameraArrayRenderer, quantize, scene_for_rig
     from polycam.trajectory import pose_at
 
