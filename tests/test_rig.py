@@ -139,6 +139,13 @@ cam04 = 10
     assert (m.scene, m.motion, m.seed, m.noise, m.jitter_ms, m.sync_spread_ms, m.drop_rate, m.distance,
             m.mjpg_quality) == ("spheres", "static", 7, 0.01, 0.5, 6.5, 0.1, 2.5, 75)
     assert m.disconnect_after == {"cam04": 10}
+    assert m.free_running and m.clock_ppm == 0.0
+
+
+def test_mock_clock_ppm_makes_the_cameras_free_running(tmp_path):
+    m = load_rig(_rig(tmp_path, GRID + "[mock]\nclock_ppm = 150.0\n")).mock
+    assert m.clock_ppm == 150.0 and m.sync_spread_ms == 0.0 and m.free_running
+    assert not load_rig(_rig(tmp_path, GRID + "[mock]\nseed = 2\n")).mock.free_running
 
 
 @pytest.mark.parametrize("base, old, new, substrings", [
@@ -158,6 +165,8 @@ cam04 = 10
     (GRID, "pitch = 0.1", "pitch = inf", ["[grid].pitch", "finite"]),
     (GRID + "[mock]\njitter_ms = nan\n", "", "", ["[mock].jitter_ms", "finite"]),
     (GRID + "[mock]\nsync_spread_ms = -1.0\n", "", "", ["[mock].sync_spread_ms", ">= 0"]),
+    (GRID + "[mock]\nclock_ppm = -5.0\n", "", "", ["[mock].clock_ppm", ">= 0"]),
+    (GRID + "[mock]\nclock_ppm = 2e5\n", "", "", ["[mock].clock_ppm", "<= 100000"]),
     (CAMERAS, "position = [-0.05, 0.0, 0.0]", "position = [-0.05, 0.0]", ["[[camera]] #1.position", "3"]),
     (CAMERAS, 'id = "left"', "id = 3", ["[[camera]] #1.id", "expected a string"]),
     (CAMERAS, 'id = "left"', 'id = "a/b"', ["[[camera]] #1.id", "folder name"]),
