@@ -441,7 +441,7 @@ class MockSource(FrameSource):
         whose frames this source did not deliver.
         """
         from polycam.cameras import write_cameramodel
-        from polycam.session import open_session, other_rate_cameras
+        from polycam.session import open_session
         from polycam.tomlio import atomic_write_text
         from polycam.trajectory import Trajectory, tum_text, write_tum
 
@@ -452,7 +452,7 @@ class MockSource(FrameSource):
         poses = np.empty(len(sess), np.int64)
         T_world_rig = np.empty((len(sess), 4, 4))
         cams = list(sess.cameras)
-        slower = other_rate_cameras([sess.rig.camera(c).fps for c in cams])
+        slower = sess.other_rate
         for f in range(len(sess)):
             moments = [(self._shown.get((c, int(ts))), o) for c, ts, o in zip(cams, sess.cam_timestamps[f], slower)
                        if ts >= 0]

@@ -400,12 +400,10 @@ def _level_line(results) -> str:
 
 def _slower_cameras_line(session) -> str:
     """``polycam info``: the cameras at a slower frame rate than the rig's fastest
-    (:func:`polycam.session.other_rate_cameras`), whose capture times follow their own clocks; ''
+    (:attr:`polycam.session.Session.other_rate`), whose capture times follow their own clocks; ''
     without."""
-    from .session import other_rate_cameras
-
     fps = [session.rig.camera(c).fps for c in session.cameras]
-    slower = [(c, f) for c, f, o in zip(session.cameras, fps, other_rate_cameras(fps)) if o]
+    slower = [(c, f) for c, f, o in zip(session.cameras, fps, session.other_rate) if o]
     if not slower:
         return ""
     rates = "/".join(f"{f:g}" for f in sorted({f for _, f in slower}, reverse=True))

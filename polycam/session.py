@@ -748,11 +748,16 @@ class Session:
         running median offset from it; a camera at a slower frame rate than the rig's fastest in
         ``rig.toml``, its own clock); -1 where it has none. Computed once per session."""
         if self._capture_times is None:
-            fps = [self.rig.camera(c).fps for c in self.cameras]
-            times = capture_times(self.frame_times_ns(), self.cam_timestamps, other_rate=other_rate_cameras(fps))
+            times = capture_times(self.frame_times_ns(), self.cam_timestamps, other_rate=self.other_rate)
             times.setflags(write=False)
             self._capture_times = times
         return self._capture_times
+
+    @property
+    def other_rate(self) -> list[bool]:
+        """(C,) per camera (session order): does it run at a slower frame rate than the rig's fastest
+        (``rig.toml``'s fps, :func:`other_rate_cameras`)?"""
+        return other_rate_cameras([self.rig.camera(c).fps for c in self.cameras])
 
     def frame_times_ns(self) -> np.ndarray:
         """(F,) int64 [ns]: the frames' times without the jitter of their timestamps (:func:`frame_times`),
@@ -882,13 +887,6 @@ def _normal_range(n: int) -> float:
     return float(np.sum(1.0 - cdf ** n - (1.0 - cdf) ** n) * (x[1] - x[0]))
 
 
-def _clock_ticks(ts: np.ndarray) -> np.ndarray:
-    """(F,) float: increasing timestamps (F,) [ns] as ticks of their clock, whole numbers of the median
-    interval from the first (a lost frame between two counts two)."""
-    steps = np.diff(ts).astype(np.float64)
-    return np.concatenate([[0.0], np.cumsum(np.maximum(np.round(steps / np.median(steps)), 1.0))])
-
-
 def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) -> np.ndarray:
     """The frames' times without the jitter their timestamps inherit from their images' (a frame's
     timestamp is the median of its images'): each frame's time on the frame clock (the first frame's time
@@ -898,8 +896,9 @@ def frame_times(timestamps_ns: np.ndarray, window: int = CAPTURE_OFFSET_FRAMES) 
     ts = np.asarray(timestamps_ns, np.int64)
     if ts.size < 3:
         return ts.copy()
-    ticks = _clock_ticks(ts)
-    period = float(np.polyfit(ticks, ts - ts[0], 1)[0])
+    steps = np.diff(ts).astype(np.float64)
+    ticks = np.concatenate([[0.0], np.cumsum(np.maximum(np.round(steps / np.median(steps)), 1.0))])
+    period = float(np.polyfit(ticks, ts - ts[0], 1)[0])           # frame intervals, a lost frame two
     clock = ts[0] + ticks * period
     half = max(int(window), 1) // 2
     off = (ts - clock).astype(np.float64)
