@@ -63,6 +63,7 @@ __all__ = [
     "SYNC_AS_IF_TOGETHER",
     "sync_warning",
     "capture_times",
+    "capture_time_draw",
     "frame_times",
     "CAPTURE_OFFSET_FRAMES",
     "OTHER_RATE",
@@ -795,6 +796,11 @@ class Session:
         n = min(len(self), CAPTURE_OFFSET_FRAMES)
         return _MEDIAN_STD * self.timestamp_jitter_ns() / math.sqrt(max(n, 1))
 
+    def capture_time_draw_ns(self, rng: np.random.Generator) -> np.ndarray:
+        """(F, C) float64 [ns]: one draw of the error of :meth:`capture_times_ns` (:func:`capture_time_draw`),
+        what ``polycam motion --sync-draws`` moves the cameras by (:mod:`polycam.sync_draws_cli`)."""
+        return capture_time_draw(self.timestamps_ns, self.cam_timestamps, rng, other_rate=self.other_rate)
+
     def capture_spread_ns(self) -> np.ndarray:
         """(F,) int64 [ns]: per frame, the latest minus the earliest of its cameras' capture times
         (:meth:`capture_times_ns`, the timestamps without their jitter; 0 for a frame with fewer than two
@@ -950,6 +956,47 @@ def capture_times(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray,
             padded = np.concatenate([np.full(half, np.nan), offset[seg], np.full(half, np.nan)])
             smooth[seg] = np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
         out[rows, k] = frames[rows] + np.round(smooth).astype(np.int64)
+    return out
+
+
+def capture_time_draw(timestamps_ns: np.ndarray, cam_timestamps: np.ndarray, rng: np.random.Generator, *,
+                      window: int = CAPTURE_OFFSET_FRAMES, other_rate: Sequence[bool] | None = None) -> np.ndarray:
+    """One draw of the error of :func:`capture_times`' estimate (a parametric bootstrap): the estimate
+    run again on image timestamps made from the capture times plus new jitter (normal, with the std of
+    the timestamps about the capture times, counting what the estimate fitted per camera: an offset
+    per window, a slower camera's line two) and on frame times made again from the frame times plus
+    their timestamps' jitter (:func:`frame_times`). So each camera's error is what its estimator makes
+    of the jitter: a running median's, nearly one offset for a session shorter than its window, and a
+    slower camera's (its own clock, a line through its timestamps) an offset and a rate, larger at the
+    session's ends, against the frame clock's own.
+
+    timestamps_ns: (F,) int64 [ns] the frames' timestamps; cam_timestamps: (F, C) int64 [ns] the image
+    timestamps, -1 where a camera has no image; window, other_rate: as :func:`capture_times`. Returns
+    (F, C) float64 [ns], 0 where there is no image (and everywhere when the timestamps do not jitter)."""
+    stamps = np.asarray(cam_timestamps, np.int64)
+    frames = frame_times(timestamps_ns, window)
+    times = capture_times(frames, stamps, window, other_rate)
+    has = times >= 0
+    out = np.zeros(times.shape)
+    if not has.any():
+        return out
+
+    def std(residuals: np.ndarray, fitted: float) -> float:
+        return math.sqrt(float(np.sum(residuals.astype(np.float64) ** 2)) / max(residuals.size - fitted, 1.0))
+
+    # the residuals' RMS counting what the estimate fitted: per camera an offset per window of its
+    # images, a line (two) for a slower camera; the frame clock a line per window of frames
+    windows = np.ceil(has.sum(axis=0) / max(int(window), 1))
+    slow = np.zeros(has.shape[1], bool) if other_rate is None else np.asarray(other_rate, bool)
+    sigma = std(stamps[has] - times[has], float(np.sum(windows * np.where(slow, 2.0, 1.0))))
+    if sigma == 0.0:
+        return out
+    residuals = np.asarray(timestamps_ns, np.int64) - frames
+    sigma_frames = std(residuals, 2.0 * math.ceil(residuals.size / max(int(window), 1)))
+    again = frame_times(frames + np.round(sigma_frames * rng.standard_normal(frames.shape)).astype(np.int64), window)
+    noise = np.round(sigma * rng.standard_normal(times.shape)).astype(np.int64)
+    again = capture_times(again, np.where(has, times + noise, -1), window, other_rate)
+    out[has] = (again - times)[has]
     return out
 
 

@@ -4,12 +4,13 @@ pair's covariance (docs/motion.md, "Unsynchronised cameras").
 
 The correction (:class:`resample.stream.SessionLightField` with ``capture_motion``) moves each camera
 to where it was at its capture time, which is estimated: each camera's running median offset of its
-jittered timestamps (:meth:`polycam.session.Session.capture_times_ns`, std
-:meth:`~polycam.session.Session.capture_time_std_ns` per camera). The error that leaves is the same
-in the pairs around a frame and the solver's residuals do not show it; antithetic re-solves with
-every camera's capture time moved by ``±δ_k`` (δ_k drawn per camera from that std), and the first
-pass's motion that moves the cameras by ``±`` a draw from its covariance, measure it as the
-calibration draws do (:func:`polycam.calib_spread.antithetic_covariance`).
+jittered timestamps, a slower camera's own clock (:meth:`polycam.session.Session.capture_times_ns`).
+The error that leaves is the same in the pairs around a frame and the solver's residuals do not show
+it; antithetic re-solves with every capture time moved by ``±δ`` (δ (F, C) a draw of the estimate's
+error, :meth:`~polycam.session.Session.capture_time_draw_ns`: nearly one offset per camera, an offset
+and a rate for a slower camera), and the first pass's motion that moves the cameras by ``±`` a draw
+from its covariance, measure it as the calibration draws do
+(:func:`polycam.calib_spread.antithetic_covariance`).
 
 CLI layer (``polycam motion SESSION``): it drives the resampling stage; the numerics are
 :mod:`polycam.calib_spread`'s.
@@ -58,13 +59,14 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
     """Re-solve every frame pair of an opened ``session`` (cameras ``models``, resampled onto ``grid`` with
     each camera moved by ``capture_motion``, (T - 1, 4, 4) ``T_prev_next`` per pair, as the corrected
     solve was) with ``draws`` sets of capture-time offsets, each at ``+δ`` and ``−δ`` (``2 draws``
-    re-solves; δ per camera normal with the session's :meth:`~polycam.session.Session.capture_time_std_ns`)
-    and, with ``motion_covariance`` ((T - 1, 6, 6) the first pass's covariance of each pair's (t, r), the
+    re-solves; δ (F, C) [ns] a draw of the capture times' error,
+    :meth:`~polycam.session.Session.capture_time_draw_ns`) and, with ``motion_covariance`` ((T - 1, 6, 6) the first pass's covariance of each pair's (t, r), the
     estimate ``capture_motion`` is), ``capture_motion`` drawn from it at the same ``±``: the camera moved
     by its share of an estimated motion is off by that share of the estimate's error too.
 
     Returns ((P, 6, 6) each pair's covariance of (t [m], r [rad]) over the draws, NaN where no draw
-    solved it; (P,) the draws that did; the std [ns] drawn from). ``progress(done, total)`` after each
+    solved it; (P,) the draws that did; (C,) [ns] the RMS over the draws of each camera's δ, NaN for
+    a camera without images). ``progress(done, total)`` after each
     re-solve.
     """
     from resample.stream import SessionLightField
@@ -73,13 +75,13 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
 
     if draws < 1:
         raise ValueError(f"draws must be >= 1, got {draws}")
-    sigma = session.capture_time_std_ns()
     capture_motion = np.asarray(capture_motion, np.float64)
     factors = _motion_factors(motion_covariance, len(capture_motion))
     rng = np.random.default_rng(seed)
-    plus, minus = [], []
+    plus, minus, squares = [], [], []
     for _ in range(draws):
-        delta = sigma * rng.standard_normal(len(session.cameras))
+        delta = session.capture_time_draw_ns(rng)
+        squares.append(delta ** 2)
         dx = np.einsum("pij,pj->pi", factors, rng.standard_normal((len(capture_motion), 6)))
         for sign, acc in ((1.0, plus), (-1.0, minus)):
             with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
@@ -91,7 +93,22 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
             if progress is not None:
                 progress(len(plus) + len(minus), 2 * draws)
     C, counts = antithetic_covariance(np.stack(plus), np.stack(minus))
-    return C, counts, sigma
+    has = session.capture_times_ns() >= 0
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.sum(squares, axis=0).sum(axis=0) / (draws * has.sum(axis=0)))
+    return C, counts, rms
+
+
+def _std_text(rms_ns: np.ndarray, other_rate) -> str:
+    """The drawn capture-time errors' size for the CLI's line: the median over the cameras of their RMS
+    [ns] (C,), and the slower cameras' separately when the rig has any."""
+    rms_ns = np.asarray(rms_ns, np.float64)
+    slow = np.asarray(other_rate, bool) & np.isfinite(rms_ns)
+    rest = ~np.asarray(other_rate, bool) & np.isfinite(rms_ns)
+    text = f"{1e-6 * float(np.median(rms_ns[rest])):.2f} ms RMS per camera" if rest.any() else "no camera"
+    if slow.any():
+        text += f", {1e-6 * float(np.median(rms_ns[slow])):.2f} ms for the {int(slow.sum())} slower ones"
+    return text
 
 
 def add_capture_timing_share(session, models: dict, grid: LightFieldGrid, capture_motion: np.ndarray, results: list,
@@ -104,9 +121,9 @@ def add_capture_timing_share(session, models: dict, grid: LightFieldGrid, captur
         return results, "capture-time draws skipped: no pair solved"
     t0 = time.perf_counter()
     with (bar(2 * draws) if bar is not None else nullcontext(None)) as advance:
-        C, counts, sigma = capture_time_draws(session, models, grid, capture_motion, draws=draws, progress=advance,
-                                              **solve)
+        C, counts, rms = capture_time_draws(session, models, grid, capture_motion, draws=draws, progress=advance,
+                                            **solve)
     results = with_capture_timing(results, C)
-    source = f"their uncertainty ({1e-6 * sigma:.2f} ms per camera)"
+    source = f"their uncertainty ({_std_text(rms, session.other_rate)})"
     return results, share_line("capture times", source, capture_timing_std(results), results, draws,
                                int(counts.min(initial=draws)), time.perf_counter() - t0)

@@ -64,9 +64,10 @@ class SessionLightField:
         motion): each frame is then resampled with every camera moved to where it was when it captured
         its image, its share of the motion to the neighbouring frame (:func:`models_at_capture`), for
         cameras that are not synchronised (:func:`polycam.session.sync_warning`); a splat geometry per
-        frame, so several times the resampling's cost; capture_offsets_ns: with ``capture_motion``, (C,)
-        [ns] added to each camera's capture time (the session's camera order; a draw from the capture
-        times' uncertainty, :mod:`polycam.sync_draws_cli`).
+        frame, so several times the resampling's cost; capture_offsets_ns: with ``capture_motion``, (F, C)
+        [ns] added to each camera's capture time of each frame, or (C,) to every frame's (the session's
+        camera order; a draw from the capture times' uncertainty,
+        :meth:`polycam.session.Session.capture_time_draw_ns`, :mod:`polycam.sync_draws_cli`).
     Raises InputError for a session without frames or without a calibration.
     """
 
@@ -123,10 +124,13 @@ class SessionLightField:
         self.capture_motion = None if capture_motion is None else np.asarray(capture_motion, np.float64)
         if self.capture_motion is not None and self.capture_motion.shape != (len(self.session) - 1, 4, 4):
             raise ValueError(f"capture_motion must be ({len(self.session) - 1}, 4, 4), got {self.capture_motion.shape}")
-        self.capture_offsets_ns = None if capture_offsets_ns is None else np.asarray(capture_offsets_ns, np.float64)
-        if self.capture_offsets_ns is not None and self.capture_offsets_ns.shape != (len(self.session.cameras),):
-            raise ValueError(f"capture_offsets_ns must be ({len(self.session.cameras)},), "
-                             f"got {self.capture_offsets_ns.shape}")
+        self.capture_offsets_ns = None
+        if capture_offsets_ns is not None:
+            offsets = np.asarray(capture_offsets_ns, np.float64)
+            shape = (len(self.session), len(self.session.cameras))
+            if offsets.shape not in (shape, shape[1:]):
+                raise ValueError(f"capture_offsets_ns must be {shape} or {shape[1:]}, got {offsets.shape}")
+            self.capture_offsets_ns = np.broadcast_to(offsets, shape)
 
     @property
     def resampler(self):
@@ -188,7 +192,8 @@ class SessionLightField:
         if self._frame_resampler is None or self._frame_resampler[0] != t:
             from .resampler import Resampler
 
-            models = models_at_capture(self.models, self.session, t, self.capture_motion, self.capture_offsets_ns)
+            models = models_at_capture(self.models, self.session, t, self.capture_motion,
+                                       None if self.capture_offsets_ns is None else self.capture_offsets_ns[t])
             self._frame_resampler = (t, Resampler(models, self.grid, channels=self.channels,
                                                   options=self.options))
         return self._frame_resampler[1]

@@ -18,7 +18,7 @@ from polycam.geometry import T_from_rt
 from polycam.rig import load_rig
 from polycam.session import Session, SessionWriter, open_session
 from polycam.trajectory import Trajectory
-from tolerances import GEOMETRY_ATOL, TUM_POSITION_ATOL
+from tolerances import CAPTURE_TIME_DRAW_STD_REL, GEOMETRY_ATOL, TUM_POSITION_ATOL
 
 TINY_RIG = """
 [rig]
@@ -520,6 +520,55 @@ def test_capture_times_take_out_the_timestamp_jitter():
     assert np.median(np.ptp(t, axis=1)) < 1e6 < np.median(np.ptp(sync, axis=1))
     # one frame, or one image per camera: the timestamps as they are
     np.testing.assert_array_equal(capture_times(frames[:1], stamps[:1]), stamps[:1])
+
+
+def test_capture_time_draws_spread_as_the_estimate_errs():
+    # --sync-draws moves the cameras by draws of the capture times' error (a parametric bootstrap): on one
+    # session's timestamps their spread is the estimate's over fresh jitter, per image relative to the
+    # 30 fps cameras' mean (what the correction sees): nearly one offset for those (a median of the
+    # session's 12 offsets), and for two 25 fps cameras (a line through their own ~10 stamps) about 1.8x
+    # that at the session's ends and ~1x in its middle, which one std per camera cannot give
+    from polycam.session import capture_time_draw, capture_times, frame_times
+
+
+    rng = np.random.default_rng(11)
+    F, fast, period, jitter = 12, 6, 33_333_333, 2e6
+    centres = 1e9 + np.arange(F) * period
+    truth = np.full((F, fast + 2), -1, np.int64)
+    truth[:, :fast] = np.round(centres[:, None] + rng.uniform(-8e6, 8e6, fast))
+    for k in (fast, fast + 1):                                  # 25 fps: each frame takes its nearest image
+        own = 1e9 + rng.uniform(-20e6, 20e6) + np.arange(-1, 12) * 40e6
+        near = np.abs(own[None, :] - centres[:, None]).argmin(axis=1)
+        first = np.r_[True, near[1:] != near[:-1]]
+        truth[first, k] = np.round(own[near[first]])
+    has = truth >= 0
+    slow = [False] * fast + [True, True]
+
+    def observe(r):
+        stamps = np.where(has, truth + np.round(jitter * r.standard_normal(truth.shape)).astype(np.int64), -1)
+        return np.median(stamps[:, :fast], axis=1).astype(np.int64), stamps
+
+    def relative(e):
+        e = np.where(has, e, np.nan)
+        return e - np.nanmean(e[:, :fast], axis=1, keepdims=True)
+
+    errors = []
+    for _ in range(300):
+        frames, stamps = observe(rng)
+        errors.append(relative(capture_times(frame_times(frames), stamps, other_rate=slow) - truth))
+    draws = []                             # 30 sessions' timestamps (each its own jitter estimate), 10 draws each
+    for _ in range(30):
+        frames, stamps = observe(rng)
+        draws += [relative(capture_time_draw(frames, stamps, rng, other_rate=slow)) for _ in range(10)]
+    want, got = np.std(errors, axis=0), np.std(draws, axis=0)          # NaN where no image
+    ends, middle = np.r_[0:2, F - 2:F], np.r_[4:8]
+    for rows, cams in ((slice(None), slice(0, fast)), (ends, slice(fast, None)), (middle, slice(fast, None))):
+        assert abs(np.nanmean(got[rows, cams]) / np.nanmean(want[rows, cams]) - 1.0) < CAPTURE_TIME_DRAW_STD_REL
+    assert np.nanmean(want[ends, fast:]) > 1.5 * np.nanmean(want[:, :fast])
+    clean = np.median(truth[:, :fast], axis=1).astype(np.int64)                  # no jitter: no error
+    assert not capture_time_draw(clean, truth, rng, other_rate=slow).any()
+    no_images = np.full_like(stamps, -1)
+    assert not capture_time_draw(frames, no_images, rng).any()
 
 
 def test_frame_times_take_out_the_jitter_of_frame_timestamps():
