@@ -159,7 +159,7 @@ class _RayTraced:
     def __init__(self, rig: Rig, cams: list[CameraSpec], mock: MockSpec, frames: int, supersample: int,
                  models: dict | None = None, board: Any = None):
         from polycam.cameras import nominal_cameramodel
-        from polycam.synth import (CameraArrayRenderer, board_poses, room_scene, scene_for_rig,
+        from polycam.synth import (CameraArrayRenderer, board_poses, frames_of, room_scene, scene_for_rig,
                                    static_trajectory, trajectory_for_rig)
 
         sub = dataclasses.replace(rig, cameras=tuple(cams))
@@ -170,11 +170,12 @@ class _RayTraced:
         self.board = board
         self.ids = [c.id for c in cams]
         if board is None:
-            self.trajectory = trajectory_for_rig(sub, frames, seed=mock.seed)
+            self.motion = trajectory_for_rig(sub, frames, seed=mock.seed, margin=1)   # a period beyond the
+            self.trajectory = frames_of(self.motion, 1)                              # frames both ways
             self.scene = scene_for_rig(sub, seed=mock.seed)
             self.board_poses = None
         else:
-            self.trajectory = static_trajectory(frames, float(cams[0].fps))
+            self.trajectory = self.motion = static_trajectory(frames, float(cams[0].fps))
             self.board_poses = board_poses(board, self.models, frames, seed=mock.seed, cam_ids=self.ids)
             background = room_scene(max(mock.distance, 2.0), seed=mock.seed, n_spheres=0, n_boxes=0)
             self.scene, self._rect = _board_scene(board, self.models, self.board_poses, background)
@@ -188,13 +189,14 @@ class _RayTraced:
 
     def pose_at(self, t_rel_ns: float) -> np.ndarray:
         """(4, 4) ``T_world_rig`` at ``t_rel_ns`` after the start, between the trajectory's poses
-        (:func:`polycam.trajectory.pose_at`): within a frame period beyond its ends its first and last
-        steps go on (an unsynchronised camera's first and last frames), farther the pose holds still."""
+        (:func:`polycam.trajectory.pose_at`): within a frame period beyond its ends the rig's motion
+        goes on (its poses a period before and after, :func:`polycam.synth.smooth_trajectory`'s
+        ``margin``: an unsynchronised camera's first and last frames), farther the pose holds still."""
         from polycam.trajectory import pose_at
 
         ts = self.trajectory.timestamps_ns
         t = int(ts[0]) + float(t_rel_ns)
-        return pose_at(self.trajectory, min(max(t, ts[0] - self.period_ns), ts[-1] + self.period_ns))
+        return pose_at(self.motion, min(max(t, ts[0] - self.period_ns), ts[-1] + self.period_ns))
 
     def radiance_at(self, k: int, t_rel_ns: float) -> np.ndarray:
         """Camera k's radiance at its own moment ``t_rel_ns`` (an unsynchronised camera's)."""

@@ -75,17 +75,20 @@ def test_mock_unsynchronised_cameras(tmp_path):
     assert np.all(phase == phase[0]) and np.all(np.abs(phase) <= 10_000_000) and np.ptp(phase[0]) > 1_000_000
     assert "not synchronised" in sync_warning(s)
     traj = trajectory_for_rig(rig, 5, seed=1)
+    motion = trajectory_for_rig(rig, 5, seed=1, margin=1)          # the rig moves on beyond the frames
     renderer = CameraArrayRenderer(rig, s.calibration(), scene_for_rig(rig, seed=1), supersample=1)
     assert phase[0].min() < 0 or phase[-1].max() > 0          # a camera beyond the trajectory's first or last pose
     for f in (0, 3, 4):
         for k, cam in enumerate(s.cameras):
-            moment = int(s.cam_timestamps[f, k]) - start       # beyond the ends: their steps extended
-            want = quantize(renderer.render_camera(cam, pose_at(traj, moment)), 8)
+            moment = int(s.cam_timestamps[f, k]) - start       # beyond the ends: the motion going on
+            want = quantize(renderer.render_camera(cam, pose_at(motion, moment)), 8)
             np.testing.assert_array_equal(s.read_frame(f)[cam], want)
+            if not 0 <= moment <= traj.timestamps_ns[-1]:      # not its first or last step held
+                assert not np.allclose(pose_at(motion, moment), pose_at(traj, moment), atol=1e-7)
     gt = s.groundtruth()
     for f in range(5):
         moment = float(np.sort(s.cam_timestamps[f])[0]) - start      # the lower median, as the frame's stamp
-        np.testing.assert_allclose(gt.T_world_rig[f], pose_at(traj, moment), atol=1e-9)
+        np.testing.assert_allclose(gt.T_world_rig[f], pose_at(motion, moment), atol=1e-9)
     assert not np.allclose(gt.T_world_rig[2], traj.T_world_rig[2])
 
 

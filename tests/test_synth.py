@@ -436,6 +436,13 @@ def test_unsynchronised_cameras(tmp_path):
     np.testing.assert_array_equal(s.read_frame(1)["cam01"],
                                   quantize(renderer.render_camera("cam01", pose_at(ref, t)), 16))
     assert not np.allclose(pose_at(ref, t), ref.T_world_rig[1])
+    # before the first frame and after the last the rig's motion goes on (not its first or last step)
+    motion = smooth_trajectory(3, step_t=0.02, step_r_deg=0.2, fps=30.0, seed=2, start_ns=12_000_000, margin=1)
+    f, k = (0, int(np.argmin(offsets[0]))) if offsets[0].min() < 0 else (2, int(np.argmax(offsets[0])))
+    t = int(s.cam_timestamps[f, k])
+    assert not np.allclose(pose_at(motion, t), pose_at(ref, t), atol=1e-7)
+    np.testing.assert_array_equal(s.read_frame(f)[rig.ids[k]],
+                                  quantize(renderer.render_camera(rig.ids[k], pose_at(motion, t)), 16))
     assert "not synchronised" in sync_warning(s) and s.capture_spread_ns()[0] == np.ptp(offsets[0])
     # without the spread: one time per frame, no warning
     s0 = open_session(synth_session(rig, tmp_path / "s0", frames=2, seed=2, supersample=1))
@@ -477,6 +484,30 @@ def test_timestamp_jitter(tmp_path):
             - sp.timestamps_ns[:, None] + 5_000_000)                   # the same phases, 5 ms later start
     assert np.abs(phase - true).max() < 1.0e6 < np.abs(sp.cam_timestamps - sp.timestamps_ns[:, None] - true).max()
     assert "not synchronised" in sync_warning(sp)
+
+
+def test_trajectory_margin():
+    # margin: poses of the same motion before and after the frames, the frames' own unchanged
+    from polycam.geometry import r_from_R
+    from polycam.synth import frames_of
+
+    tr = smooth_trajectory(6, step_t=0.01, step_r_deg=0.5, seed=3, start_ns=5_000)
+    wide = smooth_trajectory(6, step_t=0.01, step_r_deg=0.5, seed=3, start_ns=5_000, margin=2)
+    assert len(wide) == 10 and np.array_equal(wide.T_world_rig[2], np.eye(4))
+    core = frames_of(wide, 2)
+    np.testing.assert_array_equal(core.T_world_rig, tr.T_world_rig)
+    np.testing.assert_array_equal(core.timestamps_ns, tr.timestamps_ns)
+    np.testing.assert_allclose(np.diff(wide.timestamps_ns[:3]), 1e9 / 30, atol=1)     # the frame clock's
+    steps = np.array([np.r_[S[:3, 3], r_from_R(S[:3, :3])] for S in
+                      (np.linalg.inv(a) @ b for a, b in zip(wide.T_world_rig[:-1], wide.T_world_rig[1:]))])
+    change = np.linalg.norm(np.diff(steps, axis=0), axis=1)        # smooth: each step near its neighbours,
+    assert change.max() < 0.5 * np.linalg.norm(steps, axis=1).min()  # beyond the frames as within them,
+    assert max(change[:2].max(), change[-2:].max()) < 1.5 * change[2:-2].max()              # not held still
+    assert np.linalg.norm(steps[0] - steps[2]) > 1e-6 and np.linalg.norm(steps[-1] - steps[-3]) > 1e-6
+    still = make_trajectory("static", 2, margin=1, start_ns=40_000_000)
+    assert len(still) == 4 and still.timestamps_ns[0] == 40_000_000 - 33_333_333
+    with pytest.raises(ValueError, match="margin"):
+        smooth_trajectory(3, margin=-1)
 
 
 def test_pose_between_frames():

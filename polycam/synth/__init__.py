@@ -7,7 +7,7 @@ docs/conventions.md for frames and units.
 """
 
 from .boardrender import BoardRenderer
-from .motion import frame_timestamps, make_trajectory, smooth_trajectory, static_trajectory
+from .motion import frame_timestamps, frames_of, make_trajectory, smooth_trajectory, static_trajectory
 from .raycast import TraceResult, trace_indexed, trace_outer, trace_rays
 from .render import (CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, lightfield_face_rays,
                      mjpg_frame, quantize, render_lightfield)
@@ -24,7 +24,7 @@ __all__ = [
     # ray casting
     "trace_rays", "trace_outer", "trace_indexed", "TraceResult",
     # motion
-    "frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory",
+    "frame_timestamps", "static_trajectory", "smooth_trajectory", "make_trajectory", "frames_of",
     # rendering
     "default_lightfield_grid", "lightfield_face_rays", "LightFieldRenderer", "render_lightfield",
     "CameraArrayRenderer", "BoardRenderer", "quantize", "mjpg_frame",

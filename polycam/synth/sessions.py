@@ -40,7 +40,7 @@ from ..lightfield import LightFieldGrid
 from ..rig import MJPG_QUALITY, Rig
 from ..trajectory import Trajectory, pose_at, tum_text
 from .boardrender import BoardRenderer
-from .motion import make_trajectory, static_trajectory
+from .motion import frames_of, make_trajectory, static_trajectory
 from .render import CameraArrayRenderer, LightFieldRenderer, default_lightfield_grid, mjpg_frame, quantize
 from .scenes import Scene, make_scene, room_scene
 
@@ -222,17 +222,19 @@ def scene_for_rig(rig: Rig, scene: str | Scene | None = None, *, distance: float
     return make_scene(name, d, sd)
 
 
-def trajectory_for_rig(rig: Rig, frames: int, *, seed: int | None = None, start_ns: int = 0) -> Trajectory:
+def trajectory_for_rig(rig: Rig, frames: int, *, seed: int | None = None, start_ns: int = 0,
+                       margin: int = 0) -> Trajectory:
     """The rig motion its ``[mock]`` table asks for: ``motion`` (``static``/``smooth``,
     default smooth), ``step_t`` [m] and ``step_r_deg`` [deg] per frame (defaults 5 mm,
     0.2 deg), seeded by ``seed`` (default the rig's, else 0); frames at the first
-    camera's ``fps``."""
+    camera's ``fps``; ``margin`` poses of the same motion before and after them
+    (:func:`~polycam.synth.motion.smooth_trajectory`)."""
     mock = rig.mock
     sd = seed if seed is not None else (mock.seed if mock is not None else 0)
     return make_trajectory(mock.motion if mock is not None else "smooth", frames,
                            step_t=mock.step_t if mock is not None else 0.005,
                            step_r_deg=mock.step_r_deg if mock is not None else 0.2,
-                           fps=float(rig.cameras[0].fps), seed=sd, start_ns=start_ns)
+                           fps=float(rig.cameras[0].fps), seed=sd, start_ns=start_ns, margin=margin)
 
 
 def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None = None, frames: int = 10,
@@ -261,7 +263,8 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
         constant offset from the frames' times, uniform in ±``sync_spread_ms`` (seeded), and its image
         shows the scene at that time (:func:`~polycam.trajectory.pose_at`) with that timestamp; the
         frame's timestamp and the ground truth stay at the frames' times (a trajectory built here then
-        starts at ``sync_spread_ms``, so that no timestamp is negative).
+        starts at ``sync_spread_ms``, so that no timestamp is negative, and its motion goes on a period
+        before and after the frames, as a rig's does; a given one's first and last steps go on).
     timestamp_jitter_ms: > 0: each image's timestamp is its capture time plus Gaussian jitter of this
         std (seeded per frame and camera; a camera's timestamps kept increasing), as a driver stamps it
         late by a varying transfer time; the image still shows the capture time (a trajectory built
@@ -279,9 +282,12 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
     if not 0.0 <= timestamp_jitter_ms < math.inf:
         raise ValueError(f"timestamp_jitter_ms must be >= 0 and finite, got {timestamp_jitter_ms}")
     spread_ns = int(math.ceil((sync_spread_ms + TIMESTAMP_JITTER_MARGIN * timestamp_jitter_ms) * 1e6))
-    if trajectory is None:
-        trajectory = trajectory_for_rig(rig, frames, seed=seed, start_ns=spread_ns)
     offsets = _sync_offsets_ns(rig, seed, sync_spread_ms)
+    if trajectory is None:                   # the motion goes on a period before and after the frames,
+        motion = trajectory_for_rig(rig, frames, seed=seed, start_ns=spread_ns, margin=1)   # where free-
+        trajectory = frames_of(motion, 1)                                 # running cameras capture
+    else:
+        motion = trajectory                  # given: beyond its ends its first and last steps go on
     if offsets and int(trajectory.timestamps_ns[0]) + min(offsets.values()) < 0:
         raise ValueError(f"sync_spread_ms {sync_spread_ms}: the trajectory must start at "
                          f"{int(math.ceil(sync_spread_ms * 1e6))} ns or later")
@@ -314,7 +320,7 @@ def synth_session(rig: Rig, out: str | os.PathLike, *, scene: str | Scene | None
                 stamps = {}
                 for cam, jit in zip(rig.cameras, jitter.tolist()):
                     t_c = t_f + offsets.get(cam.id, 0)                   # when the camera captured
-                    img = rad[cam.id] if rad is not None else own[cam.id].render(pose_at(trajectory, t_c))[cam.id]
+                    img = rad[cam.id] if rad is not None else own[cam.id].render(pose_at(motion, t_c))[cam.id]
                     ts = max(t_c + int(round(jit)), last[cam.id] + 1, 0)
                     w.write_image(cam.id, ts, _image_for(cam, img, bit_depth, noise, rng, _mjpg_quality(rig)))
                     stamps[cam.id] = last[cam.id] = ts
