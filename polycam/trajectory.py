@@ -17,7 +17,7 @@ from .errors import FormatError
 from .geometry import R_from_quat, R_from_r, T_from_Rt, T_inverse, quat_from_R, r_from_R
 from .tomlio import atomic_write_text
 
-__all__ = ["Trajectory", "pose_at", "poses_at_times", "read_tum", "write_tum", "tum_text", "MATCH_TOLERANCE_NS"]
+__all__ = ["Trajectory", "pose_at", "step_beyond", "poses_at_times", "read_tum", "write_tum", "tum_text", "MATCH_TOLERANCE_NS"]
 
 MATCH_TOLERANCE_NS = 1_000_000
 """[ns] how far a trajectory's pose may be from a frame's timestamp and still be that frame's
@@ -92,6 +92,25 @@ def pose_at(trajectory: Trajectory, t_ns: float) -> np.ndarray:
     step = T_inverse(T[i]) @ T[i + 1]
     part = T_from_Rt(R_from_r(a * r_from_R(step[:3, :3])), a * step[:3, 3])
     return T[i] @ part
+
+
+def step_beyond(T_near: np.ndarray, T_far: np.ndarray, dt_near_ns: float, dt_far_ns: float) -> np.ndarray:
+    """(4, 4) the rig's step over ``dt_near_ns`` beyond the first or last frame of a sequence, its velocity
+    extrapolated linearly (a constant acceleration) from the two steps nearest that end: ``T_near``,
+    the step between the end frame and its neighbour, and ``T_far``, the next one inward ((4, 4) each,
+    ``T_prev_next`` of the frames in time order, over ``dt_near_ns`` and ``dt_far_ns`` [ns]). The
+    velocity of a step is its translation and rotation vector over its interval, taken at its middle
+    (small steps: the vectors of neighbouring steps compare as they are). At the last frame it is the
+    step from it to the frame after; at the first, from the frame before to it (the same formula: the
+    velocity's change goes on the other way). Where the motion changes from step to step (a hand-held
+    rig), holding the end step instead errs by about that change times the share of a step beyond."""
+    def velocity(T: np.ndarray, dt: float) -> np.ndarray:
+        return np.r_[T[:3, 3], r_from_R(T[:3, :3])] / dt
+
+    v_near = velocity(np.asarray(T_near, np.float64), float(dt_near_ns))
+    v_far = velocity(np.asarray(T_far, np.float64), float(dt_far_ns))
+    v = v_near + (v_near - v_far) * float(dt_near_ns) / (0.5 * (float(dt_near_ns) + float(dt_far_ns)))
+    return T_from_Rt(R_from_r(v[3:] * dt_near_ns), v[:3] * dt_near_ns)
 
 
 def tum_text(timestamps_ns: np.ndarray, T: np.ndarray) -> str:

@@ -315,8 +315,10 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     it captured its image of that frame: by the share ``d / Δt`` of the motion to the next frame (``d``
     = its capture time minus the frame's time, both without their timestamps' jitter,
     :meth:`Session.capture_times_ns` and :meth:`Session.frame_times_ns`; ``Δt`` the frame interval), or back along the previous
-    one for an image taken early (the first and last frames extrapolate their one neighbour's): the
-    poses :func:`polycam.trajectory.pose_at` interpolates, which the synthetic sessions render.
+    one for an image taken early: the poses :func:`polycam.trajectory.pose_at` interpolates. Beyond the
+    first and last frames (an image taken before the first frame's time or after the last's) the step
+    there is :func:`polycam.trajectory.step_beyond`'s, the velocity of the two end steps extrapolated
+    (with three frames or more; with two, the one step held).
     ``T_prev_next``: (T - 1, 4, 4) rig motion per
     frame pair (frame i to i + 1, as :class:`polycam.motion.PairResult`); models: camera id → mrcal
     cameramodel (rig frame; the session's cameras without an image keep theirs); capture_offsets_ns:
@@ -325,14 +327,26 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
 
     from polycam.cameras import T_rig_cam_of
     from polycam.geometry import T_inverse, rt_from_T
-    from polycam.trajectory import Trajectory, pose_at
+    from polycam.trajectory import Trajectory, pose_at, step_beyond
 
-    if len(session) < 2:
+    F = len(session)
+    if F < 2:
         return dict(models)
-    lo, hi = max(t - 1, 0), min(t + 1, len(session) - 1)      # frame t and its neighbours: a capture lies
-    rel = Trajectory.from_relative(session.frame_times_ns()[lo:hi + 1],       # within a frame of its frame
-                                   np.asarray(T_prev_next[lo:hi], np.float64))
-    T_t_world = T_inverse(rel.T_world_rig[t - lo])
+    times = session.frame_times_ns().astype(np.int64)
+    motion = np.asarray(T_prev_next, np.float64)
+    lo, hi = max(t - 1, 0), min(t + 1, F - 1)                 # frame t and its neighbours: a capture lies
+    stamps, steps, here = list(times[lo:hi + 1]), list(motion[lo:hi]), t - lo        # within a frame of its
+    if F >= 3 and t == 0:                                     # frame; beyond the ends, the motion going on
+        dt = times[1] - times[0]
+        stamps.insert(0, times[0] - dt)
+        steps.insert(0, step_beyond(motion[0], motion[1], dt, times[2] - times[1]))
+        here += 1
+    if F >= 3 and t == F - 1:
+        dt = times[F - 1] - times[F - 2]
+        stamps.append(times[F - 1] + dt)
+        steps.append(step_beyond(motion[F - 2], motion[F - 3], dt, times[F - 2] - times[F - 3]))
+    rel = Trajectory.from_relative(np.array(stamps), np.stack(steps))
+    T_t_world = T_inverse(rel.T_world_rig[here])
     out = dict(models)
     captured = session.capture_times_ns()[t]
     for k, cam in enumerate(session.cameras):

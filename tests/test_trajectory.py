@@ -114,3 +114,26 @@ def test_poses_at_frame_times():
     with pytest.raises(ValueError, match="no pose within 1 ms of frame time 0.150000000 s"):
         poses_at_times(tr, np.array([0, 150_000_000]))
     assert MATCH_TOLERANCE_NS == 1_000_000
+
+
+def test_step_beyond_extrapolates_a_constant_acceleration():
+    # a rig whose velocity and rotation rate (about one axis) change at a constant rate: the step beyond
+    # either end is that motion's own, with a lost frame inward (an interval twice as long) as well;
+    # holding the end step instead misses it by the change of velocity
+    from polycam.trajectory import step_beyond
+
+    axis = np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81])
+    v0, a = np.array([0.10, -0.02, 0.05]), np.array([-0.9, 0.4, 0.3])     # m/s, m/s²
+    w0, b = 0.06, 0.8                                                        # rad/s, rad/s²
+
+    def step(t0: float, dt: float) -> np.ndarray:     # the (r, t) vectors of the motion over [t0, t0 + dt]
+        return T_from_rt(np.r_[(w0 * dt + 0.5 * b * ((t0 + dt) ** 2 - t0 ** 2)) * axis,
+                               v0 * dt + 0.5 * a * ((t0 + dt) ** 2 - t0 ** 2)])
+
+    d = 1 / 30
+    frames = [0.0, 2 * d, 3 * d]                                             # frame 1 lost
+    after = step_beyond(step(frames[1], d), step(frames[0], 2 * d), d * 1e9, 2 * d * 1e9)
+    np.testing.assert_allclose(after, step(frames[2], d), atol=GEOMETRY_ATOL)
+    before = step_beyond(step(frames[0], 2 * d), step(frames[1], d), 2 * d * 1e9, d * 1e9)
+    np.testing.assert_allclose(before, step(frames[0] - 2 * d, 2 * d), atol=GEOMETRY_ATOL)
+    assert np.abs(step(frames[1], d) - step(frames[2], d)).max() > 1e3 * GEOMETRY_ATOL
