@@ -209,7 +209,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
             except InputError as e:
                 raise InputError(f"{src}: {e}") from None
         print(f"  second pass: every frame resampled with each camera where it captured its image "
-              f"({time.perf_counter() - t0:.1f} s)")
+              f"({time.perf_counter() - t0:.1f} s)" + ("" if args.sync_draws else
+              "; the reported std leaves out the capture times' and the first pass's share, which "
+              "--sync-draws N measures"))
         if args.sync_draws:
             from .sync_draws_cli import add_capture_timing_share
 

@@ -60,14 +60,14 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
     each camera moved by ``capture_motion``, (T - 1, 4, 4) ``T_prev_next`` per pair, as the corrected
     solve was) with ``draws`` sets of capture-time offsets, each at ``+δ`` and ``−δ`` (``2 draws``
     re-solves; δ (F, C) [ns] a draw of the capture times' error,
-    :meth:`~polycam.session.Session.capture_time_draw_ns`) and, with ``motion_covariance`` ((T - 1, 6, 6) the first pass's covariance of each pair's (t, r), the
-    estimate ``capture_motion`` is), ``capture_motion`` drawn from it at the same ``±``: the camera moved
-    by its share of an estimated motion is off by that share of the estimate's error too.
+    :meth:`~polycam.session.Session.capture_time_draw_ns`) and, with ``motion_covariance``
+    ((T - 1, 6, 6) the first pass's covariance of each pair's (t, r), the estimate ``capture_motion``
+    is), ``capture_motion`` drawn from it at the same ``±``: the camera moved by its share of an
+    estimated motion is off by that share of the estimate's error too.
 
     Returns ((P, 6, 6) each pair's covariance of (t [m], r [rad]) over the draws, NaN where no draw
     solved it; (P,) the draws that did; (C,) [ns] the RMS over the draws of each camera's δ, NaN for
-    a camera without images). ``progress(done, total)`` after each
-    re-solve.
+    a camera without images). ``progress(done, total)`` after each re-solve.
     """
     from resample.stream import SessionLightField
 

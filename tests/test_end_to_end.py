@@ -254,7 +254,8 @@ def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypat
             monkeypatch.setattr(Session, "capture_times_ns", lambda self: self.cam_timestamps)
         assert main(["motion", str(tmp_path / "s"), "--out", str(tmp_path / f"{mode}.tum"),
                      "--sync-correct", "off" if mode == "off" else "auto"]) == 0
-        assert "not synchronised" in capsys.readouterr().out
+        out = capsys.readouterr().out
+        assert "not synchronised" in out and ("which --sync-draws N measures" in out) == (mode != "off")
         e = pair_errors(read_tum(tmp_path / f"{mode}.tum"), truth)
         err[mode] = float(np.median(e.t_err / e.t_true))
     assert err["auto"] < 0.85 * err["off"] and err["raw"] > 1.6 * err["auto"], err
@@ -267,6 +268,7 @@ def test_captured_free_running_cameras_are_corrected(tmp_path, capsys, monkeypat
                  "--report", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
     assert "capture times: 1 draws from their uncertainty (" in out and "2 re-solves" in out, out
+    assert "which --sync-draws N measures" not in out
     sigma_ms = float(out.split("their uncertainty (")[1].split(" ms RMS per camera")[0])
     assert 0.2 < sigma_ms < 2.0        # one draw of 1.25 x 2 ms / sqrt(8) = 0.89 ms per camera, median of 5
     with open(tmp_path / "rep" / "pairs.csv", newline="") as f:
