@@ -318,7 +318,8 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     one for an image taken early: the poses :func:`polycam.trajectory.pose_at` interpolates. Beyond the
     first and last frames (an image taken before the first frame's time or after the last's) the step
     there is :func:`polycam.trajectory.step_beyond`'s, the velocity of the two end steps extrapolated
-    (with three frames or more; with two, the one step held).
+    (with three frames or more, neither of the two the identity a failed pair is given; else the end
+    step held).
     ``T_prev_next``: (T - 1, 4, 4) rig motion per
     frame pair (frame i to i + 1, as :class:`polycam.motion.PairResult`); models: camera id → mrcal
     cameramodel (rig frame; the session's cameras without an image keep theirs); capture_offsets_ns:
@@ -336,12 +337,14 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     motion = np.asarray(T_prev_next, np.float64)
     lo, hi = max(t - 1, 0), min(t + 1, F - 1)                 # frame t and its neighbours: a capture lies
     stamps, steps, here = list(times[lo:hi + 1]), list(motion[lo:hi]), t - lo        # within a frame of its
-    if F >= 3 and t == 0:                                     # frame; beyond the ends, the motion going on
+    # frame; beyond the ends, the motion going on (a failed pair's identity: the end step held)
+    solved = [not np.array_equal(M, np.eye(4)) for M in motion]
+    if F >= 3 and t == 0 and solved[0] and solved[1]:
         dt = times[1] - times[0]
         stamps.insert(0, times[0] - dt)
         steps.insert(0, step_beyond(motion[0], motion[1], dt, times[2] - times[1]))
         here += 1
-    if F >= 3 and t == F - 1:
+    if F >= 3 and t == F - 1 and solved[F - 2] and solved[F - 3]:
         dt = times[F - 1] - times[F - 2]
         stamps.append(times[F - 1] + dt)
         steps.append(step_beyond(motion[F - 2], motion[F - 3], dt, times[F - 2] - times[F - 3]))

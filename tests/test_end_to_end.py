@@ -199,6 +199,12 @@ def test_models_at_capture_follow_the_capture_times(tmp_path):
     beyond = np.array(beyond)
     rms = np.sqrt(np.mean(beyond ** 2, axis=0))                     # measured 6 against 39 µm
     assert len(beyond) >= 2 and rms[0] < 0.3 * rms[1] and np.all(beyond[:, 0] < 0.5 * beyond[:, 1]), beyond
+    failed = motion.copy()                                          # a failed pair next to an end (its
+    failed[1] = np.eye(4)                                           # identity): the end step held
+    moved = models_at_capture(models, s, 0, failed)
+    for k, cam in enumerate(s.cameras):
+        held = T_inverse(T[0]) @ pose_at(gt, int(s.cam_timestamps[0, k])) @ T_rig_cam_of(models[cam])
+        np.testing.assert_allclose(T_rig_cam_of(moved[cam]), held, atol=TUM_POSITION_ATOL)
     # a capture time moved (a draw of --sync-draws): the camera where the rig was at the moved time
     offsets = np.linspace(-3e6, 3e6, len(s.cameras))
     moved = models_at_capture(models, s, 1, motion, offsets)
