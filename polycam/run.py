@@ -117,6 +117,11 @@ class RunOptions:
     spread of each pair's estimate is added to its covariance (:mod:`polycam.calib_draws_cli`;
     0: the calibrated models are taken as exact). About one resampling and solve of the session
     per re-solve (the demo: ~7 s each)."""
+    sync_draws: int = 0
+    """For cameras that are not synchronised (the second pass of docs/motion.md, "Unsynchronised
+    cameras"): sets of capture times and first-pass motions drawn from their uncertainty (each solved
+    at +δ and −δ) whose spread of each pair's estimate is added to its covariance
+    (:mod:`polycam.sync_draws_cli`, as ``polycam motion --sync-draws``; 0: not measured)."""
     calib_plots: bool = False
     """Also write the calibration stage's own plots (per-camera residual maps; slow for many cameras)."""
     depth_views: int = 3
@@ -306,10 +311,12 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
     lf, traj, results, per_pair = solve("5/6 plenoptic motion")
     unsync = sync_warning(sess)
     capture_motion = None
+    sync_line, sync_s = "", None
     if unsync:
         # free-running cameras: as polycam motion SESSION, the frames resampled again with each camera
         # where it captured its image (its share of this motion) and solved again
         capture_motion = np.stack([r.T_prev_next for r in results])
+        motion_covariance = np.stack([r.covariance for r in results])      # (the sync draws draw it)
         t0 = time.perf_counter()
         with bar("5/6 resample, cameras where they captured", None) as adv, _stage("resample"):
             resample_session(out / "session", out / "lightfield.zarr", calib_dir=out / "calib", grid=grid,
@@ -317,6 +324,18 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         lf, traj, results, per_pair = solve("5/6 plenoptic motion, second pass")
         unsync += (f": every frame resampled again with each camera where it captured its image, its share "
                    f"of the first solve's motion, and solved again ({time.perf_counter() - t0:.1f} s)")
+        if opts.sync_draws:
+            from .sync_draws_cli import add_capture_timing_share
+
+            t0 = time.perf_counter()
+            results, sync_line = add_capture_timing_share(
+                sess, cal.models, lf.grid, capture_motion, results, draws=opts.sync_draws,
+                motion_covariance=motion_covariance, bar=lambda total: bar("5/6 capture-time draws", total),
+                seed=seed, motion_options=motion_options, scale_selection=opts.scale_selection)
+            sync_s = time.perf_counter() - t0
+        else:
+            unsync += ("; the reported std leaves out the capture times' and the first solve's share, which "
+                       "--sync-draws N measures")
     draws_line, drawn, draws_s = "", 0, None
     if opts.calib_draws:
         from .calib_draws_cli import add_calibration_share
@@ -342,7 +361,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "ate_m": ate_rmse(traj, truth),
          "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan"),
-         "calibration_draws": drawn, "cameras_moved_to_capture": capture_motion is not None}
+         "calibration_draws": drawn, "cameras_moved_to_capture": capture_motion is not None,
+         "capture_time_draws": opts.sync_draws if sync_s is not None else 0}
     if drawn:
         from .calib_spread import calibration_std
         from .evaluate import std_norms
@@ -352,6 +372,15 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         m["seconds_calibration_draws"] = draws_s
         m["median_std_calib_t_m"] = float(np.median(ct[have])) if have.any() else float("nan")
         m["median_std_calib_w_deg"] = math.degrees(float(np.median(cr[have]))) if have.any() else float("nan")
+    if sync_s is not None:
+        from .calib_spread import capture_timing_std
+        from .evaluate import std_norms
+
+        st, sr = std_norms(capture_timing_std(results))
+        have = np.isfinite(st)
+        m["seconds_capture_time_draws"] = sync_s
+        m["median_std_sync_t_m"] = float(np.median(st[have])) if have.any() else float("nan")
+        m["median_std_sync_w_deg"] = math.degrees(float(np.median(sr[have]))) if have.any() else float("nan")
     m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, std)
     summary["motion"] = m
     first = (f" (median; the first took {m['seconds_first_pair']:.0f} s, compiling the kernels)"
@@ -366,6 +395,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         echo(f"          {draws_line}")
     if unsync:
         echo(f"          {unsync}")
+    if sync_line:
+        echo(f"          {sync_line}")
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")
@@ -875,6 +906,10 @@ def add_parsers(sub) -> None:
                    help="re-solve the motion with N sets of camera models drawn from the calibration's uncertainty "
                         "(2N re-solves) and add the spread to each pair's covariance (default %(default)s; 0: the "
                         "calibrated models are taken as exact)")
+    p.add_argument("--sync-draws", type=_nonneg_int, default=RunOptions.sync_draws, metavar="N",
+                   help="cameras that are not synchronised: re-solve their second pass with N sets of capture times "
+                        "and first-pass motions drawn from their uncertainty (2N re-solves) and add the spread to "
+                        "each pair's covariance (default %(default)s; docs/motion.md, \"Unsynchronised cameras\")")
     p.set_defaults(func=cmd_run)
 
 
@@ -884,6 +919,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     run_chain(args.rig, args.out, board_path=args.board,
               options=RunOptions(frames=args.frames, board_frames=args.board_frames, seed=args.seed,
                                  uv_step_px=args.uv_step, xy_oversample=args.xy_oversample,
-                                 scale_selection=args.scale_selection == "on", calib_draws=args.calib_draws),
+                                 scale_selection=args.scale_selection == "on", calib_draws=args.calib_draws,
+                                 sync_draws=args.sync_draws),
               progress_factory=_progress, echo=print)
     return 0

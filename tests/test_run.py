@@ -235,12 +235,18 @@ def test_run_free_running_cameras_are_grouped_and_corrected(tmp_path, capsys, mo
         if mode == "off":
             monkeypatch.setattr(session_module, "sync_warning", lambda s: "")
         out = tmp_path / mode
-        code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "4"])
+        code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "4",
+                     "--sync-draws", "1"])
         cap = capsys.readouterr()
         assert code == 0, cap.err
         assert ("the cameras are not synchronised" in cap.out) == (mode == "auto")
         summary = tomllib.loads((out / "report" / "summary.toml").read_text())
         assert summary["motion"]["cameras_moved_to_capture"] == (mode == "auto")
+        # --sync-draws: the capture times' and the first solve's share in each pair's covariance
+        assert ("capture times: 1 draws from their uncertainty" in cap.out) == (mode == "auto")
+        assert summary["motion"]["capture_time_draws"] == (1 if mode == "auto" else 0)
+        assert (summary["motion"].get("median_std_sync_t_m", 0.0) > 0) == (mode == "auto")
+        assert "which --sync-draws N measures" not in cap.out
         s = open_session(out / "session")
         assert (s.cam_timestamps >= 0).all() and np.ptp(s.capture_times_ns()[0]) > 16e6   # beyond half a period
         e = pair_errors(read_tum(out / "trajectory.tum"), read_tum(out / "session" / "groundtruth.tum"))
