@@ -282,7 +282,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
                                 "the cameras do not cover the grid")
 
     # 5. motion
-    from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
+    from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs, std_norms
     from .lfstore import open_lightfield
     from .motion import MotionOptions, estimate_trajectory
     from .motion_report import write_motion_report
@@ -363,24 +363,16 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan"),
          "calibration_draws": drawn, "cameras_moved_to_capture": capture_motion is not None,
          "capture_time_draws": opts.sync_draws if sync_s is not None else 0}
-    if drawn:
-        from .calib_spread import calibration_std
-        from .evaluate import std_norms
+    from .calib_spread import calibration_std, capture_timing_std
 
-        ct, cr = std_norms(calibration_std(results))
-        have = np.isfinite(ct)
-        m["seconds_calibration_draws"] = draws_s
-        m["median_std_calib_t_m"] = float(np.median(ct[have])) if have.any() else float("nan")
-        m["median_std_calib_w_deg"] = math.degrees(float(np.median(cr[have]))) if have.any() else float("nan")
-    if sync_s is not None:
-        from .calib_spread import capture_timing_std
-        from .evaluate import std_norms
-
-        st, sr = std_norms(capture_timing_std(results))
-        have = np.isfinite(st)
-        m["seconds_capture_time_draws"] = sync_s
-        m["median_std_sync_t_m"] = float(np.median(st[have])) if have.any() else float("nan")
-        m["median_std_sync_w_deg"] = math.degrees(float(np.median(sr[have]))) if have.any() else float("nan")
+    for seconds, part_std, name, key in ((draws_s if drawn else None, calibration_std, "calibration", "calib"),
+                                         (sync_s, capture_timing_std, "capture_time", "sync")):
+        if seconds is not None:                       # the medians over the pairs of the part's std
+            pt, pr = std_norms(part_std(results))
+            have = np.isfinite(pt)
+            m[f"seconds_{name}_draws"] = seconds
+            m[f"median_std_{key}_t_m"] = float(np.median(pt[have])) if have.any() else float("nan")
+            m[f"median_std_{key}_w_deg"] = math.degrees(float(np.median(pr[have]))) if have.any() else float("nan")
     m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, std)
     summary["motion"] = m
     first = (f" (median; the first took {m['seconds_first_pair']:.0f} s, compiling the kernels)"

@@ -17,7 +17,8 @@ from .errors import FormatError
 from .geometry import R_from_quat, R_from_r, T_from_Rt, T_inverse, quat_from_R, r_from_R
 from .tomlio import atomic_write_text
 
-__all__ = ["Trajectory", "pose_at", "step_beyond", "poses_at_times", "read_tum", "write_tum", "tum_text", "MATCH_TOLERANCE_NS"]
+__all__ = ["Trajectory", "pose_at", "step_beyond", "poses_at_times", "read_tum", "write_tum", "tum_text",
+           "MATCH_TOLERANCE_NS"]
 
 MATCH_TOLERANCE_NS = 1_000_000
 """[ns] how far a trajectory's pose may be from a frame's timestamp and still be that frame's

@@ -335,9 +335,10 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
         return dict(models)
     times = session.frame_times_ns().astype(np.int64)
     motion = np.asarray(T_prev_next, np.float64)
-    lo, hi = max(t - 1, 0), min(t + 1, F - 1)                 # frame t and its neighbours: a capture lies
-    stamps, steps, here = list(times[lo:hi + 1]), list(motion[lo:hi]), t - lo        # within a frame of its
-    # frame; beyond the ends, the motion going on (a failed pair's identity: the end step held)
+    # frame t and its neighbours (a capture lies within a frame of its frame); beyond the session's ends
+    # a step of the motion going on (a failed pair's identity next to the end: the end step held)
+    lo, hi = max(t - 1, 0), min(t + 1, F - 1)
+    stamps, steps, here = list(times[lo:hi + 1]), list(motion[lo:hi]), t - lo
     solved = [not np.array_equal(M, np.eye(4)) for M in motion]
     if F >= 3 and t == 0 and solved[0] and solved[1]:
         dt = times[1] - times[0]

@@ -37,6 +37,14 @@ def static_trajectory(frames: int, fps: float = 30.0, start_ns: int = 0) -> Traj
     return Trajectory(frame_timestamps(frames, fps, start_ns), np.tile(np.eye(4), (frames, 1, 1)))
 
 
+def _timestamps_with_margin(frames: int, fps: float, start_ns: int, margin: int) -> np.ndarray:
+    """(frames + 2 margin,) int64 [ns]: :func:`frame_timestamps` with ``margin`` more before and after."""
+    if margin < 0:
+        raise ValueError(f"margin must be >= 0, got {margin}")
+    frame_timestamps(frames, fps, start_ns)                       # (checks frames and fps)
+    return start_ns + np.round(np.arange(-margin, frames + margin) * (1e9 / fps)).astype(np.int64)
+
+
 def _smooth_profile(rng: np.random.Generator, steps: np.ndarray) -> np.ndarray:
     """(S, 3) smooth random vector signal at the (S,) step indices ``steps``: a drift plus 3 sinusoids
     with periods of 15-120 frames (the same draws whatever the indices)."""
@@ -62,10 +70,7 @@ def smooth_trajectory(frames: int, *, step_t: float = 0.005, step_r_deg: float =
     """
     if step_t < 0 or step_r_deg < 0:
         raise ValueError("step sizes must be >= 0")
-    if margin < 0:
-        raise ValueError(f"margin must be >= 0, got {margin}")
-    frame_timestamps(frames, fps, start_ns)                       # (checks frames and fps)
-    ts = start_ns + np.round(np.arange(-margin, frames + margin) * (1e9 / fps)).astype(np.int64)
+    ts = _timestamps_with_margin(frames, fps, start_ns, margin)
     n = frames - 1
     T = np.empty((frames + 2 * margin, 4, 4))
     T[margin] = np.eye(4)
@@ -91,10 +96,7 @@ def make_trajectory(motion: str, frames: int, *, step_t: float = 0.005, step_r_d
     """``static`` or ``smooth`` (the rig file's ``[mock] motion`` values); ``margin``: as
     :func:`smooth_trajectory`'s."""
     if motion == "static":
-        if margin < 0:
-            raise ValueError(f"margin must be >= 0, got {margin}")
-        frame_timestamps(frames, fps, start_ns)
-        ts = start_ns + np.round(np.arange(-margin, frames + margin) * (1e9 / fps)).astype(np.int64)
+        ts = _timestamps_with_margin(frames, fps, start_ns, margin)
         return Trajectory(ts, np.tile(np.eye(4), (len(ts), 1, 1)))
     if motion == "smooth":
         return smooth_trajectory(frames, step_t=step_t, step_r_deg=step_r_deg, fps=fps, seed=seed,
@@ -105,5 +107,5 @@ def make_trajectory(motion: str, frames: int, *, step_t: float = 0.005, step_r_d
 def frames_of(trajectory: Trajectory, margin: int) -> Trajectory:
     """The frames of a trajectory made with ``margin`` (:func:`smooth_trajectory`): without the poses
     before and after them."""
-    n = len(trajectory) - 2 * margin
-    return Trajectory(trajectory.timestamps_ns[margin:margin + n].copy(), trajectory.T_world_rig[margin:margin + n].copy())
+    frames = slice(margin, len(trajectory) - margin)
+    return Trajectory(trajectory.timestamps_ns[frames].copy(), trajectory.T_world_rig[frames].copy())
