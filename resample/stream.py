@@ -339,13 +339,16 @@ def models_at_capture(models: dict, session: Session, t: int, T_prev_next: np.nd
     # a step of the motion going on (a failed pair's identity next to the end: the end step held)
     lo, hi = max(t - 1, 0), min(t + 1, F - 1)
     stamps, steps, here = list(times[lo:hi + 1]), list(motion[lo:hi]), t - lo
-    solved = [not np.array_equal(M, np.eye(4)) for M in motion]
-    if F >= 3 and t == 0 and solved[0] and solved[1]:
+
+    def solved(*pairs: int) -> bool:
+        return not any(np.array_equal(motion[p], np.eye(4)) for p in pairs)
+
+    if F >= 3 and t == 0 and solved(0, 1):
         dt = times[1] - times[0]
         stamps.insert(0, times[0] - dt)
         steps.insert(0, step_beyond(motion[0], motion[1], dt, times[2] - times[1]))
         here += 1
-    if F >= 3 and t == F - 1 and solved[F - 2] and solved[F - 3]:
+    if F >= 3 and t == F - 1 and solved(F - 2, F - 3):
         dt = times[F - 1] - times[F - 2]
         stamps.append(times[F - 1] + dt)
         steps.append(step_beyond(motion[F - 2], motion[F - 3], dt, times[F - 2] - times[F - 3]))
