@@ -1,5 +1,6 @@
 """The calibration's share of a frame pair's motion covariance, from re-solves with drawn models
-(and, the same way, the share of unsynchronised cameras' capture times: :func:`with_capture_timing`).
+(and, the same way, the share of unsynchronised cameras' capture times: :func:`with_capture_timing`;
+and the change on a second view sampling: :func:`sampling_change_covariance`).
 
 The camera models' error is the same in every pair of a session, so the solver's residuals cannot
 show it. Re-solving the pairs with models drawn from the calibration's uncertainty
@@ -22,7 +23,7 @@ from .geometry import r_from_R
 from .motion import PairResult
 
 __all__ = ["pair_vectors", "antithetic_covariance", "with_calibration", "calibration_std", "with_capture_timing",
-           "capture_timing_std"]
+           "capture_timing_std", "sampling_change_covariance", "with_view_sampling", "view_sampling_std"]
 
 
 def pair_vectors(results: Sequence[PairResult]) -> np.ndarray:
@@ -54,6 +55,24 @@ def antithetic_covariance(plus: np.ndarray, minus: np.ndarray) -> tuple[np.ndarr
         C = np.einsum("kpi,kpj->pij", d, d) / n[:, None, None]
     C[n == 0] = np.nan
     return C, n
+
+
+def sampling_change_covariance(nominal: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Per pair, ``d dᵀ`` with ``d = nominal − other`` the change of the estimate between two view
+    samplings of the same frames (as the solver adds its level change, ``PairResult.level_change``).
+
+    nominal, other: (P, 6) :func:`pair_vectors` of the two solves (NaN rows where one failed).
+    Returns (P, 6, 6), NaN where either row is not finite. The change measures how far the two
+    samplings' estimates differ, not which is right: where both err independently by as much it is
+    twice one's variance (docs/motion.md, "A second view sampling").
+    """
+    nominal, other = np.asarray(nominal, float), np.asarray(other, float)
+    if nominal.shape != other.shape or nominal.ndim != 2 or nominal.shape[1] != 6:
+        raise ValueError(f"nominal and other must both be (P, 6), got {nominal.shape} and {other.shape}")
+    d = nominal - other
+    C = np.einsum("pi,pj->pij", d, d)
+    C[~np.all(np.isfinite(d), axis=1)] = np.nan
+    return C
 
 
 def _with_part(results: Sequence[PairResult], C: np.ndarray, part: str) -> list[PairResult]:
@@ -100,3 +119,16 @@ def capture_timing_std(results: Sequence[PairResult]) -> np.ndarray:
     """(P, 6) standard deviations of (t [m], r [rad]) from each pair's ``covariance_sync``; NaN rows
     where it was not measured."""
     return _part_std(results, "covariance_sync")
+
+
+def with_view_sampling(results: Sequence[PairResult], C: np.ndarray) -> list[PairResult]:
+    """The results with ``C`` (P, 6, 6) added to their ``covariance`` and kept as
+    ``covariance_sampling``: the change on a second view sampling (:func:`sampling_change_covariance`,
+    :mod:`polycam.sampling_check_cli`; pairs whose ``C`` is not finite are returned unchanged)."""
+    return _with_part(results, C, "covariance_sampling")
+
+
+def view_sampling_std(results: Sequence[PairResult]) -> np.ndarray:
+    """(P, 6) standard deviations of (t [m], r [rad]) from each pair's ``covariance_sampling``; NaN
+    rows where it was not measured."""
+    return _part_std(results, "covariance_sampling")

@@ -122,7 +122,8 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
     rule, ``--uv-step auto``) and ``xy_oversample`` viewpoints per camera spacing (None:
     :func:`polycam.run.session_grid`'s rule, as ``polycam run``): anything with ``grid``,
     ``timestamps_ns``, ``frame(i)``, ``weights(i)``, ``groundtruth()``; a session's also has
-    ``uv_step_px`` and ``uv_disparity`` (the auto rule's measure, NaN when not used)."""
+    ``uv_step_px``, ``uv_disparity`` (the auto rule's measure, NaN when not used) and
+    ``xy_oversample`` (the views per camera spacing the grid has)."""
     from .errors import InputError
 
     src = Path(source)
@@ -143,8 +144,9 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
         if uv_step is None:
             uv_step, disparity, store = choose_uv_step(session, models, xy_oversample)
         if store is None:
-            grid, _ = session_grid(models, uv_step, xy_oversample)
+            grid, every = session_grid(models, uv_step, xy_oversample)
             store = SessionLightField(session, models=models, grid=grid)     # (opened and validated once)
+            store.xy_oversample = every
         store.uv_step_px, store.uv_disparity = float(uv_step), disparity
         return store
     if calib is not None:

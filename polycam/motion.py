@@ -250,8 +250,8 @@ class PairResult:
     """(6, 6) covariance of (t [m], r [rad]) of ``T_prev_next``: ``covariance_noise`` plus
     ``level_change level_changeᵀ`` (the model error the residuals do not show, estimated by how
     far the finest level moved the estimate of the level above it; docs/motion.md, "How far to
-    trust the covariance"), plus ``covariance_calibration`` and ``covariance_sync`` where they were
-    measured."""
+    trust the covariance"), plus ``covariance_calibration``, ``covariance_sync`` and
+    ``covariance_sampling`` where they were measured."""
     covariance_noise: np.ndarray
     """(6, 6) the part of ``covariance`` the residuals' scatter explains: a cluster-robust
     sandwich over tiles of rays."""
@@ -296,6 +296,10 @@ class PairResult:
     """(6, 6) the part of ``covariance`` the uncertainty of unsynchronised cameras' capture times
     explains (the spread of the corrected estimate over capture times drawn from it:
     :func:`polycam.calib_spread.with_capture_timing`); None when not measured."""
+    covariance_sampling: np.ndarray | None = None
+    """(6, 6) the part of ``covariance`` added for the change of the estimate on a second view
+    sampling of the same frames (``d dᵀ``: :func:`polycam.calib_spread.with_view_sampling`,
+    ``polycam motion --sampling-check``); None when not measured."""
 
     @property
     def ok(self) -> bool:

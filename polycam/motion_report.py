@@ -5,7 +5,7 @@ One row per frame pair ``(i, i+1)``::
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
     std_noise_t,std_noise_r,level_change_t,level_change_r,std_calib_t,std_calib_r,sigma,noise_sigma,
     uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason,
-    std_sync_t,std_sync_r
+    std_sync_t,std_sync_r,std_sampling_t,std_sampling_r
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
 the square roots of the covariance diagonal; ``std_noise_t`` [m] and ``std_noise_r`` [rad] the
@@ -15,8 +15,10 @@ the change from the coarser (u, v) level's estimate that the covariance adds as 
 (``PairResult.level_change``; empty with one level), ``std_calib_t`` [m] and ``std_calib_r`` [rad]
 the norms of the part the calibration's error explains (``PairResult.covariance_calibration``,
 ``polycam motion --calib-draws``; empty when not measured), ``std_sync_t`` [m] and ``std_sync_r`` [rad]
-(the last columns) those of the part unsynchronised cameras' capture times explain
-(``PairResult.covariance_sync``, ``polycam motion --sync-draws``; empty when not measured); ``sigma`` the
+those of the part unsynchronised cameras' capture times explain
+(``PairResult.covariance_sync``, ``polycam motion --sync-draws``; empty when not measured), and
+``std_sampling_t`` [m] and ``std_sampling_r`` [rad] those of the change on a second view sampling
+(``PairResult.covariance_sampling``, ``polycam motion --sampling-check``; empty when not measured); ``sigma`` the
 robust residual scale and
 ``noise_sigma`` the frames' sensor noise per sample (both in intensity units, as
 :class:`~polycam.motion.PairResult`'s); ``timestamp_ns`` is frame i+1's (empty when not
@@ -36,7 +38,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .calib_spread import calibration_std, capture_timing_std
+from .calib_spread import calibration_std, capture_timing_std, view_sampling_std
 from .evaluate import std_norms
 from .motion import MotionOptions, PairResult
 from .tomlio import atomic_write_text
@@ -48,7 +50,7 @@ PAIR_REPORT_COLUMNS = (
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
     "std_noise_t", "std_noise_r", "level_change_t", "level_change_r", "std_calib_t", "std_calib_r",
     "sigma", "noise_sigma", "uv_level", "view_disparity", "condition", "inlier_fraction", "num_rays", "iterations",
-    "ok", "unobservable", "reason", "std_sync_t", "std_sync_r",
+    "ok", "unobservable", "reason", "std_sync_t", "std_sync_r", "std_sampling_t", "std_sampling_r",
 )
 
 
@@ -63,6 +65,7 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
     w.writerow(PAIR_REPORT_COLUMNS)
     cal_t, cal_r = std_norms(calibration_std(results))
     sync_t, sync_r = std_norms(capture_timing_std(results))
+    samp_t, samp_r = std_norms(view_sampling_std(results))
     for k, r in enumerate(results):
         ts = "" if timestamps_ns is None else str(int(timestamps_ns[r.index + 1]))
         std = r.std
@@ -76,7 +79,7 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
                     f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason,
-                    *(f"{v[k]:.6g}" if np.isfinite(v[k]) else "" for v in (sync_t, sync_r))])
+                    *(f"{v[k]:.6g}" if np.isfinite(v[k]) else "" for v in (sync_t, sync_r, samp_t, samp_r))])
     atomic_write_text(path_csv, buf.getvalue())
 
 

@@ -122,6 +122,11 @@ class RunOptions:
     cameras"): sets of capture times and first-pass motions drawn from their uncertainty (each solved
     at +δ and −δ) whose spread of each pair's estimate is added to its covariance
     (:mod:`polycam.sync_draws_cli`, as ``polycam motion --sync-draws``; 0: not measured)."""
+    sampling_check: bool = False
+    """Re-solve the motion on a second view sampling (:func:`polycam.sampling_check_cli.second_xy_oversample`
+    views per camera spacing: an array's 2 → 3, 2.3x the nominal solve's rays; a row's 4 → 3) and add
+    each pair's change to its covariance (:mod:`polycam.sampling_check_cli`, as ``polycam motion
+    --sampling-check``)."""
     calib_plots: bool = False
     """Also write the calibration stage's own plots (per-camera residual maps; slow for many cameras)."""
     depth_views: int = 3
@@ -348,6 +353,14 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         except InputError as e:                 # models without a covariance: the solver's covariance alone
             draws_line = f"calibration draws skipped: {e}"
         drawn = opts.calib_draws if draws_s is not None else 0
+    sampling_line, sampling_s = "", None
+    if opts.sampling_check:
+        from .sampling_check_cli import add_view_sampling_share, second_xy_oversample
+
+        results, sampling_line, sampling_s = add_view_sampling_share(
+            out / "session", cal.models, uv_step, xy_oversample, results,
+            bar=lambda total: bar("5/6 second view sampling", total), motion_options=motion_options,
+            scale_selection=opts.scale_selection, capture_motion=capture_motion)
     write_tum(out / "trajectory.tum", traj)
     failed = [r for r in results if not r]
     ok = [r for r in results if r]
@@ -362,15 +375,17 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "median_inlier_fraction": float(np.median([r.inlier_fraction for r in ok])) if ok else 0.0,
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan"),
          "calibration_draws": drawn, "cameras_moved_to_capture": capture_motion is not None,
-         "capture_time_draws": opts.sync_draws if sync_s is not None else 0}
-    from .calib_spread import calibration_std, capture_timing_std
+         "capture_time_draws": opts.sync_draws if sync_s is not None else 0,
+         "sampling_check_xy_oversample": second_xy_oversample(xy_oversample) if sampling_s is not None else 0}
+    from .calib_spread import calibration_std, capture_timing_std, view_sampling_std
 
-    for seconds, part_std, name, key in ((draws_s if drawn else None, calibration_std, "calibration", "calib"),
-                                         (sync_s, capture_timing_std, "capture_time", "sync")):
+    for seconds, part_std, name, key in ((draws_s if drawn else None, calibration_std, "calibration_draws", "calib"),
+                                         (sync_s, capture_timing_std, "capture_time_draws", "sync"),
+                                         (sampling_s, view_sampling_std, "sampling_check", "sampling")):
         if seconds is not None:                       # the medians over the pairs of the part's std
             pt, pr = std_norms(part_std(results))
             have = np.isfinite(pt)
-            m[f"seconds_{name}_draws"] = seconds
+            m[f"seconds_{name}"] = seconds
             m[f"median_std_{key}_t_m"] = float(np.median(pt[have])) if have.any() else float("nan")
             m[f"median_std_{key}_w_deg"] = math.degrees(float(np.median(pr[have]))) if have.any() else float("nan")
     m["error_over_std_t"], m["error_over_std_w"] = error_over_std(err, std)
@@ -389,6 +404,8 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         echo(f"          {unsync}")
     if sync_line:
         echo(f"          {sync_line}")
+    if sampling_line:
+        echo(f"          {sampling_line}")
     if len(failed) > UNUSABLE["motion_failed_frac"] * len(results):
         raise _fail("motion", f"{len(failed)} of {len(results)} frame pairs failed "
                               f"(first: pair {failed[0].index}: {failed[0].reason})")
@@ -645,15 +662,17 @@ def choose_uv_step(session, models: dict, xy_oversample: int | None = None):
     :data:`AUTO_UV_MAX_DISPARITY` samples of that step, else the coarsest (the solver's pyramid goes
     on from there); ``disparity`` in the chosen step's samples (NaN: not measurable, e.g. no texture,
     and the finest step is chosen); ``store`` the :class:`resample.stream.SessionLightField` of the
-    coarsest step when that is chosen (its frames already resampled), else None."""
+    coarsest step when that is chosen (its frames already resampled; ``xy_oversample`` the views per
+    camera spacing its grid has), else None."""
     import numpy as np
     from resample.stream import SessionLightField
 
     from .motion import frame_view_disparity
 
     coarse = AUTO_UV_STEPS_PX[-1]
-    grid, _ = session_grid(models, coarse, xy_oversample)
+    grid, every = session_grid(models, coarse, xy_oversample)
     store = SessionLightField(session, models=models, grid=grid)
+    store.xy_oversample = every
     n = len(store)
     picks = sorted({round(i * (n - 1) / max(AUTO_UV_PROBE_FRAMES - 1, 1)) for i in range(AUTO_UV_PROBE_FRAMES)},
                    reverse=True)        # frame 0 last: the store keeps it for the solve, which reads it first
@@ -902,6 +921,10 @@ def add_parsers(sub) -> None:
                    help="cameras that are not synchronised: re-solve their second pass with N sets of capture times "
                         "and first-pass motions drawn from their uncertainty (2N re-solves) and add the spread to "
                         "each pair's covariance (default %(default)s; docs/motion.md, \"Unsynchronised cameras\")")
+    p.add_argument("--sampling-check", action="store_true",
+                   help="re-solve the motion on a second view sampling (3 views per camera spacing for 2, one "
+                        "fewer for more) and add each pair's change to its covariance (docs/motion.md, \"A second "
+                        "view sampling\")")
     p.set_defaults(func=cmd_run)
 
 
@@ -912,6 +935,6 @@ def cmd_run(args: argparse.Namespace) -> int:
               options=RunOptions(frames=args.frames, board_frames=args.board_frames, seed=args.seed,
                                  uv_step_px=args.uv_step, xy_oversample=args.xy_oversample,
                                  scale_selection=args.scale_selection == "on", calib_draws=args.calib_draws,
-                                 sync_draws=args.sync_draws),
+                                 sync_draws=args.sync_draws, sampling_check=args.sampling_check),
               progress_factory=_progress, echo=print)
     return 0

@@ -187,3 +187,53 @@ def test_calibration_line_reports_the_share_and_the_draws_that_counted():
     assert "its std per pair 0.300 mm" in line and "87% / 87% of the reported std" in line, line
     assert "only" not in calibration_line(results, 4, 4, 1.0)
     assert calibration_line([_pair(0)], 2, 0, 1.0) == "calibration: 2 draws, no pair re-solved (1 s)"
+
+
+def test_sampling_change_is_added_as_its_outer_product():
+    """sampling_change_covariance: d dᵀ of the two samplings' change, NaN where either solve failed;
+    with_view_sampling adds it and keeps it as covariance_sampling (view_sampling_std reads |d| back)."""
+    from polycam.calib_spread import pair_vectors, sampling_change_covariance, view_sampling_std, with_view_sampling
+
+    results = [_pair(0), _pair(1), _pair(2)]
+    nominal = pair_vectors(results)
+    other = nominal.copy()
+    d = np.array([3e-4, -1e-4, 0.0, 2e-5, 0.0, -4e-5])
+    other[0] -= d
+    other[2] = np.nan                                   # the second sampling failed on pair 2
+    C = sampling_change_covariance(nominal, other)
+    np.testing.assert_allclose(C[0], np.outer(d, d))
+    np.testing.assert_array_equal(C[1], 0.0)
+    assert np.all(np.isnan(C[2]))
+    out = with_view_sampling(results, C)
+    np.testing.assert_allclose(out[0].covariance, results[0].covariance + np.outer(d, d))
+    assert out[2] is results[2] and out[2].covariance_sampling is None
+    std = view_sampling_std(out)
+    np.testing.assert_allclose(std[0], np.abs(d), atol=1e-15)
+    assert np.all(np.isnan(std[2]))
+    with pytest.raises(ValueError, match="nominal and other"):
+        sampling_change_covariance(nominal, other[:2])
+
+
+def test_sampling_line_reports_the_change_against_the_std_before():
+    """The CLI's line: the change's norms per pair and their share of the std before it was added (medians),
+    how many pairs moved by more than twice that std, and the pairs it could not measure."""
+    from polycam.calib_spread import with_view_sampling
+    from polycam.sampling_check_cli import sampling_line
+
+    results = [_pair(0), _pair(1), _pair(2)]
+    before = np.stack([r.std for r in results])          # 1e-4 per axis: norms 0.173 mm, 9.9 mdeg
+    d = [np.full(6, 0.5e-4), np.full(6, 3e-4), np.full(6, np.nan)]
+    line = sampling_line(with_view_sampling(results, np.stack([np.outer(x, x) for x in d])), before, 3,
+                         (1, 7, 7, 30, 40), 5.2)
+    assert line.startswith("second view sampling (3 views per camera spacing, 7x7 views, 5 s): the estimates moved by "
+                           "0.303 mm, 17.37 mdeg per pair (median), 175% / 175% of the std before; 1 of 2 pairs by "
+                           "more than twice it; 1 pair(s) not solved on it"), line
+    assert "no pair solved on it" in sampling_line(results, before, 3, (1, 7, 7, 30, 40), 1.0)
+
+
+def test_second_view_sampling_is_never_the_denser_one_beyond_three():
+    """second_xy_oversample: 1 → 2, 2 → 3 (an array's default), then one fewer (a row's 4 → 3): denser
+    in-between views err more than the nominal sampling (docs/motion.md, "A second view sampling")."""
+    from polycam.sampling_check_cli import second_xy_oversample
+
+    assert [second_xy_oversample(k) for k in (1, 2, 3, 4, 6)] == [2, 3, 2, 3, 5]

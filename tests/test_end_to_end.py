@@ -154,6 +154,42 @@ def test_motion_from_session_with_more_viewpoints(session, tmp_path, capsys):
     assert not (tmp_path / "t.tum").exists()
 
 
+def test_motion_sampling_check_adds_the_change_on_a_second_view_sampling(session, tmp_path, capsys):
+    """--sampling-check: the pairs re-solved with one more view per camera spacing (3: 7 x 7 views for the
+    3 x 3 rig), the change from the nominal estimate added to each covariance as d dᵀ (pairs.csv
+    std_sampling_t, _r its norms); the estimates themselves unchanged. A light-field store: one line, exit 1."""
+    import csv
+
+    def run(name: str, *extra: str):
+        assert main(["motion", str(session), "--out", str(tmp_path / f"{name}.tum"), "--report", str(tmp_path / name),
+                     "--uv-step", "2", *extra]) == 0
+        with open(tmp_path / name / "pairs.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        get = lambda keys: np.array([[float(r[k]) for k in keys] for r in rows])   # noqa: E731
+        return (get(("t_x", "t_y", "t_z", "r_x", "r_y", "r_z")),
+                get(("std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z")), rows)
+
+    x, std, rows = run("nominal")
+    assert all(r["std_sampling_t"] == "" for r in rows)
+    capsys.readouterr()
+    y, _, _ = run("dense", "--xy-oversample", "3")
+    capsys.readouterr()
+    xc, stdc, rows = run("checked", "--sampling-check")
+    out = capsys.readouterr().out
+    assert "second view sampling (3 views per camera spacing, 7x7 views" in out, out
+    np.testing.assert_array_equal(xc, x)
+    d = x - y
+    assert np.abs(d).max() > 0
+    np.testing.assert_allclose(stdc ** 2, std ** 2 + d ** 2, rtol=1e-4)
+    np.testing.assert_allclose([float(r["std_sampling_t"]) for r in rows], np.linalg.norm(d[:, :3], axis=1), rtol=1e-4)
+    np.testing.assert_allclose([float(r["std_sampling_r"]) for r in rows], np.linalg.norm(d[:, 3:], axis=1), rtol=1e-4)
+    assert main(["resample", str(session), "--out", str(tmp_path / "lf.zarr"), "--workers", "0"]) == 0
+    capsys.readouterr()
+    code = main(["motion", str(tmp_path / "lf.zarr"), "--out", str(tmp_path / "s.tum"), "--sampling-check"])
+    _one_line_error(capsys, code, "lf.zarr: --sampling-check needs a session")
+    assert not (tmp_path / "s.tum").exists()
+
+
 def test_motion_on_a_session_without_calibration_names_it(session, tmp_path, capsys):
     bare = tmp_path / "bare"
     shutil.copytree(session, bare)

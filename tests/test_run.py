@@ -39,6 +39,7 @@ def test_run_small_rig_end_to_end(tmp_path, capsys):
         assert (rep / name).stat().st_size > 0, name
     summary = tomllib.loads((rep / "summary.toml").read_text())
     assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
+    assert summary["motion"]["sampling_check_xy_oversample"] == 0 and "second view sampling" not in cap.out
     assert summary["motion"]["seconds_per_pair"] > 0 and summary["motion"]["seconds_first_pair"] > 0
     assert summary["motion"]["error_over_std_t"] > 0 and summary["motion"]["error_over_std_w"] > 0
     assert summary["calibrate"]["rms_px"] < 0.5
@@ -132,16 +133,23 @@ def test_run_single_camera_stops_at_motion_naming_the_unobservable(tmp_path, cap
 
 def test_run_linear_rig_end_to_end(tmp_path, capsys):
     """A row of three cameras (a linear array: one viewpoint along y) runs the whole chain: the
-    motion solver takes the unmeasured L_y from ρ̂ L_v and extrapolates off the row by Eq. 6."""
+    motion solver takes the unmeasured L_y from ρ̂ L_v and extrapolates off the row by Eq. 6.
+    With --sampling-check: the pairs re-solved on 3 views per camera spacing (one fewer than the row's
+    default 4), the change's share in the summary and on its own line."""
     import tomllib
 
     (tmp_path / "rig.toml").write_text(mock_grid_rig_text("row", 160, 120, rows=1, cols=3))
     out = tmp_path / "run"
-    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "3"])
+    code = main(["run", str(tmp_path / "rig.toml"), "--out", str(out), "--board-frames", "12", "--frames", "3",
+                 "--sampling-check"])
     cap = capsys.readouterr()
     assert code == 0, cap.err
     summary = tomllib.loads((out / "report" / "summary.toml").read_text())
     assert sorted(summary["resample"]["views"]) == [1, 9]
+    m = summary["motion"]
+    assert m["sampling_check_xy_oversample"] == 3 and m["seconds_sampling_check"] > 0
+    assert m["median_std_sampling_t_m"] > 0 and m["median_std_sampling_w_deg"] > 0
+    assert "second view sampling (3 views per camera spacing, 1x7 views" in cap.out, cap.out
     assert summary["resample"]["uv_step_px"] == 2.0 and "uv_disparity" not in summary["resample"]
     assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
     from polycam.evaluate import pair_errors
@@ -193,12 +201,16 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     assert len(depth) == 1 and "refined on 2 camera views" in depth[0], cap.out
     # the motion verb on the session takes the run's grid rule: 4 views per camera spacing here (with 2
     # the pair has 3 views along x, too few for the solver)
+    # (--sampling-check: its second sampling, 3 views per spacing, gives the pair 4 views: skipped, said so)
     code = main(["motion", str(out / "session"), "--calib", str(out / "calib"), "--uv-step", "2",
-                 "--out", str(tmp_path / "m.tum")])
+                 "--out", str(tmp_path / "m.tum"), "--sampling-check", "--report", str(tmp_path / "mrep")])
     cap = capsys.readouterr()
     assert code == 0, cap.err
     wrote = next(line for line in cap.out.splitlines() if line.startswith("wrote"))
     assert "2 frame pairs" in wrote and "failed" not in wrote, cap.out
+    assert ("second view sampling skipped: 3 views per camera spacing give 4 views along the cameras, fewer than "
+            "the solver's 5") in cap.out, cap.out
+    assert "std_sampling_t" in (tmp_path / "mrep" / "pairs.csv").read_text().splitlines()[0]
     from polycam.depth_cli import open_source
 
     assert open_source(out / "session", calib=str(out / "calib"), uv_step=2).grid.x.count == 5

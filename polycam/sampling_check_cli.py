@@ -1,0 +1,116 @@
+"""``--sampling-check``: a session's motion re-solved on a second view sampling (another number of
+viewpoints per camera spacing, :func:`second_xy_oversample`), and the change of each pair's estimate
+added to its covariance (docs/motion.md, "A second view sampling").
+
+On camera arrays the views between the cameras are filled from the plane-sweep depth and blended
+across cameras; the error that leaves is shared by neighbouring rays and by the (u, v) levels, so
+neither the residuals' sandwich nor the level change shows it, and the covariance can be ~2x
+optimistic there (docs/motion.md, "The direction step"). It moves with the views' sampling: the
+change ``d`` of a pair's estimate between the grid's ``xy_oversample`` views per camera spacing and
+:func:`second_xy_oversample`'s, added as ``d dᵀ`` (:func:`polycam.calib_spread.sampling_change_covariance`),
+measures it. It measures how far the two samplings differ, not which is right, so where the std was
+honest it makes it conservative (up to ~1.5x, measured).
+
+CLI layer (``polycam motion SESSION``, ``polycam run``): it drives the resampling stage; the
+numerics are :mod:`polycam.calib_spread`'s.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import nullcontext
+from typing import Callable
+
+import numpy as np
+
+from .calib_draws_cli import quiet_logger
+from .calib_spread import pair_vectors, sampling_change_covariance, view_sampling_std, with_view_sampling
+from .lightfield import LightFieldGrid
+
+__all__ = ["second_xy_oversample", "second_sampling", "add_view_sampling_share", "sampling_line"]
+
+
+def second_xy_oversample(xy_oversample: int) -> int:
+    """The views per camera spacing of the second sampling for a grid of ``xy_oversample``: one more
+    up to 2 (an array's 2 → 3), else one fewer (a row of cameras' 4 → 3). Denser in-between views are
+    the plane-sweep depth's fill and their derivatives across views its own: a row of cameras solved
+    at 5 or 6 views per spacing errs 3–10x more than at 3 or 4, and the change then measures that
+    sampling's error, not the nominal's (docs/motion.md, "A second view sampling")."""
+    return xy_oversample + 1 if xy_oversample <= 2 else xy_oversample - 1
+
+
+def second_sampling(session, models: dict, grid: LightFieldGrid, *, resample_options=None, motion_options=None,
+                    scale_selection: bool = False, capture_motion=None,
+                    progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """Re-solve every frame pair of ``session`` (an opened session or its folder; cameras ``models``)
+    resampled onto ``grid``, with ``resample_options``, ``capture_motion`` ((P, 4, 4) or None, as
+    :class:`resample.stream.SessionLightField`'s) and ``motion_options`` / ``scale_selection`` as the
+    nominal solve was.
+
+    Returns (P, 6) each pair's (t [m], r [rad]) (:func:`polycam.calib_spread.pair_vectors`, NaN rows
+    where a pair failed). ``progress(done, total)`` per pair.
+    """
+    from resample.stream import SessionLightField
+
+    from .motion import estimate_trajectory
+
+    with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
+        lf = SessionLightField(session, models=models, grid=grid, options=resample_options, camera_noise=False,
+                               capture_motion=capture_motion)
+        _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection,
+                                         progress=progress)
+    return pair_vectors(results)
+
+
+def add_view_sampling_share(session, models: dict, uv_step_px: float, xy_oversample: int, results: list, *,
+                            bar: Callable | None = None, **solve) -> tuple[list, str, float | None]:
+    """What ``polycam motion --sampling-check`` and ``polycam run --sampling-check`` do: ``results`` (the
+    nominal solve's, on ``xy_oversample`` views per camera spacing) with the change on
+    :func:`second_xy_oversample`'s added (:func:`second_sampling`, ``solve`` its keyword arguments;
+    :func:`polycam.calib_spread.with_view_sampling`), the line the CLI prints, and the seconds it took
+    (None: skipped: no pair was solved, or the second sampling has fewer than
+    :data:`polycam.run.MIN_VIEWS` views along an axis with more than one, e.g. a stereo pair's 4 → 3
+    gives 4). ``bar(total)``: a context manager yielding ``advance(done,
+    total)``, opened only when the re-solve runs."""
+    from .run import MIN_VIEWS, session_grid
+
+    if not any(results):
+        return results, "second view sampling skipped: no pair solved", None
+    t0 = time.perf_counter()
+    second = second_xy_oversample(xy_oversample)
+    grid, _ = session_grid(models, uv_step_px, second)
+    shape = tuple(grid.shape)
+    few = [n for n in shape[1:3] if 1 < n < MIN_VIEWS]
+    if few:
+        return results, (f"second view sampling skipped: {second} views per camera spacing give {few[0]} views "
+                         f"along the cameras, fewer than the solver's {MIN_VIEWS} (e.g. a stereo pair: "
+                         f"its std then leaves the sampling's share out)"), None
+    with (bar(len(results)) if bar is not None else nullcontext(None)) as advance:
+        other = second_sampling(session, models, grid, progress=advance, **solve)
+    before = np.stack([r.std for r in results])
+    results = with_view_sampling(results, sampling_change_covariance(pair_vectors(results), other))
+    seconds = time.perf_counter() - t0
+    return results, sampling_line(results, before, second, shape, seconds), seconds
+
+
+def sampling_line(results, std_before: np.ndarray, xy_oversample: int, shape, seconds: float) -> str:
+    """How far the estimates moved on the second view sampling (``xy_oversample`` views per camera
+    spacing, a grid of ``shape`` (F, Ny, Nx, Nv, Nu)): medians over the pairs that have the change of its
+    norms and of their ratio to ``std_before`` ((P, 6) the reported std without it), and how many
+    pairs moved by more than twice that std."""
+    from .evaluate import std_norms
+
+    change = view_sampling_std(results)               # |d| per axis: the change itself
+    have = np.all(np.isfinite(change), axis=1)
+    views = f"{xy_oversample} views per camera spacing, {shape[1]}x{shape[2]} views"
+    if not have.any():
+        return f"second view sampling ({views}, {seconds:.0f} s): no pair solved on it"
+    (ct, cr), (bt, br) = std_norms(change[have]), std_norms(std_before[have])
+    far = int(np.sum((ct > 2 * bt) | (cr > 2 * br)))
+    failed = len(results) - int(have.sum())
+    return (f"second view sampling ({views}, {seconds:.0f} s): the estimates moved by "
+            f"{1e3 * np.median(ct):.3f} mm, {1e3 * np.degrees(np.median(cr)):.2f} mdeg per pair (median), "
+            f"{100 * np.median(ct / bt):.0f}% / {100 * np.median(cr / br):.0f}% of the std before; "
+            f"{far} of {int(have.sum())} pairs by more than twice it"
+            + (f"; {failed} pair(s) not solved on it, left as they were" if failed else "")
+            + "; the change is added to the covariance")
