@@ -22,7 +22,8 @@ camera centre, which on a real rig is not exactly on the grid view (a 1 mm offse
 ``source_coverage`` of its cells have a full splat weight); a *target* is a view
 with (almost) no measured cell (``target_coverage``). Each target takes the source
 views within the smallest square ring (Chebyshev radius 1, 2, ... up to
-``max_radius``) that holds at least two of them, weighted by ``1 / distance²``.
+``max_radius``: by default the views per camera spacing, at least 3) that holds at least two of
+them, weighted by ``1 / distance²``.
 For an auto grid (a view at every camera and one half-way) that is the two
 cameras either side of a half-way view and the four around a centre view.
 
@@ -73,7 +74,7 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["RECENTRE_SOURCES", "camera_views", "camera_positions", "view_steps", "camera_heights", "data_positions", "far_sources",
+__all__ = ["RECENTRE_SOURCES", "MIN_FILL_RADIUS", "source_spacing", "camera_views", "camera_positions", "view_steps", "camera_heights", "data_positions", "far_sources",
            "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
 
 log = logging.getLogger(__name__)
@@ -103,8 +104,14 @@ class ViewFillOptions:
     """A view is a source when at least this share of its cells have a full splat weight."""
     target_coverage: float = 0.02
     """A view is filled when less than this share of its cells have a full splat weight."""
-    max_radius: int = 3
-    """Largest Chebyshev distance [views] at which sources are looked for."""
+    max_radius: int | None = None
+    """Largest Chebyshev distance [views] at which sources are looked for. None (default): the
+    larger of 3 and the sources' own spacing (:func:`source_spacing`: the views per camera spacing),
+    so that every view between two cameras finds both however many views the grid puts between
+    them. A fixed 3 left a row's views next to a camera with one source at 5 or more views per
+    camera spacing (the other camera 4 or more views away): unfilled by the sweep, those views were
+    the pull-push's depth-free blend and the motion erred 3–17x more (docs/motion.md, "A second view
+    sampling")."""
     downsample: int = 2
     """The sweep runs on ``downsample x downsample`` averages of the views (and their disparity
     step is ``downsample`` times ``disparity_step``): much faster, and the box is wider."""
@@ -128,8 +135,9 @@ class ViewFillOptions:
     translation (docs/resample.md, step 6). False: camera views keep their data as measured."""
 
     def __post_init__(self) -> None:
-        if not (self.min_depth > 0 and self.disparity_step > 0 and self.window >= 0 and self.max_radius >= 1):
-            raise ValueError("min_depth and disparity_step must be > 0, window >= 0, max_radius >= 1")
+        if not (self.min_depth > 0 and self.disparity_step > 0 and self.window >= 0
+                and (self.max_radius is None or self.max_radius >= 1)):
+            raise ValueError("min_depth and disparity_step must be > 0, window >= 0, max_radius None or >= 1")
         if not 0 <= self.target_coverage < self.source_coverage <= 1:
             raise ValueError("need 0 <= target_coverage < source_coverage <= 1")
 
@@ -248,6 +256,22 @@ def camera_views(grid: LightFieldGrid, centres_rig: np.ndarray, axes_rig: np.nda
     return ~np.isnan(camera_positions(grid, centres_rig, axes_rig)[..., 0])
 
 
+MIN_FILL_RADIUS = 3
+"""The smallest search radius [views] of the default ``ViewFillOptions.max_radius``."""
+
+
+def source_spacing(sources: np.ndarray) -> int:
+    """The median over the set views of ``sources`` (Ny, Nx) bool of the Chebyshev distance [views]
+    to the nearest other set view (the views per camera spacing of a camera array's grid); 0 with
+    fewer than two."""
+    jj, ii = np.nonzero(np.asarray(sources, bool))
+    if jj.size < 2:
+        return 0
+    d = np.maximum(np.abs(jj[:, None] - jj[None, :]), np.abs(ii[:, None] - ii[None, :]))
+    np.fill_diagonal(d, np.iinfo(d.dtype).max)
+    return int(np.median(d.min(axis=1)))
+
+
 def _neighbours(others: np.ndarray, j: int, i: int, max_radius: int, need: int):
     """(jj, ii) of the views set in ``others`` (Ny, Nx) within the smallest square ring around
     (j, i) (Chebyshev radius 1 .. ``max_radius``) that holds at least ``need``; None if none does."""
@@ -339,6 +363,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
         src = cov[f] >= opts.source_coverage
         if src.sum() < 2:
             continue
+        radius = opts.max_radius if opts.max_radius is not None else max(MIN_FILL_RADIUS, source_spacing(src))
         for j in range(Ny):
             for i in range(Nx):
                 own = bool(src[j, i])
@@ -346,7 +371,7 @@ def plan_view_fill(grid: LightFieldGrid, w_clamped: np.ndarray,
                     continue
                 others = src.copy()
                 others[j, i] = False
-                nb = _neighbours(others, j, i, opts.max_radius, 2)
+                nb = _neighbours(others, j, i, radius, 2)
                 if nb is None:
                     continue
                 jj, ii = nb

@@ -490,6 +490,37 @@ def test_view_fill_refines_where_the_sources_are_two_view_steps_away():
     assert derr[None] < derr[False] / 2 and err[None] < 1.1 * err[False], (err, derr)
 
 
+def test_view_fill_finds_both_cameras_however_many_views_lie_between_them():
+    """Cameras every 6th view (6 views per camera spacing, a row): the default search radius is the
+    sources' spacing, so every view between two cameras is filled from both, along the disparity,
+    close to the truth; a fixed radius of 3 leaves every view but the half-way one with one source
+    (the other 4–5 views away), unplanned, and the pull-push's depth-free blend they then keep is far off."""
+    from resample import ViewFillOptions, fill_views, plan_view_fill
+    from resample.viewfill import MIN_FILL_RADIUS, source_spacing
+
+    grid = LightFieldGrid.cube(["+z"], f=100.0, z_pi=0.0, x=Axis(0.0, 0.12, 13), y=Axis(0.0, 0.0, 1),
+                               u=Axis(-48, 47, 96), v=Axis(-40, 39, 80))
+    delta = 0.4                     # u-steps per x-step (2.4 per camera spacing)
+    truth = _plane_lightfield(grid, delta)
+    cam = np.zeros(grid.shape, bool)
+    cam[:, :, ::6] = True
+    assert source_spacing(cam[0, :, :, 0, 0]) == 6 and MIN_FILL_RADIUS == 3
+    inner = np.zeros(grid.shape, bool)
+    inner[..., 8:-8, 12:-12] = True
+    err, planned = {}, {}
+    for radius in (None, 3):
+        opts = ViewFillOptions(min_depth=0.4, max_radius=radius)
+        plan = plan_view_fill(grid, cam.astype(np.float32), opts)
+        planned[radius] = sorted(i for _, _, i in plan.targets)
+        pp = push_pull(np.where(cam, truth, 0.0).astype(np.float32)[..., None], cam.astype(np.float32))
+        L, W = np.ascontiguousarray(pp.L), np.ascontiguousarray(pp.W)   # the resampler's order: pull-push first
+        fill_views(L, W, plan, opts)
+        err[radius] = float(np.sqrt(np.mean((L[..., 0] - truth)[inner & ~cam] ** 2)))
+    assert planned[None] == [1, 2, 3, 4, 5, 7, 8, 9, 10, 11]
+    assert planned[3] == [3, 9]                                  # the others: one camera within 3 views
+    assert err[None] < 0.25 * err[3], err
+
+
 def _plane_grid_with_cameras():
     """The plane tests' grid (5 x 5 views 1 cm apart, f = 100, 80 x 96 directions) and the
     (F, Ny, Nx, Nv, Nu) mask of its camera views (every second view)."""
