@@ -589,9 +589,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "add the estimates' spread to each pair's covariance (default 0; docs/motion.md, "
                          "\"Unsynchronised cameras\")")
     pm.add_argument("--sampling-check", action="store_true",
-                    help="SESSION: re-solve every pair on a second view sampling (3 views per camera spacing for "
-                         "the grid's 2: 2.3x the rays; one fewer for more, e.g. a row of cameras' 4) and add the "
-                         "change of each estimate to its covariance, "
+                    help="SESSION: re-solve every pair on a second view sampling (one more view per camera "
+                         "spacing: an array's 2 -> 3, 2.3x the rays) and add the change of each estimate to its "
+                         "covariance, "
                          "for the error the views' sampling leaves that the solver's std does not show (camera "
                          "arrays: up to ~2x optimistic without it, ~1.5x conservative with it where it was "
                          "honest; docs/motion.md, \"A second view sampling\")")

@@ -123,10 +123,9 @@ class RunOptions:
     at +δ and −δ) whose spread of each pair's estimate is added to its covariance
     (:mod:`polycam.sync_draws_cli`, as ``polycam motion --sync-draws``; 0: not measured)."""
     sampling_check: bool = False
-    """Re-solve the motion on a second view sampling (:func:`polycam.sampling_check_cli.second_xy_oversample`
-    views per camera spacing: an array's 2 → 3, 2.3x the nominal solve's rays; a row's 4 → 3) and add
-    each pair's change to its covariance (:mod:`polycam.sampling_check_cli`, as ``polycam motion
-    --sampling-check``)."""
+    """Re-solve the motion on a second view sampling (one more view per camera spacing: an array's
+    2 → 3, 2.3x the nominal solve's rays; a row's 4 → 5) and add each pair's change to its covariance
+    (:mod:`polycam.sampling_check_cli`, as ``polycam motion --sampling-check``)."""
     calib_plots: bool = False
     """Also write the calibration stage's own plots (per-camera residual maps; slow for many cameras)."""
     depth_views: int = 3
@@ -355,7 +354,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
         drawn = opts.calib_draws if draws_s is not None else 0
     sampling_line, sampling_s = "", None
     if opts.sampling_check:
-        from .sampling_check_cli import add_view_sampling_share, second_xy_oversample
+        from .sampling_check_cli import add_view_sampling_share
 
         results, sampling_line, sampling_s = add_view_sampling_share(
             out / "session", cal.models, uv_step, xy_oversample, results,
@@ -376,7 +375,7 @@ def run_chain(rig_path: str | os.PathLike, out: str | os.PathLike, *, board_path
          "median_std_t_m": float(np.median([np.linalg.norm(r.std[:3]) for r in ok])) if ok else float("nan"),
          "calibration_draws": drawn, "cameras_moved_to_capture": capture_motion is not None,
          "capture_time_draws": opts.sync_draws if sync_s is not None else 0,
-         "sampling_check_xy_oversample": second_xy_oversample(xy_oversample) if sampling_s is not None else 0}
+         "sampling_check_xy_oversample": xy_oversample + 1 if sampling_s is not None else 0}
     from .calib_spread import calibration_std, capture_timing_std, view_sampling_std
 
     for seconds, part_std, name, key in ((draws_s if drawn else None, calibration_std, "calibration_draws", "calib"),
@@ -922,9 +921,8 @@ def add_parsers(sub) -> None:
                         "and first-pass motions drawn from their uncertainty (2N re-solves) and add the spread to "
                         "each pair's covariance (default %(default)s; docs/motion.md, \"Unsynchronised cameras\")")
     p.add_argument("--sampling-check", action="store_true",
-                   help="re-solve the motion on a second view sampling (3 views per camera spacing for 2, one "
-                        "fewer for more) and add each pair's change to its covariance (docs/motion.md, \"A second "
-                        "view sampling\")")
+                   help="re-solve the motion on a second view sampling (one more view per camera spacing) and add "
+                        "each pair's change to its covariance (docs/motion.md, \"A second view sampling\")")
     p.set_defaults(func=cmd_run)
 
 

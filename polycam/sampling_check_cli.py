@@ -1,13 +1,13 @@
-"""``--sampling-check``: a session's motion re-solved on a second view sampling (another number of
-viewpoints per camera spacing, :func:`second_xy_oversample`), and the change of each pair's estimate
-added to its covariance (docs/motion.md, "A second view sampling").
+"""``--sampling-check``: a session's motion re-solved on a second view sampling (one more viewpoint per
+camera spacing), and the change of each pair's estimate added to its covariance (docs/motion.md, "A
+second view sampling").
 
 On camera arrays the views between the cameras are filled from the plane-sweep depth and blended
 across cameras; the error that leaves is shared by neighbouring rays and by the (u, v) levels, so
 neither the residuals' sandwich nor the level change shows it, and the covariance can be ~2x
 optimistic there (docs/motion.md, "The direction step"). It moves with the views' sampling: the
 change ``d`` of a pair's estimate between the grid's ``xy_oversample`` views per camera spacing and
-:func:`second_xy_oversample`'s, added as ``d dᵀ`` (:func:`polycam.calib_spread.sampling_change_covariance`),
+``xy_oversample + 1``, added as ``d dᵀ`` (:func:`polycam.calib_spread.sampling_change_covariance`),
 measures it. It measures how far the two samplings differ, not which is right, so where the std was
 honest it makes it conservative (up to ~1.5x, measured).
 
@@ -27,16 +27,7 @@ from .calib_draws_cli import quiet_logger
 from .calib_spread import pair_vectors, sampling_change_covariance, view_sampling_std, with_view_sampling
 from .lightfield import LightFieldGrid
 
-__all__ = ["second_xy_oversample", "second_sampling", "add_view_sampling_share", "sampling_line"]
-
-
-def second_xy_oversample(xy_oversample: int) -> int:
-    """The views per camera spacing of the second sampling for a grid of ``xy_oversample``: one more
-    up to 2 (an array's 2 → 3), else one fewer (a row of cameras' 4 → 3). Denser in-between views are
-    the plane-sweep depth's fill and their derivatives across views its own: a row of cameras solved
-    at 5 or 6 views per spacing errs 3–10x more than at 3 or 4, and the change then measures that
-    sampling's error, not the nominal's (docs/motion.md, "A second view sampling")."""
-    return xy_oversample + 1 if xy_oversample <= 2 else xy_oversample - 1
+__all__ = ["second_sampling", "add_view_sampling_share", "sampling_line"]
 
 
 def second_sampling(session, models: dict, grid: LightFieldGrid, *, resample_options=None, motion_options=None,
@@ -65,26 +56,26 @@ def second_sampling(session, models: dict, grid: LightFieldGrid, *, resample_opt
 def add_view_sampling_share(session, models: dict, uv_step_px: float, xy_oversample: int, results: list, *,
                             bar: Callable | None = None, **solve) -> tuple[list, str, float | None]:
     """What ``polycam motion --sampling-check`` and ``polycam run --sampling-check`` do: ``results`` (the
-    nominal solve's, on ``xy_oversample`` views per camera spacing) with the change on
-    :func:`second_xy_oversample`'s added (:func:`second_sampling`, ``solve`` its keyword arguments;
+    nominal solve's, on ``xy_oversample`` views per camera spacing) with the change on ``xy_oversample
+    + 1`` added (:func:`second_sampling`, ``solve`` its keyword arguments;
     :func:`polycam.calib_spread.with_view_sampling`), the line the CLI prints, and the seconds it took
     (None: skipped: no pair was solved, or the second sampling has fewer than
-    :data:`polycam.run.MIN_VIEWS` views along an axis with more than one, e.g. a stereo pair's 4 → 3
-    gives 4). ``bar(total)``: a context manager yielding ``advance(done,
+    :data:`polycam.run.MIN_VIEWS` views along an axis with more than one, e.g. a stereo pair given
+    ``--xy-oversample 1``). ``bar(total)``: a context manager yielding ``advance(done,
     total)``, opened only when the re-solve runs."""
     from .run import MIN_VIEWS, session_grid
 
     if not any(results):
         return results, "second view sampling skipped: no pair solved", None
     t0 = time.perf_counter()
-    second = second_xy_oversample(xy_oversample)
+    second = xy_oversample + 1
     grid, _ = session_grid(models, uv_step_px, second)
     shape = tuple(grid.shape)
     few = [n for n in shape[1:3] if 1 < n < MIN_VIEWS]
     if few:
         return results, (f"second view sampling skipped: {second} views per camera spacing give {few[0]} views "
-                         f"along the cameras, fewer than the solver's {MIN_VIEWS} (e.g. a stereo pair: "
-                         f"its std then leaves the sampling's share out)"), None
+                         f"along the cameras, fewer than the solver's {MIN_VIEWS} (its std then leaves the "
+                         f"sampling's share out)"), None
     with (bar(len(results)) if bar is not None else nullcontext(None)) as advance:
         other = second_sampling(session, models, grid, progress=advance, **solve)
     before = np.stack([r.std for r in results])

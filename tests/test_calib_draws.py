@@ -230,10 +230,3 @@ def test_sampling_line_reports_the_change_against_the_std_before():
                            "more than twice it; 1 pair(s) not solved on it"), line
     assert "no pair solved on it" in sampling_line(results, before, 3, (1, 7, 7, 30, 40), 1.0)
 
-
-def test_second_view_sampling_is_never_the_denser_one_beyond_three():
-    """second_xy_oversample: 1 → 2, 2 → 3 (an array's default), then one fewer (a row's 4 → 3): denser
-    in-between views err more than the nominal sampling (docs/motion.md, "A second view sampling")."""
-    from polycam.sampling_check_cli import second_xy_oversample
-
-    assert [second_xy_oversample(k) for k in (1, 2, 3, 4, 6)] == [2, 3, 2, 3, 5]

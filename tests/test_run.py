@@ -134,8 +134,8 @@ def test_run_single_camera_stops_at_motion_naming_the_unobservable(tmp_path, cap
 def test_run_linear_rig_end_to_end(tmp_path, capsys):
     """A row of three cameras (a linear array: one viewpoint along y) runs the whole chain: the
     motion solver takes the unmeasured L_y from ρ̂ L_v and extrapolates off the row by Eq. 6.
-    With --sampling-check: the pairs re-solved on 3 views per camera spacing (one fewer than the row's
-    default 4), the change's share in the summary and on its own line."""
+    With --sampling-check: the pairs re-solved on 5 views per camera spacing (the row's default 4, plus
+    one), the change's share in the summary and on its own line."""
     import tomllib
 
     (tmp_path / "rig.toml").write_text(mock_grid_rig_text("row", 160, 120, rows=1, cols=3))
@@ -147,9 +147,9 @@ def test_run_linear_rig_end_to_end(tmp_path, capsys):
     summary = tomllib.loads((out / "report" / "summary.toml").read_text())
     assert sorted(summary["resample"]["views"]) == [1, 9]
     m = summary["motion"]
-    assert m["sampling_check_xy_oversample"] == 3 and m["seconds_sampling_check"] > 0
+    assert m["sampling_check_xy_oversample"] == 5 and m["seconds_sampling_check"] > 0
     assert m["median_std_sampling_t_m"] > 0 and m["median_std_sampling_w_deg"] > 0
-    assert "second view sampling (3 views per camera spacing, 1x7 views" in cap.out, cap.out
+    assert "second view sampling (5 views per camera spacing, 1x11 views" in cap.out, cap.out
     assert summary["resample"]["uv_step_px"] == 2.0 and "uv_disparity" not in summary["resample"]
     assert summary["motion"]["failed"] == 0 and summary["motion"]["pairs"] == 2
     from polycam.evaluate import pair_errors
@@ -185,6 +185,7 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     cameras' samples (polycam.depth_refine). Without that refinement (`polycam depth --refine
     off`) the views between hold no captured data and the verb says so. `polycam motion` on the
     session resamples it on the run's grid (4 views per camera spacing, not 2)."""
+    import csv
     import tomllib
 
     (tmp_path / "rig.toml").write_text(mock_grid_rig_text("pair", 160, 120, rows=1, cols=2, pitch=0.05))
@@ -201,16 +202,23 @@ def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, ca
     assert len(depth) == 1 and "refined on 2 camera views" in depth[0], cap.out
     # the motion verb on the session takes the run's grid rule: 4 views per camera spacing here (with 2
     # the pair has 3 views along x, too few for the solver)
-    # (--sampling-check: its second sampling, 3 views per spacing, gives the pair 4 views: skipped, said so)
+    # (--sampling-check: re-solved on 5 views per spacing, 6 views; with --xy-oversample 2 the second
+    # sampling's 3 per spacing give the pair 4 views, too few: skipped, and said so)
     code = main(["motion", str(out / "session"), "--calib", str(out / "calib"), "--uv-step", "2",
                  "--out", str(tmp_path / "m.tum"), "--sampling-check", "--report", str(tmp_path / "mrep")])
     cap = capsys.readouterr()
     assert code == 0, cap.err
     wrote = next(line for line in cap.out.splitlines() if line.startswith("wrote"))
     assert "2 frame pairs" in wrote and "failed" not in wrote, cap.out
+    assert "second view sampling (5 views per camera spacing, 1x6 views" in cap.out, cap.out
+    with open(tmp_path / "mrep" / "pairs.csv", newline="") as f:
+        assert all(float(r["std_sampling_t"]) > 0 for r in csv.DictReader(f))
+    code = main(["motion", str(out / "session"), "--calib", str(out / "calib"), "--uv-step", "2",
+                 "--xy-oversample", "2", "--out", str(tmp_path / "m2.tum"), "--sampling-check"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
     assert ("second view sampling skipped: 3 views per camera spacing give 4 views along the cameras, fewer than "
             "the solver's 5") in cap.out, cap.out
-    assert "std_sampling_t" in (tmp_path / "mrep" / "pairs.csv").read_text().splitlines()[0]
     from polycam.depth_cli import open_source
 
     assert open_source(out / "session", calib=str(out / "calib"), uv_step=2).grid.x.count == 5
