@@ -18,7 +18,8 @@ from .cliargs import positive_int as _positive_int
 from .motion_options import PRESETS, options_from_strings
 
 __all__ = ["add_parsers", "add_source_options", "cmd_depth", "open_source", "pair_motion_from_trajectory",
-           "uv_step_arg", "uv_step_line", "uv_step_reason", "add_solver_options", "solver_options"]
+           "uv_step_arg", "uv_step_line", "uv_step_reason", "denser_views_reason", "add_solver_options",
+           "solver_options"]
 
 
 def uv_step_arg(text: str) -> float | None:
@@ -44,8 +45,8 @@ def add_source_options(p: argparse.ArgumentParser, uv_step_default: str = "1") -
     p.add_argument("--xy-oversample", type=_positive_int, default=None, metavar="N",
                    help="sessions: viewpoints of the automatic grid per camera spacing (default: 2, one "
                         "between neighbouring cameras, or 4 where 2 gives fewer than 5 views along x or y, "
-                        "as polycam run: a row of cameras, a stereo pair; more for arrays whose cameras are "
-                        "far apart for the scene, docs/motion.md \"Camera arrays\")")
+                        "as polycam run: a row of cameras, a stereo pair; with --uv-step auto 3 on a 2-D array "
+                        "whose views are over 0.6 samples apart at 2, docs/motion.md \"The direction step\")")
 
 
 def add_solver_options(p: argparse.ArgumentParser) -> None:
@@ -165,9 +166,20 @@ def uv_step_reason(disparity: float) -> str:
                                   else "disparity not measurable: the finest step"))
 
 
+def denser_views_reason() -> str:
+    """Why ``--uv-step auto`` gave a 2-D array more views per camera spacing
+    (:data:`polycam.run.AUTO_XY_MAX_DISPARITY`)."""
+    from .run import AUTO_XY_MAX_DISPARITY
+
+    return f"over {AUTO_XY_MAX_DISPARITY:g} samples per view step with 2"
+
+
 def uv_step_line(store) -> str:
-    """One line on the direction step ``--uv-step auto`` chose for a session ``store`` (:func:`open_source`)."""
-    return f"directions every {store.uv_step_px:g} camera pixel(s) ({uv_step_reason(store.uv_disparity)})"
+    """One line on the direction step ``--uv-step auto`` chose for a session ``store`` (:func:`open_source`),
+    and on the views per camera spacing when the rule made them denser."""
+    denser = (f"; {store.xy_oversample} views per camera spacing ({denser_views_reason()})"
+              if getattr(store, "denser_views", False) else "")
+    return f"directions every {store.uv_step_px:g} camera pixel(s) ({uv_step_reason(store.uv_disparity)}{denser})"
 
 
 def pair_motion_from_trajectory(path: str | Path, t0_ns: int, t1_ns: int, trajectory=None):

@@ -77,20 +77,30 @@ def test_motion_from_session_matches_motion_from_store(session, tmp_path, capsys
 def test_motion_chooses_the_direction_step(session, tmp_path, capsys):
     """--uv-step auto (polycam motion's default): 2 pixels where a 1-pixel grid's views are more than
     AUTO_UV_MAX_DISPARITY samples apart for the scene (the 2-pixel grid's store, already opened, is
-    kept), else 1; the finest step where the disparity cannot be measured (one camera)."""
+    kept), else 1; the finest step where the disparity cannot be measured (one camera). A 2-D array
+    whose views are more than AUTO_XY_MAX_DISPARITY samples apart at 2 pixels gets AUTO_XY_DENSER views
+    per camera spacing (unless --xy-oversample says otherwise)."""
     from polycam.depth_cli import open_source
-    from polycam.run import AUTO_UV_MAX_DISPARITY, choose_uv_step, session_grid
+    from polycam.run import (AUTO_UV_MAX_DISPARITY, AUTO_XY_DENSER, AUTO_XY_MAX_DISPARITY, choose_uv_step,
+                             session_grid)
     from polycam.session import open_session
     from resample.pipeline import open_calibration
 
-    def choose(path):
+    def choose(path, xy_oversample=None):
         s = open_session(path)
         models = open_calibration(s, None)
-        return (*choose_uv_step(s, models), models)
+        return (*choose_uv_step(s, models, xy_oversample), models)
 
     step, d, store, models = choose(session)                  # 2 cm apart in a room: far apart
-    assert step == 2.0 and AUTO_UV_MAX_DISPARITY / 2 < d < 1.0
-    assert store.grid == session_grid(models, 2.0)[0]
+    assert step == 2.0 and AUTO_UV_MAX_DISPARITY / 2 < d <= AUTO_XY_MAX_DISPARITY
+    assert store.grid == session_grid(models, 2.0)[0] and store.xy_oversample == 2
+    (tmp_path / "far.toml").write_text(mock_grid_rig_text("far", 64, 48, 3, 3, 0.05))   # 5 cm: farther still
+    far = synth_session(load_rig(tmp_path / "far.toml"), tmp_path / "far", frames=2, seed=1)
+    step, d, store, models = choose(far)
+    assert step == 2.0 and d > AUTO_XY_MAX_DISPARITY and store.xy_oversample == AUTO_XY_DENSER == 3
+    assert store.grid == session_grid(models, 2.0, 3)[0] and store.grid.x.count == 7 and store.denser_views
+    step, d2, store, _ = choose(far, 2)                        # --xy-oversample 2: as asked
+    assert step == 2.0 and d2 == d and store.xy_oversample == 2 and store.grid.x.count == 5
     for name, rows, cols, pitch in (("near", 3, 3, 0.005), ("one", 1, 1, 0.02)):
         (tmp_path / f"{name}.toml").write_text(mock_grid_rig_text(name, 64, 48, rows, cols, pitch))
         path = synth_session(load_rig(tmp_path / f"{name}.toml"), tmp_path / name, frames=2, seed=1)
@@ -104,6 +114,7 @@ def test_motion_chooses_the_direction_step(session, tmp_path, capsys):
     assert main(["motion", str(session), "--out", str(tmp_path / "auto.tum"), "--report", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
     assert "25x33 directions" in out and "directions every 2 camera pixel(s) (--uv-step auto: 0." in out
+    assert "views per camera spacing (over" not in out
     import tomllib
 
     grid = tomllib.loads((tmp_path / "rep" / "options.toml").read_text())["grid"]   # the report says how
@@ -117,6 +128,9 @@ def test_motion_chooses_the_direction_step(session, tmp_path, capsys):
     assert e.value.code == 2 and "or auto" in capsys.readouterr().err
     assert main(["depth", str(session), "--out", str(tmp_path / "d"), "--uv-step", "auto"]) == 0   # depth: on request
     assert "directions every 2 camera pixel(s) (--uv-step auto" in capsys.readouterr().out
+    assert main(["motion", str(far), "--out", str(tmp_path / "far.tum")]) == 0
+    out = capsys.readouterr().out
+    assert "7x7 views" in out and "; 3 views per camera spacing (over 0.6 samples per view step with 2))" in out, out
 
 
 def test_covariance_counts_the_camera_arrays_model_error(tmp_path):

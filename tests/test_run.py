@@ -161,7 +161,8 @@ def test_run_linear_rig_end_to_end(tmp_path, capsys):
 
 def test_run_chooses_the_direction_step_on_request(tmp_path, capsys):
     """`polycam run --uv-step auto`: the step polycam motion SESSION would choose (a row of cameras 2 cm
-    apart in the room: views close for the scene, 1 pixel), in the resample line and the summary."""
+    apart in the room: views close for the scene, 1 pixel), in the resample line and the summary; and the
+    views per camera spacing it chooses for a 2-D array far apart for the scene (3)."""
     import tomllib
 
     from polycam.run import AUTO_UV_MAX_DISPARITY
@@ -177,6 +178,16 @@ def test_run_chooses_the_direction_step_on_request(tmp_path, capsys):
     assert r["directions"][1] > 150                             # about one direction per camera pixel
     line = next(x for x in cap.out.splitlines() if x.startswith("resample"))
     assert "(every 1 camera pixel(s), --uv-step auto: 0." in line, cap.out
+    # a 3 x 3 rig 5 cm apart: views far apart for the room at 2 pixels, so 3 views per camera spacing
+    (tmp_path / "far.toml").write_text(mock_grid_rig_text("far", 160, 120, pitch=0.05))
+    code = main(["run", str(tmp_path / "far.toml"), "--out", str(tmp_path / "far"), "--board-frames", "12",
+                 "--frames", "2", "--uv-step", "auto", "--calib-draws", "0"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    r = tomllib.loads((tmp_path / "far" / "report" / "summary.toml").read_text())["resample"]
+    assert r["uv_step_px"] == 2.0 and r["uv_disparity"] > 0.6 and r["views"] == [7, 7]
+    line = next(x for x in cap.out.splitlines() if x.startswith("resample"))
+    assert "; 3 views per camera spacing (over 0.6 samples per view step with 2))" in line, cap.out
 
 
 def test_run_stereo_pair_gives_motion_and_depth_between_its_cameras(tmp_path, capsys):
