@@ -165,7 +165,7 @@ def test_run_chooses_the_direction_step_on_request(tmp_path, capsys):
     views per camera spacing it chooses for a 2-D array far apart for the scene (3)."""
     import tomllib
 
-    from polycam.run import AUTO_UV_MAX_DISPARITY
+    from polycam.run import AUTO_UV_MAX_DISPARITY, AUTO_XY_MAX_DISPARITY
 
     (tmp_path / "rig.toml").write_text(mock_grid_rig_text("row", 160, 120, rows=1, cols=3))
     out = tmp_path / "run"
@@ -185,7 +185,7 @@ def test_run_chooses_the_direction_step_on_request(tmp_path, capsys):
     cap = capsys.readouterr()
     assert code == 0, cap.err
     r = tomllib.loads((tmp_path / "far" / "report" / "summary.toml").read_text())["resample"]
-    assert r["uv_step_px"] == 2.0 and r["uv_disparity"] > 0.6 and r["views"] == [7, 7]
+    assert r["uv_step_px"] == 2.0 and r["uv_disparity"] > AUTO_XY_MAX_DISPARITY and r["views"] == [7, 7]
     line = next(x for x in cap.out.splitlines() if x.startswith("resample"))
     assert "; 3 views per camera spacing (over 0.6 samples per view step with 2))" in line, cap.out
 
