@@ -660,7 +660,7 @@ coarsest step's views are more than this many samples apart for the scene, the g
 or two (u, v) levels up (``MotionOptions.max_view_disparity``); one more view filled between the
 cameras keeps it at a finer level. Measured on 10 such sessions of four rigs (webcam3x3, webcam5x5,
 oak_array at 1.22–1.71, mock5x5 at 0.63–0.66): every one erred less in translation, median per-pair
-1.64 → 0.97 % (rotation 0.63 → 0.54 %), at about the same time; below it 2 did better on five of six
+1.64 → 0.97 % (rotation 0.63 → 0.54 %), at about twice the time; below it 2 did better on five of six
 sessions (docs/motion.md, "The direction step")."""
 AUTO_XY_DENSER = 3
 """Views per camera spacing :data:`AUTO_XY_MAX_DISPARITY` switches a 2-D array's grid to (4 was
