@@ -74,8 +74,9 @@ import numpy as np
 
 from polycam.lightfield import LightFieldGrid
 
-__all__ = ["RECENTRE_SOURCES", "MIN_FILL_RADIUS", "source_spacing", "camera_views", "camera_positions", "view_steps", "camera_heights", "data_positions", "far_sources",
-           "ViewFillOptions", "ViewFillPlan", "plan_view_fill", "fill_views"]
+__all__ = ["RECENTRE_SOURCES", "MIN_FILL_RADIUS", "source_spacing", "camera_views", "camera_positions", "view_steps",
+           "camera_heights", "data_positions", "far_sources", "ViewFillOptions", "ViewFillPlan", "plan_view_fill",
+           "fill_views"]
 
 log = logging.getLogger(__name__)
 
