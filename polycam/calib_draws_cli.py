@@ -20,7 +20,8 @@ import numpy as np
 from .calib_spread import antithetic_covariance, pair_vectors, with_calibration
 from .lightfield import LightFieldGrid
 
-__all__ = ["calibration_draws", "add_calibration_share", "calibration_line", "share_line", "quiet_logger"]
+__all__ = ["calibration_draws", "add_calibration_share", "calibration_line", "share_line", "quiet_logger",
+           "resolved_pair_vectors"]
 
 log = logging.getLogger(__name__)
 
@@ -42,9 +43,6 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
     captured). Raises InputError when the models have no calibration covariance.
     """
     from calib.draws import calibration_covariance, covariance_factor, drawn_models
-    from resample.stream import SessionLightField
-
-    from .motion import estimate_trajectory
 
     if draws < 1:
         raise ValueError(f"draws must be >= 1, got {draws}")
@@ -58,11 +56,9 @@ def calibration_draws(session_path: str | os.PathLike, models: dict, grid: Light
     for k in range(draws):
         z = rng.standard_normal(cov.dim)
         for sign, acc in ((1.0, plus), (-1.0, minus)):
-            with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
-                lf = SessionLightField(session_path, models=drawn_models(models, cov, sign * z, factor), grid=grid,
-                                       options=resample_options, camera_noise=False, capture_motion=capture_motion)
-                _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
-            acc.append(pair_vectors(results))
+            acc.append(resolved_pair_vectors(session_path, drawn_models(models, cov, sign * z, factor), grid,
+                                             resample_options=resample_options, motion_options=motion_options,
+                                             scale_selection=scale_selection, capture_motion=capture_motion))
             if progress is not None:
                 progress(len(plus) + len(minus), 2 * draws)
     return antithetic_covariance(np.stack(plus), np.stack(minus))
@@ -83,6 +79,28 @@ def add_calibration_share(session_path: str | os.PathLike, models: dict, grid: L
     results = with_calibration(results, C)
     seconds = time.perf_counter() - t0
     return results, calibration_line(results, draws, int(counts.min(initial=draws)), seconds), seconds
+
+
+def resolved_pair_vectors(session, models: dict, grid: LightFieldGrid, *, resample_options=None, motion_options=None,
+                          scale_selection: bool = False, progress: Callable[[int, int], None] | None = None,
+                          **light_field) -> np.ndarray:
+    """(P, 6) each pair's (t [m], r [rad]) (:func:`polycam.calib_spread.pair_vectors`, NaN rows where a
+    pair failed) of ``session`` (an opened session or its folder) re-resampled with cameras ``models``
+    onto ``grid`` and solved: the one re-solve of the calibration draws, the capture-time draws and the
+    second view sampling. ``resample_options``, ``motion_options``, ``scale_selection`` as the nominal
+    solve's; ``light_field``: further :class:`resample.stream.SessionLightField` keywords
+    (``capture_motion``, ``capture_offsets_ns``); ``progress(done, total)`` per pair. The resampler's
+    warnings, which repeat the nominal resampling's, are left out."""
+    from resample.stream import SessionLightField
+
+    from .motion import estimate_trajectory
+
+    with quiet_logger("resample"):
+        lf = SessionLightField(session, models=models, grid=grid, options=resample_options, camera_noise=False,
+                               **light_field)
+        _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection,
+                                         progress=progress)
+    return pair_vectors(results)
 
 
 @contextmanager

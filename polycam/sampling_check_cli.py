@@ -23,41 +23,17 @@ from typing import Callable
 
 import numpy as np
 
-from .calib_draws_cli import quiet_logger
+from .calib_draws_cli import resolved_pair_vectors
 from .calib_spread import pair_vectors, sampling_change_covariance, view_sampling_std, with_view_sampling
-from .lightfield import LightFieldGrid
 
-__all__ = ["second_sampling", "add_view_sampling_share", "sampling_line"]
-
-
-def second_sampling(session, models: dict, grid: LightFieldGrid, *, resample_options=None, motion_options=None,
-                    scale_selection: bool = False, capture_motion=None,
-                    progress: Callable[[int, int], None] | None = None) -> np.ndarray:
-    """Re-solve every frame pair of ``session`` (an opened session or its folder; cameras ``models``)
-    resampled onto ``grid``, with ``resample_options``, ``capture_motion`` ((P, 4, 4) or None, as
-    :class:`resample.stream.SessionLightField`'s) and ``motion_options`` / ``scale_selection`` as the
-    nominal solve was.
-
-    Returns (P, 6) each pair's (t [m], r [rad]) (:func:`polycam.calib_spread.pair_vectors`, NaN rows
-    where a pair failed). ``progress(done, total)`` per pair.
-    """
-    from resample.stream import SessionLightField
-
-    from .motion import estimate_trajectory
-
-    with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
-        lf = SessionLightField(session, models=models, grid=grid, options=resample_options, camera_noise=False,
-                               capture_motion=capture_motion)
-        _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection,
-                                         progress=progress)
-    return pair_vectors(results)
+__all__ = ["add_view_sampling_share", "sampling_line"]
 
 
 def add_view_sampling_share(session, models: dict, uv_step_px: float, xy_oversample: int, results: list, *,
                             bar: Callable | None = None, **solve) -> tuple[list, str, float | None]:
     """What ``polycam motion --sampling-check`` and ``polycam run --sampling-check`` do: ``results`` (the
     nominal solve's, on ``xy_oversample`` views per camera spacing) with the change on ``xy_oversample
-    + 1`` added (:func:`second_sampling`, ``solve`` its keyword arguments;
+    + 1`` added (:func:`polycam.calib_draws_cli.resolved_pair_vectors`, ``solve`` its keyword arguments;
     :func:`polycam.calib_spread.with_view_sampling`), the line the CLI prints, and the seconds it took
     (None: skipped: no pair was solved, or the second sampling has fewer than
     :data:`polycam.run.MIN_VIEWS` views along an axis with more than one, e.g. a stereo pair given
@@ -77,7 +53,7 @@ def add_view_sampling_share(session, models: dict, uv_step_px: float, xy_oversam
                          f"along the cameras, fewer than the solver's {MIN_VIEWS} (its std then leaves the "
                          f"sampling's share out)"), None
     with (bar(len(results)) if bar is not None else nullcontext(None)) as advance:
-        other = second_sampling(session, models, grid, progress=advance, **solve)
+        other = resolved_pair_vectors(session, models, grid, progress=advance, **solve)
     before = np.stack([r.std for r in results])
     results = with_view_sampling(results, sampling_change_covariance(pair_vectors(results), other))
     seconds = time.perf_counter() - t0

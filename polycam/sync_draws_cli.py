@@ -24,8 +24,8 @@ from typing import Callable
 
 import numpy as np
 
-from .calib_draws_cli import quiet_logger, share_line
-from .calib_spread import antithetic_covariance, capture_timing_std, pair_vectors, with_capture_timing
+from .calib_draws_cli import resolved_pair_vectors, share_line
+from .calib_spread import antithetic_covariance, capture_timing_std, with_capture_timing
 from .lightfield import LightFieldGrid
 
 __all__ = ["capture_time_draws", "add_capture_timing_share"]
@@ -69,10 +69,6 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
     solved it; (P,) the draws that did; (C,) [ns] the RMS over the draws of each camera's δ, NaN for
     a camera without images). ``progress(done, total)`` after each re-solve.
     """
-    from resample.stream import SessionLightField
-
-    from .motion import estimate_trajectory
-
     if draws < 1:
         raise ValueError(f"draws must be >= 1, got {draws}")
     capture_motion = np.asarray(capture_motion, np.float64)
@@ -84,12 +80,10 @@ def capture_time_draws(session, models: dict, grid: LightFieldGrid, capture_moti
         squares.append(delta ** 2)
         dx = np.einsum("pij,pj->pi", factors, rng.standard_normal((len(capture_motion), 6)))
         for sign, acc in ((1.0, plus), (-1.0, minus)):
-            with quiet_logger("resample"):                  # its warnings repeat the nominal resampling's
-                lf = SessionLightField(session, models=models, grid=grid, options=resample_options,
-                                       camera_noise=False, capture_motion=_moved_motion(capture_motion, sign * dx),
-                                       capture_offsets_ns=sign * delta)
-                _, results = estimate_trajectory(lf, options=motion_options, scale_selection=scale_selection)
-            acc.append(pair_vectors(results))
+            acc.append(resolved_pair_vectors(
+                session, models, grid, resample_options=resample_options, motion_options=motion_options,
+                scale_selection=scale_selection, capture_motion=_moved_motion(capture_motion, sign * dx),
+                capture_offsets_ns=sign * delta))
             if progress is not None:
                 progress(len(plus) + len(minus), 2 * draws)
     C, counts = antithetic_covariance(np.stack(plus), np.stack(minus))
