@@ -54,9 +54,40 @@ __all__ = [
     "LightFieldStore",
     "open_lightfield",
     "camera_positions_attr",
+    "check_store_target",
+    "publish_store",
 ]
 
 log = logging.getLogger(__name__)
+
+
+def check_store_target(path: Path, overwrite: bool) -> None:
+    """Raise :class:`InputError` (one line naming ``path``) unless a store may be written at
+    ``path``: nothing there, or ``overwrite`` and either a Zarr store or an empty folder (a
+    folder holding something else is never replaced)."""
+    if not path.exists():
+        return
+    if not overwrite:
+        raise InputError(f"{path}: already exists (choose another name or allow overwriting)")
+    if path.is_dir() and any(path.iterdir()) and not (path / "zarr.json").is_file():
+        raise InputError(f"{path}: refusing to overwrite a folder that is not a Zarr store")
+
+
+def publish_store(partial: Path, path: Path, overwrite: bool) -> None:
+    """Move the finished store ``partial`` to ``path``, replacing what is there only as
+    :func:`check_store_target` allows (checked again: it may have appeared since the writer
+    began); the old store is moved aside first and removed after the rename."""
+    if not path.exists():
+        os.replace(partial, path)
+        return
+    check_store_target(path, overwrite)
+    old = path.with_name(f"{path.name}.old-{os.getpid()}")
+    os.replace(path, old)
+    os.replace(partial, path)
+    if old.is_dir():
+        shutil.rmtree(old)
+    else:
+        old.unlink()
 
 LIGHTFIELD_FORMAT = "polycam-lightfield"
 LIGHTFIELD_VERSION = 1
@@ -124,13 +155,7 @@ class LightFieldWriter:
         self._write_attrs()
 
     def _check_target(self) -> None:
-        p = self.path
-        if not p.exists():
-            return
-        if not self.overwrite:
-            raise InputError(f"{p}: already exists (choose another name or allow overwriting)")
-        if p.is_dir() and any(p.iterdir()) and not (p / "zarr.json").is_file():
-            raise InputError(f"{p}: refusing to overwrite a folder that is not a Zarr store")
+        check_store_target(self.path, self.overwrite)
 
     def _write_attrs(self) -> None:
         attrs = {"format": LIGHTFIELD_FORMAT, "version": LIGHTFIELD_VERSION, **self.grid.attrs(),
@@ -195,17 +220,7 @@ class LightFieldWriter:
         return self.path
 
     def _publish(self) -> None:
-        if self.path.exists():
-            self._check_target()  # may have appeared since __init__
-            old = self.path.with_name(f"{self.path.name}.old-{os.getpid()}")
-            os.replace(self.path, old)
-            os.replace(self.partial, self.path)
-            if old.is_dir():
-                shutil.rmtree(old)
-            else:
-                old.unlink()
-        else:
-            os.replace(self.partial, self.path)
+        publish_store(self.partial, self.path, self.overwrite)
 
     def abort(self) -> None:
         """Drop the partial store (nothing is left at ``path``)."""

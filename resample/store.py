@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from polycam.errors import InputError
-from polycam.lfstore import LIGHTFIELD_FORMAT, LIGHTFIELD_VERSION
+from polycam.lfstore import LIGHTFIELD_FORMAT, LIGHTFIELD_VERSION, check_store_target, publish_store
 from polycam.lightfield import LightFieldGrid
 from polycam.trajectory import Trajectory, write_tum
 
@@ -84,13 +84,7 @@ class FrameStore:
         self._finished = False
 
     def _check_target(self) -> None:
-        p = self.path
-        if not p.exists():
-            return
-        if not self.overwrite:
-            raise InputError(f"{p}: already exists (choose another name or allow overwriting)")
-        if p.is_dir() and any(p.iterdir()) and not (p / "zarr.json").is_file():
-            raise InputError(f"{p}: refusing to overwrite a folder that is not a Zarr store")
+        check_store_target(self.path, self.overwrite)
 
     def finish(self, groundtruth: Trajectory | None = None) -> Path:
         """Write ``groundtruth.tum`` (if given) and rename the partial store to ``path``."""
@@ -98,14 +92,7 @@ class FrameStore:
             return self.path
         if groundtruth is not None:
             write_tum(self.partial / "groundtruth.tum", groundtruth)
-        if self.path.exists():
-            self._check_target()
-            old = self.path.with_name(f"{self.path.name}.old-{os.getpid()}")
-            os.replace(self.path, old)
-            os.replace(self.partial, self.path)
-            shutil.rmtree(old) if old.is_dir() else old.unlink()
-        else:
-            os.replace(self.partial, self.path)
+        publish_store(self.partial, self.path, self.overwrite)
         self._finished = True
         return self.path
 
