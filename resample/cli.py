@@ -13,6 +13,7 @@ from pathlib import Path
 
 from polycam.cliargs import nonneg_int as _nonneg_int
 from polycam.cliargs import positive_float as _positive_float
+from polycam.cliargs import positive_int as _positive_int
 
 __all__ = ["add_parsers", "cmd_resample"]
 
@@ -32,6 +33,9 @@ def add_parsers(sub) -> None:
                         "directions over their fields of view)")
     p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
                    help="automatic grid: direction spacing in camera pixels (default 1)")
+    p.add_argument("--xy-oversample", type=_positive_int, default=2, metavar="N",
+                   help="automatic grid: viewpoints per camera spacing along x and y (default 2: a view at every "
+                        "camera and one between neighbouring cameras, filled by --view-fill)")
     p.add_argument("--view-fill", choices=("depth", "pushpull"), default="depth",
                    help="views no camera measured: filled along the disparity of a plane sweep (default) or "
                         "by the pull-push alone (depth-free, several times faster)")
@@ -59,6 +63,8 @@ def cmd_resample(args: argparse.Namespace) -> int:
         raise InputError(f"{session}: not a session folder (no session.toml)")
     if args.calib is not None and not Path(args.calib).is_dir():
         raise InputError(f"{args.calib}: no such calibration folder")
+    if args.grid is not None and (args.uv_step != 1.0 or args.xy_oversample != 2):
+        raise InputError("resample: --uv-step and --xy-oversample choose the automatic grid; not with --grid")
     if args.scheduler is not None and args.workers is not None:
         raise InputError("resample: give either --scheduler or --workers, not both")
     capture_motion = None
@@ -83,9 +89,9 @@ def cmd_resample(args: argparse.Namespace) -> int:
         scheduler = "sync"
     with _progress(f"resampling {session.name}", None) as advance:   # total: set by the first callback
         s = resample_session(source, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
-                             options=ResampleOptions(view_fill=args.view_fill), scheduler=scheduler,
-                             workers=args.workers or None, overwrite=args.overwrite, capture_motion=capture_motion,
-                             progress=advance)
+                             xy_oversample=args.xy_oversample, options=ResampleOptions(view_fill=args.view_fill),
+                             scheduler=scheduler, workers=args.workers or None, overwrite=args.overwrite,
+                             capture_motion=capture_motion, progress=advance)
     F, Ny, Nx, Nv, Nu = s.grid.shape
     print(f"wrote {s.path}: {s.frames} frames, {F} face(s) ({' '.join(f.name for f in s.grid.faces)}), "
           f"{Ny}x{Nx} views of {Nv}x{Nu} directions"

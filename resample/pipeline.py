@@ -189,14 +189,17 @@ def _camera_noise_attr(sess, resampler) -> dict | None:
 
 def resample_session(session_path: str | os.PathLike | Session, out: str | os.PathLike, *,
                      calib_dir: str | os.PathLike | None = None, grid: LightFieldGrid | None = None,
-                     options=None, uv_step_px: float = 1.0, scheduler: str | None = None,
-                     workers: int | None = None, overwrite: bool = False, capture_motion=None,
-                     progress: Progress | None = None) -> ResampleSummary:
+                     options=None, uv_step_px: float = 1.0, xy_oversample: int = 2,
+                     scheduler: str | None = None, workers: int | None = None, overwrite: bool = False,
+                     capture_motion=None, progress: Progress | None = None) -> ResampleSummary:
     """Resample every frame of a session (a folder, or one already opened with
     :func:`polycam.session.open_session`) into the light-field store ``out`` (see the module
     docstring). ``scheduler``: ``"sync"``, ``"local"``, an address, or None (automatic:
     ``workers == 0`` → sync, ``workers`` given → local, else by job size). ``workers``:
-    local worker processes (default: the number of cores). ``capture_motion``: (T - 1, 4, 4)
+    local worker processes (default: the number of cores). ``uv_step_px``, ``xy_oversample``: the
+    automatic grid's direction step [camera pixels] and viewpoints per camera spacing
+    (:func:`resample.grid.auto_grid`; not used with ``grid``, and recorded in the store's
+    ``resample`` attribute when used). ``capture_motion``: (T - 1, 4, 4)
     ``T_prev_next`` per frame pair of a session whose cameras are not synchronised: each frame is
     resampled with every camera where it captured its image (:func:`resample.stream.models_at_capture`;
     a splat geometry per frame; the store's ``resample`` attribute says ``cameras_moved_to_capture``)."""
@@ -223,7 +226,7 @@ def resample_session(session_path: str | os.PathLike | Session, out: str | os.Pa
     options = options or ResampleOptions()
     grid_given = grid is not None
     if grid is None:
-        grid = auto_grid(models, uv_step_px=uv_step_px)
+        grid = auto_grid(models, uv_step_px=uv_step_px, xy_oversample=xy_oversample)
     channels = _channels_of(sess)
     rays = sum(w * h for w, h in (sess.image_size(c) for c in sess.cameras))
     if scheduler is None:
@@ -248,6 +251,8 @@ def resample_session(session_path: str | os.PathLike | Session, out: str | os.Pa
                                          "linear": options.kernel.linear},
                               "schedule": options.schedule, "attenuation": options.attenuation,
                               "full_weight": options.full_weight, "view_fill": options.view_fill}}
+        if not grid_given:
+            attrs["resample"].update(uv_step_px=float(uv_step_px), xy_oversample=int(xy_oversample))
         if capture_motion is not None:
             attrs["resample"]["cameras_moved_to_capture"] = True
         positions = resampler.camera_positions()

@@ -252,6 +252,16 @@ def test_cli(session, tmp_path):
     assert open_lightfield(out2).grid.shape == lf.grid.shape
     p = _polycam("resample", path, "--out", out, "--workers", "0")
     assert p.returncode == 1 and p.stderr.count("\n") == 1 and "already exists" in p.stderr
+    out3 = tmp_path / "lf-x4.zarr"        # the automatic grid at 4 views per camera spacing, 2 pixels a step
+    p = _polycam("resample", path, "--out", out3, "--workers", "0", "--xy-oversample", "4", "--uv-step", "2")
+    assert p.returncode == 0, p.stderr
+    la = open_lightfield(out3)
+    auto = auto_grid(open_session(path).calibration(), uv_step_px=2.0, xy_oversample=4)
+    assert la.grid.shape == auto.shape and (la.grid.y.count, la.grid.x.count) == (9, 9)
+    assert la.attrs["resample"]["xy_oversample"] == 4 and la.attrs["resample"]["uv_step_px"] == 2.0
+    assert "xy_oversample" not in lf.attrs["resample"]          # a given grid records no automatic choice
+    p = _polycam("resample", path, "--out", tmp_path / "x.zarr", "--grid", grid_toml, "--xy-oversample", "4")
+    assert p.returncode == 1 and p.stderr.count("\n") == 1 and "not with --grid" in p.stderr
     p = _polycam("resample", path, "--calib", tmp_path / "nope", "--out", tmp_path / "x.zarr")
     assert p.returncode == 1 and "no such calibration folder" in p.stderr
     p = _polycam("resample", tmp_path, "--out", tmp_path / "x.zarr")
