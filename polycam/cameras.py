@@ -72,11 +72,29 @@ def load_cameramodel(path: str | os.PathLike):
     if not path.is_file():
         raise FormatError(path, "no such cameramodel file")
     try:
-        return mrcal.cameramodel(str(path))
+        model = mrcal.cameramodel(str(path))
     except Exception as e:  # mrcal raises plain Exceptions for malformed models
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         msg = msg.split(". Errors for each attempt")[0]     # mrcal lists every parser it tried
         raise FormatError(path, f"not a valid mrcal cameramodel ({msg})") from None
+    _check_model_values(path, model)
+    return model
+
+
+def _check_model_values(path: Path, model) -> None:
+    """:class:`FormatError` naming ``path`` for values mrcal's parser accepts but no camera has:
+    non-finite intrinsics or pose, a focal length (every mrcal lens model's first two intrinsics,
+    fx, fy [pixels]) that is not positive, an imager without pixels."""
+    _, intrinsics = model.intrinsics()
+    intrinsics = np.asarray(intrinsics, float)
+    if not np.all(np.isfinite(intrinsics)):
+        raise FormatError(path, "intrinsics: non-finite value")
+    if intrinsics.size < 2 or not np.all(intrinsics[:2] > 0):
+        raise FormatError(path, f"intrinsics: focal lengths (fx, fy) must be > 0, got {intrinsics[:2].tolist()}")
+    if not np.all(np.isfinite(model.rt_cam_ref())):
+        raise FormatError(path, "extrinsics: non-finite value")
+    if not np.all(np.asarray(model.imagersize()) > 0):
+        raise FormatError(path, f"imagersize: must be > 0, got {np.asarray(model.imagersize()).tolist()}")
 
 
 def write_cameramodel(model, path: str | os.PathLike) -> Path:

@@ -162,6 +162,12 @@ def cmd_motion(args: argparse.Namespace) -> int:
         raise InputError(f"{src}: --sampling-check needs a session (a light-field store is already resampled "
                          "on one view sampling)")
     truth_name = src / "groundtruth.tum"
+    truth = store.groundtruth()                         # read before the solve: a bad file fails early
+    import numpy as np
+
+    if truth is not None and not np.array_equal(truth.timestamps_ns, store.timestamps_ns):
+        raise InputError(f"{truth_name}: {len(truth)} poses whose timestamps are not the {len(store)} frames' "
+                         "(one pose per frame, at its timestamp)")
     unsync = ""
     grid = None                                         # a session: how it is resampled (the report's [grid])
     if hasattr(store, "resampler"):
@@ -196,7 +202,6 @@ def cmd_motion(args: argparse.Namespace) -> int:
             raise InputError(f"{src}: {e}") from None
     capture_motion = None
     if hasattr(store, "resampler") and args.sync_correct == "auto" and unsync:
-        import numpy as np
         from resample.stream import SessionLightField   # the CLI layer may import stages
 
         capture_motion = np.stack([r.T_prev_next for r in results])   # a failed pair: the identity
@@ -268,10 +273,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
     levels = _level_line(results)
     if levels:
         print(levels)
-    truth = store.groundtruth()
     if truth is not None:
-        import numpy as np
-
         from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
 
         err = pair_errors(traj, truth)

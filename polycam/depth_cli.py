@@ -230,6 +230,8 @@ def cmd_depth(args: argparse.Namespace) -> int:
     grid = store.grid
     ts = np.asarray(store.timestamps_ns, np.int64)
     get_w = getattr(store, "weights", None)
+    # the pair's motion against the ground truth (not with --traj or --stereo-only): read before the work
+    truth = store.groundtruth() if hasattr(store, "groundtruth") and not (args.traj or stereo) else None
 
     def read(t):       # (L, W) of frame t: a session resampled on the fly keeps its last frame, so read each once
         W = get_w(t) if get_w else None
@@ -340,8 +342,7 @@ def cmd_depth(args: argparse.Namespace) -> int:
     print(f"wrote {out}: {summary['views']} view depth maps, {summary['points']} points in "
           f"{out / 'points.ply'}; {100 * summary['confident_fraction']:.0f}% of the written views' rays "
           f"{kept} (motion: {motion['motion_source']})")
-    truth = store.groundtruth() if hasattr(store, "groundtruth") else None
-    if truth is not None and not args.traj and not stereo:
+    if truth is not None:
         from .evaluate import pair_errors
         from .trajectory import Trajectory
 

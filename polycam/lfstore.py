@@ -327,14 +327,27 @@ def _parse_camera_noise(p: Path, value: Any) -> tuple[float, int]:
     return float(sigma), int(images)
 
 
-def _array_member(group, name: str):
-    """The zarr array ``name`` of ``group``, or None if there is none (or it is a group)."""
+def _array_member(group, name: str, path: Path):
+    """The zarr array ``name`` of ``group``, or None if there is none (or it is a group);
+    :class:`FormatError` naming the store ``path`` when its metadata cannot be read."""
     zarr = _zarr()
     try:
         node = group[name]
     except KeyError:
         return None
+    except Exception as e:      # zarr.json of the array not JSON, not UTF-8, not a mapping, ...
+        raise FormatError(path, f"unreadable array metadata ({type(e).__name__})", name) from None
     return node if isinstance(node, zarr.Array) else None
+
+
+def _read_frame(path: Path, array, name: str, t: int) -> np.ndarray:
+    """Frame ``t`` of the zarr ``array`` as float32; :class:`FormatError` naming the store, the
+    array and the frame when its chunks cannot be decoded (truncated or corrupt chunk files,
+    chunk dims that do not match the array)."""
+    try:
+        return np.asarray(array[t], dtype=np.float32)
+    except Exception as e:     # zarr and its codecs raise many types (RuntimeError, ValueError, OSError, ...)
+        raise FormatError(path, f"frame {t}: unreadable chunk data ({type(e).__name__})", name) from None
 
 
 class LightFieldStore:
@@ -390,7 +403,7 @@ class LightFieldStore:
         """(T,) int64 [ns] frame timestamps (read-only)."""
 
         # members are looked up by name: listing the group would trip over groundtruth.tum
-        L = _array_member(group, "L")
+        L = _array_member(group, "L", p)
         if L is None:
             raise FormatError(p, "missing array", "L")
         F_shape = tuple(self.grid.shape)
@@ -406,7 +419,7 @@ class LightFieldStore:
         """The zarr array ``L`` (lazy)."""
         self.colour: int | None = int(L.shape[6]) if L.ndim == 7 else None
         """Size C of the colour axis, or None for grey stores."""
-        W = _array_member(group, "W")
+        W = _array_member(group, "W", p)
         if W is not None:
             if W.dtype != np.float32:
                 raise FormatError(p, f"expected float32, got {W.dtype}", "W")
@@ -450,14 +463,14 @@ class LightFieldStore:
 
     def frame(self, t: int) -> np.ndarray:
         """Frame t of L: float32 (F, Ny, Nx, Nv, Nu[, C]); reads only that frame's chunks."""
-        return np.asarray(self.L[self._index(t)], dtype=np.float32)
+        return _read_frame(self.path, self.L, "L", self._index(t))
 
     def weights(self, t: int) -> np.ndarray | None:
         """Frame t of W: float32 (F, Ny, Nx, Nv, Nu), or None if the store has no W
         (every sample then has full confidence)."""
         if self.W is None:
             return None
-        return np.asarray(self.W[self._index(t)], dtype=np.float32)
+        return _read_frame(self.path, self.W, "W", self._index(t))
 
     def __iter__(self) -> Iterator[np.ndarray]:
         """Frames of L in order, one at a time."""

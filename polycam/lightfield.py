@@ -11,6 +11,7 @@ See docs/conventions.md.
 from __future__ import annotations
 
 import functools
+import math
 import os
 from dataclasses import dataclass
 
@@ -223,8 +224,8 @@ def _check_faces_attr(path, faces) -> tuple[Face, ...]:
                 or np.linalg.det(R) < 0:
             raise FormatError(path, "R_rig_face must be a 3x3 rotation", where)
         for key in ("z_pi", "f"):
-            if not isinstance(fa[key], (int, float)) or isinstance(fa[key], bool):
-                raise FormatError(path, f"{key} must be a number", where)
+            if not isinstance(fa[key], (int, float)) or isinstance(fa[key], bool) or not math.isfinite(fa[key]):
+                raise FormatError(path, f"{key} must be a finite number", where)
         if fa["f"] <= 0:
             raise FormatError(path, "f must be > 0", where)
         out.append(Face(str(fa["name"]), R, float(fa["z_pi"]), float(fa["f"])))

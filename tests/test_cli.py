@@ -441,6 +441,36 @@ def test_motion_names_the_store_of_a_frame_with_nans(tmp_path):
     assert not (tmp_path / "t.tum").exists()
 
 
+@pytest.mark.parametrize("verb", ["motion", "depth"])
+@pytest.mark.parametrize("case", ["malformed", "other_times"])
+def test_a_bad_groundtruth_fails_before_the_solve(tmp_path, verb, case):
+    """A store's groundtruth.tum is read before the work: a malformed one is one line naming it and
+    nothing is written; so is, for ``motion``, one whose poses are not at the frames' timestamps
+    (``depth`` compares its one pair only where the truth has a pose per frame)."""
+    import shutil
+
+    (tmp_path / "src").mkdir()
+    lf = tmp_path / "lf.zarr"
+    shutil.copytree(_small_lightfield(tmp_path / "src", 3), lf)
+    gt = lf / "groundtruth.tum"
+    lines = gt.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    if case == "malformed":
+        lines[k] += " 7"
+        fragments = (f"line {k + 1}", "expected 8 values")
+    else:
+        del lines[-1]
+        fragments = ("2 poses whose timestamps are not the 3 frames'",)
+    gt.write_text("\n".join(lines) + "\n")
+    out = tmp_path / ("t.tum" if verb == "motion" else "dep")
+    res = polycam(verb, str(lf), "--out", str(out))
+    if verb == "depth" and case == "other_times":
+        assert res.returncode == 0 and "motion vs groundtruth" not in res.stdout, res.stderr
+        return
+    assert_one_line_error(res, str(gt), *fragments)
+    assert "wrote" not in res.stdout and not out.exists()
+
+
 def test_motion_on_a_broken_store_names_it(tmp_path):
     (tmp_path / "bad.zarr").mkdir()
     assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),

@@ -312,3 +312,34 @@ def test_array_errors(store, tmp_path, rng, grid):
     _expect(store, "L", "missing array")
     g.create_array("L", shape=(2, *grid.shape), dtype="uint8")
     _expect(store, "L", "float32")
+
+
+def test_face_with_a_non_finite_focal_length(store):
+    faces = json.loads((store / "zarr.json").read_text())["attributes"]["faces"]
+    faces[1]["f"] = float("nan")          # json.dumps writes NaN, which zarr reads back as a float
+    _set_attr(store, "faces", faces)
+    _expect(store, "attrs.faces[1]", "f must be a finite number")
+
+
+@pytest.mark.parametrize("array", ["L", "W"])
+def test_unreadable_array_metadata(store, array):
+    (store / array / "zarr.json").write_text("{not json")
+    _expect(store, f": {array}: ", "unreadable array metadata")
+
+
+@pytest.mark.parametrize("array", ["L", "W"])
+def test_unreadable_chunk_is_one_error_naming_the_store_and_frame(store, array):
+    """A truncated chunk file (a copy cut short) is read lazily: the frame's read names the store,
+    the array and the frame; the other frame still reads."""
+    chunks = sorted(p for p in (store / array).rglob("*") if p.is_file() and p.name != "zarr.json"
+                    and p.relative_to(store / array).parts[:2] == ("c", "1"))
+    assert chunks
+    for c in chunks:
+        c.write_bytes(c.read_bytes()[:7])
+    lf = open_lightfield(store)
+    read = lf.frame if array == "L" else lf.weights
+    read(0)
+    with pytest.raises(FormatError) as e:
+        read(1)
+    msg = str(e.value)
+    assert msg.startswith(f"{store}: {array}: frame 1: unreadable chunk data") and "\n" not in msg, msg

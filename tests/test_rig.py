@@ -194,3 +194,31 @@ def test_rig_errors(tmp_path, base, old, new, substrings):
 
 def test_missing_rig_file(tmp_path):
     _expect(tmp_path / "nope.toml", "no such file")
+
+
+@pytest.mark.parametrize("old, new, substrings", [
+    ("'intrinsics': [ 55.42562584,", "'intrinsics': [ 0.0,", ["intrinsics", "focal lengths (fx, fy) must be > 0"]),
+    ("'intrinsics': [ 55.42562584,", "'intrinsics': [ -55.4,", ["intrinsics", "must be > 0"]),
+    ("31.5, 23.5,]", "31.5, 1e999,]", ["intrinsics: non-finite value"]),
+    ("'rt_cam_ref': [ 0, 0, 0, 0.05, -0, -0,],\n    'extrinsics': [ 0, 0, 0, 0.05, -0, -0,],",
+     "'rt_cam_ref': [ 0, 0, 0, 1e999, -0, -0,],\n    #", ["extrinsics: non-finite value"]),
+])
+def test_cameramodel_values_no_camera_has(tmp_path, old, new, substrings):
+    """mrcal's parser takes any numbers; a model that no camera can have (a focal length of 0, a NaN)
+    is one error naming the file before any ray is computed from it."""
+    from polycam.cameras import load_cameramodel, nominal_cameramodel, write_cameramodel
+
+    rig_file = tmp_path / "r.toml"
+    rig_file.write_text('[rig]\nname = "r"\n[defaults]\nwidth = 64\nheight = 48\n'
+                        '[grid]\nrows = 1\ncols = 3\npitch = 0.05\n')
+    path = write_cameramodel(nominal_cameramodel(load_rig(rig_file).cameras[0]), tmp_path / "c.cameramodel")
+    load_cameramodel(path)
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(FormatError) as e:
+        load_cameramodel(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: ") and "\n" not in msg, msg
+    for s in substrings:
+        assert s in msg, msg
