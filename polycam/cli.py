@@ -656,6 +656,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"polycam: error: {e.filename}: {e.strerror}", file=sys.stderr)
         return 1
+    except MemoryError as e:                # e.g. a rig or grid file asking for absurd sizes
+        what = str(e).split(" for an array")[0] if str(e) else "an allocation failed"
+        print(f"polycam: error: out of memory ({what}): check the sizes in the input files "
+              "(image sizes, grid counts)", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("polycam: interrupted", file=sys.stderr)
         return 130

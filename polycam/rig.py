@@ -21,7 +21,8 @@ from .errors import FormatError
 from .geometry import R_from_r, T_from_Rt
 from .tomlio import Table, load_toml
 
-__all__ = ["CameraSpec", "MockSpec", "Rig", "load_rig", "DRIVERS", "PIXEL_FORMATS", "MOCK_SCENES", "MJPG_QUALITY"]
+__all__ = ["CameraSpec", "MockSpec", "Rig", "load_rig", "DRIVERS", "PIXEL_FORMATS", "MOCK_SCENES", "MJPG_QUALITY",
+           "MAX_IMAGE_SIDE"]
 
 DRIVERS = ("v4l2", "depthai", "mock", "replay")
 PIXEL_FORMATS = ("GREY", "Y16", "YUYV", "MJPG", "RGB")
@@ -30,6 +31,10 @@ MJPG_QUALITY = 90
 """Default ``[mock]`` ``mjpg_quality``: the JPEG quality of simulated MJPG cameras (a webcam's own is
 its firmware's; 90 costs the 5 x 5 mock rig's motion ~15 %, 75 ~70 %: docs/capture.md)."""
 MOCK_SCENES = ("room", "spheres", "pattern")
+
+MAX_IMAGE_SIDE = 32768
+"""[px] the largest ``width`` / ``height`` a rig file may give (a 100-megapixel sensor is ~12000
+wide; the bound catches a mistyped size before anything allocates images of it)."""
 
 _CAMERA_KEYS = ("driver", "width", "height", "fps", "pixel_format", "fov_deg", "lens")
 
@@ -145,9 +150,9 @@ def _camera_settings(t: Table, base: dict, rig_dir: Path) -> dict:
     if t.has("driver"):
         out["driver"] = t.choice("driver", DRIVERS)
     if t.has("width"):
-        out["width"] = t.number("width", integer=True, min=1)
+        out["width"] = t.number("width", integer=True, min=1, max=MAX_IMAGE_SIDE)
     if t.has("height"):
-        out["height"] = t.number("height", integer=True, min=1)
+        out["height"] = t.number("height", integer=True, min=1, max=MAX_IMAGE_SIDE)
     if t.has("fps"):
         out["fps"] = t.number("fps", min=0.0, open_min=True)
     if t.has("pixel_format"):
@@ -231,7 +236,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
         mock = MockSpec(
             scene=m.choice("scene", MOCK_SCENES, "room"),
             motion=m.choice("motion", ("static", "smooth"), "smooth"),
-            seed=m.number("seed", 0, integer=True),
+            seed=m.number("seed", 0, integer=True, min=0),
             noise=m.number("noise", 0.0, min=0.0, max=1.0),
             jitter_ms=m.number("jitter_ms", 0.0, min=0.0),
             sync_spread_ms=m.number("sync_spread_ms", 0.0, min=0.0),

@@ -109,10 +109,10 @@ class Table:
             return value
         kind = int if integer else (int, float)
         if (n is not None and len(value) != n) or not all(
-            isinstance(v, kind) and not isinstance(v, bool) for v in value
+            isinstance(v, kind) and not isinstance(v, bool) and math.isfinite(v) for v in value
         ):
             what = f"a list of {n} " if n is not None else "a list of "
-            raise self.error(key, f"expected {what}{'integers' if integer else 'numbers'}, got {value!r}")
+            raise self.error(key, f"expected {what}{'integers' if integer else 'finite numbers'}, got {value!r}")
         return [v if integer else float(v) for v in value]
 
     def subtable(self, key: str, default: Any = _MISSING) -> "Table | Any":

@@ -477,6 +477,22 @@ def test_motion_on_a_broken_store_names_it(tmp_path):
                           "bad.zarr")
 
 
+def test_out_of_memory_is_one_line(monkeypatch, capsys):
+    """A size no file check caught (a grid of absurd counts) ends in one line and status 1, not
+    numpy's traceback."""
+    from polycam import cli
+
+    def boom(args):
+        raise MemoryError("Unable to allocate 378. GiB for an array with shape (36, 1410065408) and data "
+                          "type float64")
+
+    monkeypatch.setattr(cli, "cmd_info", boom)
+    assert cli.main(["info", "anything"]) == 1
+    err = capsys.readouterr().err
+    assert err == ("polycam: error: out of memory (Unable to allocate 378. GiB): check the sizes in the input "
+                   "files (image sizes, grid counts)\n")
+
+
 def test_cli_sets_a_passive_omp_wait_policy_unless_chosen(monkeypatch, capsys):
     """numba's OpenMP threads must not spin on a shared machine (polycam.cli docstring);
     a user's own OMP_WAIT_POLICY wins."""
