@@ -636,6 +636,9 @@ estimate of benchmarks/bench_motion.py's frame pair). Measured on that pair (ses
 def main(argv: list[str] | None = None) -> int:
     # before anything starts the OpenMP runtime (numba loads it at the first parallel kernel)
     os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY_DEFAULT)
+    # before OpenCV loads: its warnings (e.g. "PNG input buffer is incomplete") would be a second line
+    # beside polycam's own one-line error about the same file
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)

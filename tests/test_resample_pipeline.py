@@ -273,6 +273,21 @@ def test_cli(session, tmp_path):
     assert p.returncode == 1 and "bad.toml" in p.stderr
 
 
+def test_cli_truncated_image_is_one_line(session, tmp_path):
+    """A truncated PNG: polycam's one line naming it, without OpenCV's own warning about the same file
+    (the CLI quietens OpenCV's log below errors), status 1, no store."""
+    import shutil
+
+    path, _ = session
+    copy = tmp_path / "s"
+    shutil.copytree(path, copy)
+    png = sorted((copy / "cam04" / "data").glob("*.png"))[0]
+    png.write_bytes(png.read_bytes()[:200])
+    p = _polycam("resample", copy, "--out", tmp_path / "lf.zarr", "--workers", "0")
+    assert p.returncode == 1 and p.stderr == f"polycam: error: {png}: unreadable PNG (corrupt or truncated)\n", p.stderr
+    assert not (tmp_path / "lf.zarr").exists()
+
+
 def test_session_without_calibration(tmp_path):
     rig = load_rig(_rig(tmp_path))
     with SessionWriter(tmp_path / "s", rig) as w:
