@@ -154,6 +154,8 @@ def open_source(source: str | Path, *, calib: str | None = None, uv_step: float 
         raise InputError(f"{src}: --calib applies to sessions only (a light-field store is already resampled)")
     if not src.exists():
         raise InputError(f"{src}: no such light-field store or session")
+    if src.is_dir() and not (src / "zarr.json").exists():
+        raise InputError(f"{src}: neither a session (no session.toml) nor a light-field store (no zarr.json)")
     from .lfstore import open_lightfield
 
     return open_lightfield(src)

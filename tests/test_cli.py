@@ -474,7 +474,10 @@ def test_a_bad_groundtruth_fails_before_the_solve(tmp_path, verb, case):
 def test_motion_on_a_broken_store_names_it(tmp_path):
     (tmp_path / "bad.zarr").mkdir()
     assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),
-                          "bad.zarr")
+                          "bad.zarr", "neither a session (no session.toml) nor a light-field store (no zarr.json)")
+    (tmp_path / "bad.zarr" / "zarr.json").write_text("{not json")
+    assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),
+                          "bad.zarr", "not a Zarr group")
 
 
 def test_out_of_memory_is_one_line(monkeypatch, capsys):
