@@ -60,6 +60,27 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+LIGHTFIELD_FORMAT = "polycam-lightfield"
+LIGHTFIELD_VERSION = 1
+_INT64_MAX = int(np.iinfo(np.int64).max)
+
+
+def _zarr():
+    import zarr  # lazily: keeps `polycam --help` fast
+
+    return zarr
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _check_groundtruth(traj: Trajectory, timestamps_ns: list[int]) -> None:
+    if len(traj) != len(timestamps_ns) or not np.array_equal(
+            np.asarray(traj.timestamps_ns, np.int64), np.asarray(timestamps_ns, np.int64)):
+        raise ValueError(f"groundtruth: needs one pose per frame at the frame timestamps "
+                         f"({len(timestamps_ns)} frames, {len(traj)} poses)")
+
 
 def check_store_target(path: Path, overwrite: bool) -> None:
     """Raise :class:`InputError` (one line naming ``path``) unless a store may be written at
@@ -88,27 +109,6 @@ def publish_store(partial: Path, path: Path, overwrite: bool) -> None:
         shutil.rmtree(old)
     else:
         old.unlink()
-
-LIGHTFIELD_FORMAT = "polycam-lightfield"
-LIGHTFIELD_VERSION = 1
-_INT64_MAX = int(np.iinfo(np.int64).max)
-
-
-def _zarr():
-    import zarr  # lazily: keeps `polycam --help` fast
-
-    return zarr
-
-
-def _is_int(v: Any) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
-
-
-def _check_groundtruth(traj: Trajectory, timestamps_ns: list[int]) -> None:
-    if len(traj) != len(timestamps_ns) or not np.array_equal(
-            np.asarray(traj.timestamps_ns, np.int64), np.asarray(timestamps_ns, np.int64)):
-        raise ValueError(f"groundtruth: needs one pose per frame at the frame timestamps "
-                         f"({len(timestamps_ns)} frames, {len(traj)} poses)")
 
 
 class LightFieldWriter:
