@@ -32,7 +32,6 @@ from __future__ import annotations
 import logging
 import os
 import queue
-import shutil
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -183,9 +182,8 @@ def record(source: FrameSource, rig: Rig, out: str | os.PathLike | None, *, fram
     try:
         source.start()  # after the session exists: no frame is lost to setting it up
     except BaseException:
-        if session is not None:  # nothing recorded: leave no empty session behind
-            session.close("incomplete")
-            shutil.rmtree(out, ignore_errors=True)
+        if session is not None:  # nothing recorded: leave no empty session behind (and any replaced one back)
+            session.discard()
         raise
     q: queue.Queue = queue.Queue(maxsize=queue_frames)
     failed = threading.Event()

@@ -155,7 +155,10 @@ class SessionWriter:
 
     ``SessionWriter(path, rig)`` creates the folder (an existing non-empty
     folder is an error unless ``overwrite``, and even then only an earlier
-    session, i.e. a folder with a ``session.toml``, is replaced), writes
+    session, i.e. a folder with a ``session.toml``, is replaced: it is moved
+    aside to ``PATH.old-<pid>`` and removed only when the new session closes
+    ``complete``; a session that ends otherwise leaves it there, and says so,
+    and :meth:`discard` puts it back), writes
     ``session.toml`` with ``status = "incomplete"``, ``rig.toml``, the
     per-camera ``data/`` folders and the csv headers.
 
@@ -178,6 +181,8 @@ class SessionWriter:
     def __init__(self, path: str | os.PathLike, rig: Rig, *, overwrite: bool = False, threads: int = 1):
         self.path = Path(path)
         self.rig = rig
+        self.replaced: Path | None = None
+        """Where the session this one replaces (``overwrite``) waits until this one is complete."""
         self.cameras: list[str] = list(rig.ids)
         if not self.cameras:
             raise InputError(f"{self.path}: the rig {rig.name!r} has no cameras")
@@ -194,7 +199,10 @@ class SessionWriter:
                 if not (self.path / "session.toml").is_file():
                     raise InputError(f"{self.path}: refusing to overwrite a folder that is not a "
                                      "polycam session (no session.toml)")
-                shutil.rmtree(self.path)
+                self.replaced = self.path.with_name(f"{self.path.name}.old-{os.getpid()}")
+                if self.replaced.exists():
+                    shutil.rmtree(self.replaced)
+                os.replace(self.path, self.replaced)
         self.path.mkdir(parents=True, exist_ok=True)
         self.created = datetime.now(timezone.utc).replace(microsecond=0)
         self.status = "incomplete"
@@ -434,6 +442,29 @@ class SessionWriter:
         self.status = status
         self._write_session_toml()
         log.debug("session %s: closed (%s, %d frames)", self.path, status, self._next_frame)
+        self._settle_replaced()
+
+    def _settle_replaced(self) -> None:
+        """The replaced session: removed once this one is complete, else kept beside it."""
+        if self.replaced is None or not self.replaced.exists():
+            return
+        if self.status == "complete":
+            shutil.rmtree(self.replaced, ignore_errors=True)
+            self.replaced = None
+        else:
+            log.warning("session %s: %s; the session it was to replace is kept in %s", self.path,
+                        self.status, self.replaced)
+
+    def discard(self) -> None:
+        """Remove this session's folder (nothing was recorded worth keeping) and put the session it
+        replaced, if any, back in its place."""
+        if not self._closed:
+            self._closed = True
+            self._close_files()
+        shutil.rmtree(self.path, ignore_errors=True)
+        if self.replaced is not None and self.replaced.exists():
+            os.replace(self.replaced, self.path)
+            self.replaced = None
 
     def __enter__(self) -> "SessionWriter":
         return self
@@ -446,6 +477,7 @@ class SessionWriter:
             self._close_files()  # status stays "incomplete"
             log.warning("session %s: left incomplete after %d frames (%s)", self.path,
                         self._next_frame, exc_type.__name__)
+            self._settle_replaced()
 
 
 # --------------------------------------------------------------------------- reading

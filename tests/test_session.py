@@ -58,6 +58,35 @@ def rig(tmp_path):
     return load_rig(p)
 
 
+def test_overwrite_keeps_the_old_session_until_the_new_one_is_complete(tmp_path, rig, rng, caplog):
+    """``overwrite`` moves the old session aside and removes it only when the new one closes complete;
+    a new session that fails leaves the old one beside it (and says where); ``discard`` puts it back."""
+    path = tmp_path / "S"
+    _write(path, rig, rng)
+    w = SessionWriter(path, rig, overwrite=True)
+    old = w.replaced
+    assert old == tmp_path / f"S.old-{os.getpid()}" and len(open_session(old)) == 4
+    w.add_frame(T0, _images(rng, 0))
+    w.close()
+    assert not old.exists() and len(open_session(path)) == 1
+    # a new session that ends with an error: the old one is kept beside it
+    shutil.rmtree(path)
+    _write(path, rig, rng, n=3, drop=())
+    with pytest.raises(RuntimeError):
+        with SessionWriter(path, rig, overwrite=True) as w:
+            w.add_frame(T0, _images(rng, 0))
+            raise RuntimeError("camera unplugged")
+    assert open_session(path).status == "incomplete" and len(open_session(path)) == 1
+    assert open_session(old).status == "complete" and len(open_session(old)) == 3
+    assert f"the session it was to replace is kept in {old}" in caplog.text
+    # nothing recorded: discard puts the old one back
+    shutil.rmtree(path)
+    os.replace(old, path)
+    w = SessionWriter(path, rig, overwrite=True)
+    w.discard()
+    assert not old.exists() and len(open_session(path)) == 3 and open_session(path).status == "complete"
+
+
 def _images(rng, i):
     """Frame i's images: 8-bit grey, 16-bit grey, 8-bit RGB."""
     return {"g8": rng.integers(0, 256, (6, 8), dtype=np.uint8),
