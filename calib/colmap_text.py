@@ -29,6 +29,7 @@ import numpy as np
 
 from polycam.errors import FormatError, InputError
 from polycam.geometry import R_from_quat, T_from_Rt, T_from_rt, T_inverse, quat_from_R, rt_from_T
+from polycam.rig import MAX_IMAGE_SIDE
 from polycam.tomlio import atomic_write_text
 
 __all__ = [
@@ -97,13 +98,28 @@ def read_colmap_text(model_dir: str | os.PathLike) -> tuple[dict[int, ColmapCame
         except (ValueError, IndexError):
             raise FormatError(p, f"expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...', got {s[:60]!r}",
                               f"line {n}") from None
-        if model in _NPARAMS and params.size != _NPARAMS[model]:
+        if model not in _NPARAMS:
+            raise FormatError(p, f"camera {cid}: model {model} has no mrcal equivalent (supported: "
+                                 f"{', '.join(_NPARAMS)})", f"line {n}")
+        if params.size != _NPARAMS[model]:
             raise FormatError(p, f"{model} needs {_NPARAMS[model]} parameters, got {params.size}", f"line {n}")
+        if not (1 <= w <= MAX_IMAGE_SIDE and 1 <= h <= MAX_IMAGE_SIDE):
+            raise FormatError(p, f"camera {cid}: WIDTH and HEIGHT must be 1..{MAX_IMAGE_SIDE}, got {w} x {h}",
+                              f"line {n}")
+        if not np.all(np.isfinite(params)):
+            raise FormatError(p, f"camera {cid}: non-finite parameter", f"line {n}")
+        nf = 1 if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL") else 2     # focal lengths first
+        if not np.all(params[:nf] > 0):
+            raise FormatError(p, f"camera {cid}: focal length must be > 0, got {params[:nf].tolist()}", f"line {n}")
+        if cid in cams:
+            raise FormatError(p, f"camera {cid} is listed twice", f"line {n}")
         cams[cid] = ColmapCamera(cid, model, w, h, params)
     images: list[ColmapImage] = []
     p = d / "images.txt"
     lines = [(n, ln) for n, ln in _data_lines(p) if not ln.startswith("#")]
     # two lines per image: the pose line, then the (possibly empty) 2-D points line
+    seen_ids: set[int] = set()
+    seen_names: set[str] = set()
     i = 0
     while i < len(lines):
         n, ln = lines[i]
@@ -120,7 +136,13 @@ def read_colmap_text(model_dir: str | os.PathLike) -> tuple[dict[int, ColmapCame
             raise FormatError(p, "expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'", f"line {n}") from None
         if cid not in cams:
             raise FormatError(p, f"image {name!r} refers to camera {cid}, which cameras.txt lacks", f"line {n}")
+        if iid in seen_ids or name in seen_names:
+            raise FormatError(p, f"image {iid if iid in seen_ids else repr(name)} is listed twice", f"line {n}")
+        seen_ids.add(iid)
+        seen_names.add(name)
         q = np.array([qx, qy, qz, qw])
+        if not np.all(np.isfinite([qw, qx, qy, qz, tx, ty, tz])):
+            raise FormatError(p, f"pose of image {name!r}: non-finite value", f"line {n}")
         if not np.isclose(np.linalg.norm(q), 1.0, atol=1e-3):
             raise FormatError(p, f"quaternion of image {name!r} is not a unit quaternion", f"line {n}")
         T = T_from_Rt(R_from_quat(q / np.linalg.norm(q)), np.array([tx, ty, tz]))

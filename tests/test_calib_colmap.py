@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from polycam.cameras import T_rig_cam_of
+from polycam.errors import FormatError
 from polycam.geometry import T_from_rt
 from polycam.rig import load_rig
 
@@ -348,3 +349,43 @@ def test_colmap_with_board_scale_end_to_end(tmp_path):
     assert fit.position_residuals_m.max() <= CALIB_COLMAP_POSITION_M
     for c in cams:
         assert abs(est[c].intrinsics()[1][0] / true[c].intrinsics()[1][0] - 1) <= CALIB_COLMAP_FOCAL_REL
+
+
+_CAMERAS = "# CAMERA_ID MODEL WIDTH HEIGHT PARAMS\n1 PINHOLE 48 36 41 41 24 18\n"
+_IMAGES = "1 1 0 0 0 0 0 0 1 cam00\n\n2 1 0 0 0 0.1 0 0 1 cam01\n\n"
+
+
+@pytest.mark.parametrize("which, old, new, fragments", [
+    ("cameras", "PINHOLE 48 36", "PINHOLE 0 36", ["cameras.txt", "line 2", "WIDTH and HEIGHT", "0 x 36"]),
+    ("cameras", "PINHOLE 48 36", "PINHOLE 99999999999 36", ["line 2", "WIDTH and HEIGHT"]),
+    ("cameras", "41 41 24", "nan nan 24", ["line 2", "non-finite parameter"]),
+    ("cameras", "41 41 24", "0 41 24", ["line 2", "focal length must be > 0"]),
+    ("cameras", "24 18", "inf 18", ["line 2", "non-finite parameter"]),
+    ("cameras", "PINHOLE", "FOO", ["cameras.txt", "line 2", "model FOO has no mrcal equivalent"]),
+    ("cameras", "18\n", "18\n1 PINHOLE 48 36 41 41 24 18\n", ["line 3", "camera 1 is listed twice"]),
+    ("images", "0 0 0 0.1", "0 0 0 nan", ["images.txt", "line 3", "non-finite"]),
+    ("images", "2 1 0 0 0 0.1 0 0 1 cam01", "2 1 0 0 0 0.1 0 0 1 cam00", ["line 3", "'cam00' is listed twice"]),
+    ("images", "2 1 0 0 0 0.1 0 0 1 cam01", "1 1 0 0 0 0.1 0 0 1 cam01", ["line 3", "image 1 is listed twice"]),
+])
+def test_colmap_text_values_are_checked(tmp_path, which, old, new, fragments):
+    """A COLMAP text model's values, not only its layout: sizes, finite parameters and poses, positive focal
+    lengths, known models, ids and names once each; one line naming the file and the line."""
+    from calib import read_colmap_text
+
+    text = {"cameras": _CAMERAS, "images": _IMAGES}
+    read_colmap_text(_write_model(tmp_path / "ok", text))
+    assert old in text[which]
+    text[which] = text[which].replace(old, new, 1)
+    with pytest.raises(FormatError) as e:
+        read_colmap_text(_write_model(tmp_path / "bad", text))
+    msg = str(e.value)
+    assert "\n" not in msg and str(tmp_path / "bad") in msg, msg
+    for f in fragments:
+        assert f in msg, msg
+
+
+def _write_model(d, text):
+    d.mkdir()
+    (d / "cameras.txt").write_text(text["cameras"])
+    (d / "images.txt").write_text(text["images"])
+    return d
