@@ -28,6 +28,7 @@ __all__ = [
     "Axis",
     "LightFieldGrid",
     "load_grid",
+    "MAX_GRID_SAMPLES",
     "finite_frame",
 ]
 
@@ -179,6 +180,12 @@ class LightFieldGrid:
         return cls(tuple(Face.cube(n, z_pi, f) for n in faces), x, y, u, v)
 
 
+MAX_GRID_SAMPLES = 2**30
+"""The most samples per frame a ``GRID.toml`` may ask for: a float32 frame of 4 GiB, of which the motion
+solver keeps about five copies at work (docs/motion.md, "Speed and memory"); catches a mistyped count
+before anything allocates it."""
+
+
 def load_grid(path: str | os.PathLike) -> LightFieldGrid:
     """Read a ``GRID.toml`` (SPEC.md): ``[grid]`` with ``f``, ``z_pi``, ``faces``,
     and ``x``, ``y``, ``u``, ``v`` each ``[min, max, count]``."""
@@ -207,6 +214,10 @@ def load_grid(path: str | os.PathLike) -> LightFieldGrid:
             raise g.error(key, f"one sample (count 1) needs min = max, got {[lo, hi, n]}")
         axes[key] = Axis(lo, hi, int(n))
     g.finish()
+    samples = len(names) * math.prod(a.count for a in axes.values())
+    if samples > MAX_GRID_SAMPLES:
+        raise FormatError(path, f"{samples} samples per frame (faces x x, y, u, v counts); at most "
+                                f"{MAX_GRID_SAMPLES} (2^30: 4 GiB a float32 frame)", "[grid]")
     return LightFieldGrid.cube(names, f=f, z_pi=z_pi, **axes)
 
 

@@ -22,7 +22,7 @@ from .geometry import R_from_r, T_from_Rt
 from .tomlio import Table, load_toml
 
 __all__ = ["CameraSpec", "MockSpec", "Rig", "load_rig", "DRIVERS", "PIXEL_FORMATS", "MOCK_SCENES", "MJPG_QUALITY",
-           "MAX_IMAGE_SIDE"]
+           "MAX_CAMERAS", "MAX_IMAGE_SIDE"]
 
 DRIVERS = ("v4l2", "depthai", "mock", "replay")
 PIXEL_FORMATS = ("GREY", "Y16", "YUYV", "MJPG", "RGB")
@@ -31,6 +31,10 @@ MJPG_QUALITY = 90
 """Default ``[mock]`` ``mjpg_quality``: the JPEG quality of simulated MJPG cameras (a webcam's own is
 its firmware's; 90 costs the 5 x 5 mock rig's motion ~15 %, 75 ~70 %: docs/capture.md)."""
 MOCK_SCENES = ("room", "spheres", "pattern")
+
+MAX_CAMERAS = 4096
+"""The most cameras a rig file may have (the largest published arrays have a few hundred; the bound
+catches a mistyped ``[grid]`` before a rig of millions is built)."""
 
 MAX_IMAGE_SIDE = 32768
 """[px] the largest ``width`` / ``height`` a rig file may give (a 100-megapixel sensor is ~12000
@@ -190,10 +194,12 @@ def load_rig(path: str | os.PathLike) -> Rig:
     cameras: list[CameraSpec] = []
     if has_grid:
         g = top.subtable("grid")
-        rows = g.number("rows", integer=True, min=1)
-        cols = g.number("cols", integer=True, min=1)
+        rows = g.number("rows", integer=True, min=1, max=MAX_CAMERAS)
+        cols = g.number("cols", integer=True, min=1, max=MAX_CAMERAS)
         pitch = g.number("pitch", min=0.0, open_min=True)
         g.finish()
+        if rows * cols > MAX_CAMERAS:
+            raise g.error("rows", f"rows x cols = {rows * cols} cameras; at most {MAX_CAMERAS}")
         width = max(2, len(str(rows * cols - 1)))
         for r in range(rows):
             for c in range(cols):
@@ -204,6 +210,8 @@ def load_rig(path: str | os.PathLike) -> Rig:
         entries = top.get("camera", list)
         if not entries:
             raise FormatError(path, "expected at least one [[camera]] entry", "camera")
+        if len(entries) > MAX_CAMERAS:
+            raise FormatError(path, f"{len(entries)} [[camera]] entries; at most {MAX_CAMERAS}", "camera")
         for i, entry in enumerate(entries):
             t = Table(path, f"[[camera]] #{i + 1}", entry)
             cam_id = t.get("id", str)

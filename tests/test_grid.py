@@ -103,6 +103,7 @@ def test_axis_from_values_rejects_irregular():
     ("z_pi = 0.05\n", "", ["[grid].z_pi", "missing"]),
     ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04]", ["[grid].x", "list of 3 finite numbers"]),
     ("x = [-0.04, 0.04, 5]", "x = [-0.04, inf, 5]", ["[grid].x", "list of 3 finite numbers"]),
+    ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 100000000]", ["[grid]", "samples per frame", "at most 1073741824"]),
     ("x = [-0.04, 0.04, 5]", "x = [0.04, -0.04, 5]", ["[grid].x", "max > min"]),
     ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 2.5]", ["[grid].x", "count"]),
     ("x = [-0.04, 0.04, 5]", "x = [-0.04, 0.04, 0]", ["[grid].x", "count"]),

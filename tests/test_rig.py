@@ -161,6 +161,8 @@ def test_mock_clock_ppm_makes_the_cameras_free_running(tmp_path):
     (GRID, "width = 32", "width = 32.5", ["[defaults].width", "expected an integer"]),
     (GRID, "width = 32", "width = 0", ["[defaults].width", ">= 1"]),
     (GRID, "width = 32", "width = 1410065408", ["[defaults].width", "<= 32768"]),
+    (GRID, "rows = 2", "rows = 100000000", ["[grid].rows", "<= 4096"]),
+    (GRID, "rows = 2", "rows = 2000", ["[grid].rows", "rows x cols = 6000 cameras; at most 4096"]),
     (GRID + "[mock]\nseed = -1\n", "", "", ["[mock].seed", ">= 0"]),
     (CAMERAS, "position = [-0.05, 0.0, 0.0]", "position = [-0.05, nan, 0.0]", ["[[camera]] #1.position",
                                                                               "finite numbers"]),
