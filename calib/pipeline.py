@@ -86,15 +86,26 @@ def calibrate_session(session_path: str | os.PathLike, out: str | os.PathLike, *
     if method == "mrcal" and board is None:
         raise InputError("the mrcal (board) method needs a board file (--board BOARD.toml)")
     session = open_session(session_path)
+    created = not Path(out).exists()
     out = prepare_output_dir(out, overwrite=overwrite)
+    try:
+        if method == "mrcal":
+            from .board_solve import calibrate_board
+            from .detect import detect_session
 
+            obs = detect_session(session, board, min_corners=min_corners, progress=progress)
+            cal = calibrate_board(obs, session.rig, lensmodel=lensmodel, board_warp=board_warp)
+        else:
+            from .colmap import calibrate_colmap
+
+            cal = calibrate_colmap(session, board=board, **(colmap_options or {}))
+    except BaseException:
+        if created and out.is_dir() and not any(out.iterdir()):    # a failed calibration leaves no empty folder
+            out.rmdir()
+        raise
     if method == "mrcal":
-        from .board_solve import calibrate_board
-        from .detect import detect_session
         from .report import write_report
 
-        obs = detect_session(session, board, min_corners=min_corners, progress=progress)
-        cal = calibrate_board(obs, session.rig, lensmodel=lensmodel, board_warp=board_warp)
         files = write_models(cal.models, out)
         files.append(write_corners_vnl(out / "corners.vnl", cal.observations.observations,
                                        cal.observations.paths))
@@ -103,9 +114,8 @@ def calibrate_session(session_path: str | os.PathLike, out: str | os.PathLike, *
         run = CalibrationRun(out=out, models=cal.models, method=method, rms_px=cal.rms_px, report=report,
                              result=cal, files=files)
     else:
-        from .colmap import calibrate_colmap, write_colmap_report
+        from .colmap import write_colmap_report
 
-        cal = calibrate_colmap(session, board=board, **(colmap_options or {}))
         files = write_models(cal.models, out)
         report = write_colmap_report(cal, out)
         files += [out / "report.toml", out / "report.md"]

@@ -428,3 +428,23 @@ def test_extrinsics_uncertainty_matches_the_scatter(tmp_path):
     for measured, predicted in ((np.array(rot), pred[1:, 0]), (np.array(pos), pred[1:, 1])):
         ratio = math.sqrt(np.mean(measured**2)) / math.sqrt(np.mean(predicted**2))
         assert 1 / CALIB_UNCERTAINTY_RATIO <= ratio <= CALIB_UNCERTAINTY_RATIO
+
+
+def test_a_failed_calibration_leaves_no_empty_folder(tmp_path):
+    """A session in which no board is seen: one error, and the --out folder the command would have
+    made is not left behind empty (an existing one stays)."""
+    from calib.pipeline import calibrate_session
+    from polycam.session import SessionWriter
+
+    rig = _rig(tmp_path, lens=False, cols=2, rows=1, width=64, height=48)
+    with SessionWriter(tmp_path / "s", rig) as w:
+        for k in range(3):
+            w.add_frame(1000 + k, {c: np.full((48, 64), 128, np.uint8) for c in rig.ids})
+    board = _board(tmp_path)
+    with pytest.raises(InputError):
+        calibrate_session(tmp_path / "s", tmp_path / "o", board=board)
+    assert not (tmp_path / "o").exists()
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(InputError):
+        calibrate_session(tmp_path / "s", tmp_path / "mine", board=board)
+    assert (tmp_path / "mine").is_dir()
