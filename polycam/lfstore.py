@@ -33,6 +33,7 @@ and axis orders.
 
 from __future__ import annotations
 
+import json
 import logging
 import operator
 import os
@@ -340,6 +341,23 @@ def _array_member(group, name: str, path: Path):
     return node if isinstance(node, zarr.Array) else None
 
 
+def _check_group_json(meta: Path) -> None:
+    """:class:`FormatError` naming ``meta`` (a store's ``zarr.json``) when it is there but not a JSON
+    object in UTF-8; nothing otherwise."""
+    if not meta.is_file():
+        return
+    try:
+        doc = json.loads(meta.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise FormatError(meta, "not UTF-8 text") from None
+    except ValueError as e:
+        raise FormatError(meta, f"not JSON ({e})") from None
+    except OSError as e:
+        raise FormatError(meta, f"cannot read ({e.strerror})") from None
+    if not isinstance(doc, dict):
+        raise FormatError(meta, f"expected a JSON object, got {type(doc).__name__}")
+
+
 def _read_frame(path: Path, array, name: str, t: int) -> np.ndarray:
     """Frame ``t`` of the zarr ``array`` as float32; :class:`FormatError` naming the store, the
     array and the frame when its chunks cannot be decoded (truncated or corrupt chunk files,
@@ -367,6 +385,7 @@ class LightFieldStore:
         try:
             group = zarr.open_group(str(p), mode="r")
         except Exception as e:  # zarr raises several types (GroupNotFoundError, ContainsArrayError, ...)
+            _check_group_json(p / "zarr.json")           # name the file when it is what is broken
             raise FormatError(p, f"not a Zarr group ({type(e).__name__})") from None
         attrs = dict(group.attrs)
         self.attrs: dict = attrs
@@ -470,7 +489,12 @@ class LightFieldStore:
         (every sample then has full confidence)."""
         if self.W is None:
             return None
-        return _read_frame(self.path, self.W, "W", self._index(t))
+        i = self._index(t)
+        W = _read_frame(self.path, self.W, "W", i)
+        lo, hi = (float(W.min()), float(W.max())) if W.size else (0.0, 0.0)
+        if not (lo >= 0.0 and hi <= 1.0):        # NaN fails too
+            raise FormatError(self.path, f"frame {i}: confidences outside [0, 1] (from {lo:g} to {hi:g})", "W")
+        return W
 
     def __iter__(self) -> Iterator[np.ndarray]:
         """Frames of L in order, one at a time."""

@@ -477,7 +477,7 @@ def test_motion_on_a_broken_store_names_it(tmp_path):
                           "bad.zarr", "neither a session (no session.toml) nor a light-field store (no zarr.json)")
     (tmp_path / "bad.zarr" / "zarr.json").write_text("{not json")
     assert_one_line_error(polycam("motion", str(tmp_path / "bad.zarr"), "--out", str(tmp_path / "t.tum")),
-                          "bad.zarr", "not a Zarr group")
+                          str(tmp_path / "bad.zarr" / "zarr.json"), "not JSON")
 
 
 def test_out_of_memory_is_one_line(monkeypatch, capsys):

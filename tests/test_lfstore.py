@@ -343,3 +343,26 @@ def test_unreadable_chunk_is_one_error_naming_the_store_and_frame(store, array):
         read(1)
     msg = str(e.value)
     assert msg.startswith(f"{store}: {array}: frame 1: unreadable chunk data") and "\n" not in msg, msg
+
+
+@pytest.mark.parametrize("content, problem", [(b"{not json", "not JSON"), (b"\xff\xfe", "not UTF-8"),
+                                              (b"[1, 2]", "expected a JSON object")])
+def test_unreadable_group_metadata_names_the_file(store, content, problem):
+    (store / "zarr.json").write_bytes(content)
+    with pytest.raises(FormatError) as e:
+        open_lightfield(store)
+    assert str(e.value).startswith(f"{store / 'zarr.json'}: {problem}"), str(e.value)
+
+
+@pytest.mark.parametrize("value", [1.5, -0.25, float("nan")])
+def test_confidences_outside_0_1_are_an_error(tmp_path, rng, grid, value):
+    """SPEC.md: W is in [0, 1]; a frame with a confidence outside is one error naming the store, W and
+    the frame when it is read."""
+    W = np.ones((2, *grid.shape), np.float32)
+    W[1, 0, 0, 0, 0, 0] = value
+    path = tmp_path / "lf.zarr"
+    write_lightfield(path, grid, _frames(rng, grid, 2), [1, 2], weights=W)
+    lf = open_lightfield(path)
+    lf.weights(0)
+    with pytest.raises(FormatError, match=r"lf.zarr: W: frame 1: confidences outside \[0, 1\]"):
+        lf.weights(1)
