@@ -34,11 +34,13 @@ samples of disparity apart). :func:`confident_mask` and
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, correlate_axis
+from .errors import InputError
 from .geometry import T_inverse, rt_from_T
 from .lightfield import LightFieldGrid
 
@@ -309,6 +311,20 @@ def depth_of_pair(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid,
     from .motion_weights import frame_noise_variance
 
     g0, g1 = grey_frame(L0), grey_frame(L1)
+    for name, g in (("L0", g0), ("L1", g1)):
+        if g.shape != tuple(grid.shape):
+            raise InputError(f"depth: {name} has dims {g.shape}, but the grid is {tuple(grid.shape)} "
+                             "(F, Ny, Nx, Nv, Nu)")
+        if not np.all(np.isfinite(g)):
+            raise InputError(f"depth: {name} has NaN or infinite samples (set them, with W = 0, before)")
+    if T_prev_next is not None:
+        T = np.asarray(T_prev_next, float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputError(f"depth: T_prev_next must be a finite (4, 4) transform, got dims {T.shape}")
+    if int(window) != window or window < 1:
+        raise InputError(f"depth: window must be an integer >= 1, got {window}")
+    if noise_var is not None and not 0.0 <= noise_var < math.inf:
+        raise InputError(f"depth: noise_var must be >= 0 and finite, got {noise_var}")
     der = plenoptic_derivatives(g0, g1, grid, filters=filters)
     if noise_var is None:
         noise_var = frame_noise_variance(g0, g1, grid)

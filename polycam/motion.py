@@ -1135,18 +1135,61 @@ def _name_direction(vec: np.ndarray) -> str:
     return "(" + " ".join(terms) + ")"
 
 
-def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray | None = None) -> np.ndarray:
+def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray | None = None,
+                 intensities: bool = True) -> np.ndarray:
     """(F, Ny, Nx, Nv, Nu) float32 C-contiguous frame (colour averaged; the input itself when
     it already is one: never written). Non-finite samples are an error unless the
-    confidence ``W`` is 0 there (they are then set to 0)."""
+    confidence ``W`` is 0 there (they are then set to 0); so are non-numeric dtypes and, with
+    ``intensities``, values beyond :data:`MAX_INTENSITY`."""
     L = np.asarray(L)
+    if L.dtype.kind not in "biuf":
+        raise InputError(f"motion: {name} has dtype {L.dtype}; expected numbers (float32 in [0, 1])")
     if L.ndim == 6 and L.shape[:5] == grid.shape:        # colour: average the channels
         L = L.mean(axis=-1)
     if L.shape != grid.shape:
         raise InputError(f"motion: {name} has dims {L.shape}, but the grid is {grid.shape} "
                          "(F, Ny, Nx, Nv, Nu)")
     L = np.ascontiguousarray(L, dtype=np.float32)     # no copy when it already is (never written)
-    return finite_frame(name, L, W, who="motion")
+    L = finite_frame(name, L, W, who="motion")
+    big = float(np.max(np.abs(L), initial=0.0)) if intensities else 0.0
+    if big > MAX_INTENSITY:
+        raise InputError(f"motion: {name} has intensities up to {big:.3g}; expected [0, 1] (8-bit / 255, "
+                         "16-bit / 65535: SPEC.md)")
+    return L
+
+
+MAX_INTENSITY = 1e4
+"""The largest |intensity| :func:`estimate_motion` takes: SPEC.md's frames are in [0, 1]; frames in 8- or
+16-bit units (255, 65535) pass, a few orders of magnitude more are a scaling mistake (values of 1e20
+overflowed the robust scale's histogram)."""
+
+
+def _check_confidence(name: str, W: np.ndarray, grid: LightFieldGrid) -> np.ndarray:
+    """(F, Ny, Nx, Nv, Nu) float32 confidences in [0, 1] (SPEC.md)."""
+    W = _check_frame(name, W, grid, intensities=False)
+    lo, hi = (float(W.min()), float(W.max())) if W.size else (0.0, 0.0)
+    if not (lo >= 0.0 and hi <= 1.0):
+        raise InputError(f"motion: {name} outside [0, 1] (from {lo:g} to {hi:g})")
+    return W
+
+
+def _check_grid(grid: LightFieldGrid) -> None:
+    """:class:`InputError` for a grid no frame can be solved on (a grid made in code: GRID.toml and
+    stores are checked when read)."""
+    if not grid.faces:
+        raise InputError("motion: the grid has no faces")
+    for face in grid.faces:
+        if not (math.isfinite(face.f) and face.f > 0 and math.isfinite(face.z_pi)):
+            raise InputError(f"motion: face {face.name}: f must be finite and > 0 and z_pi finite, got "
+                             f"f = {face.f}, z_pi = {face.z_pi}")
+    for name in ("u", "v"):
+        if getattr(grid, name).count < 3:
+            raise InputError(f"motion: the grid has {getattr(grid, name).count} direction(s) along {name}; "
+                             "the derivatives need at least 3")
+    for name in ("x", "y", "u", "v"):
+        a = getattr(grid, name)
+        if a.count < 1 or not (math.isfinite(a.min) and math.isfinite(a.max)):
+            raise InputError(f"motion: the grid's {name} axis is empty or not finite ({a})")
 
 
 def _options_filters(opts: MotionOptions) -> dict:
@@ -1171,12 +1214,18 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     Raises :class:`InputError` for unusable input (NaNs, mismatched dims).
     """
     opts = (options or MotionOptions()).for_frames(W0 is not None or W1 is not None)
-    W0 = None if W0 is None else _check_frame(f"weights of frame {index}", W0, grid)
-    W1 = None if W1 is None else _check_frame(f"weights of frame {index + 1}", W1, grid)
+    _check_grid(grid)
+    W0 = None if W0 is None else _check_confidence(f"weights of frame {index}", W0, grid)
+    W1 = None if W1 is None else _check_confidence(f"weights of frame {index + 1}", W1, grid)
+    if np.ndim(L0) == 6 and np.ndim(L1) == 6 and np.shape(L0)[-1] != np.shape(L1)[-1]:
+        raise InputError(f"motion: frames {index} and {index + 1} have {np.shape(L0)[-1]} and "
+                         f"{np.shape(L1)[-1]} colour channels")
     L0 = _check_frame(f"frame {index}", L0, grid, W0)
     L1 = _check_frame(f"frame {index + 1}", L1, grid, W1)
     filters = _options_filters(opts)
     M = np.eye(4) if T_init is None else np.asarray(T_init, float).copy()
+    if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+        raise InputError(f"motion: T_init must be a finite (4, 4) transform, got dims {M.shape}")
     linear = _linear_unsupported(grid, opts)
     if linear:
         log.warning("pair %d: %s", index, linear)

@@ -282,6 +282,10 @@ class MotionOptions:
             raise ValueError(f"depth_views must be >= 0 (inf: never), got {self.depth_views}")
         if not self.max_view_disparity > 0.0:
             raise ValueError(f"max_view_disparity must be > 0 (inf: no limit), got {self.max_view_disparity}")
+        if not 0.0 < self.robust_c < math.inf:
+            raise ValueError(f"robust_c must be > 0 and finite, got {self.robust_c}")
+        if not 0.0 <= self.smooth_c < math.inf:
+            raise ValueError(f"smooth_c must be >= 0 and finite, got {self.smooth_c}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
 

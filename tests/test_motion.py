@@ -391,6 +391,53 @@ def test_input_errors(scene):
         estimate_motion(L, bad, grid, W0=W, W1=W, index=7)
 
 
+def test_more_input_errors(scene):
+    """Input no pair can be solved from is one InputError naming what is wrong, before any kernel
+    runs (each was a numpy / numba exception, or was solved as if right)."""
+    from polycam.lightfield import Axis, LightFieldGrid
+
+    grid = make_grid(("+z",))
+    L = scene.render(grid, np.eye(4))
+    cases = [
+        ((L * 1e20, L * 1e20, grid), {}, "intensities up to"),
+        ((L, L, grid), {"T_init": np.eye(3)}, r"T_init must be a finite \(4, 4\)"),
+        ((L, L, grid), {"T_init": np.full((4, 4), np.nan)}, "T_init must be a finite"),
+        ((L, L, grid), {"W0": np.full(grid.shape, 1.5, np.float32)}, r"weights of frame 0 outside \[0, 1\]"),
+        ((L, L, grid), {"W1": np.full(grid.shape, -1.0, np.float32)}, r"weights of frame 1 outside \[0, 1\]"),
+        ((np.repeat(L[..., None], 4, -1), np.repeat(L[..., None], 3, -1), grid), {}, "4 and 3 colour channels"),
+        ((L.astype(str), L, grid), {}, "dtype"),
+    ]
+    one_v = LightFieldGrid(grid.faces, grid.x, grid.y, grid.u, Axis(0.0, 0.0, 1))
+    cases.append(((L[..., :1, :], L[..., :1, :], one_v), {}, "1 direction"))
+    for f in (0.0, np.nan):
+        g = LightFieldGrid.cube(["+z"], f=f, z_pi=0.03, x=grid.x, y=grid.y, u=grid.u, v=grid.v)
+        cases.append(((L, L, g), {}, "f must be finite and > 0"))
+    for args, kwargs, match in cases:
+        with pytest.raises(InputError, match=match):
+            estimate_motion(*args, **kwargs)
+    with pytest.raises(ValueError, match="robust_c"):
+        MotionOptions(robust_c=0.0)
+    # frames in 8-bit units are not a mistake
+    assert estimate_motion(255 * L, 255 * L, grid)
+
+
+def test_depth_of_pair_input_errors(scene):
+    from polycam.depth import depth_of_pair
+
+    grid = make_grid(("+z",))
+    L = scene.render(grid, np.eye(4))
+    bad = L.copy()
+    bad[0, 1, 1, 3, 3] = np.nan
+    for args, kwargs, match in [((L, L, make_grid(("+z",), directions=20)), {}, "dims"),
+                                ((L, L[..., :-1], grid), {}, "L1 has dims"),
+                                ((L, bad, grid), {}, "NaN"),
+                                ((L, L, grid, np.eye(3)), {}, "T_prev_next"),
+                                ((L, L, grid), {"window": 0}, "window"),
+                                ((L, L, grid), {"noise_var": -1.0}, "noise_var")]:
+        with pytest.raises(InputError, match=match):
+            depth_of_pair(*args, **kwargs)
+
+
 class FakeStore:
     """The part of the light-field store interface that estimate_trajectory uses."""
 
