@@ -1211,7 +1211,11 @@ def estimate_motion(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, *,
     ``L0``, ``L1``: (F, Ny, Nx, Nv, Nu) intensities on ``grid`` (a trailing colour
     axis is averaged). ``W0``, ``W1``: optional confidences of the same dims in
     [0, 1]. ``T_init``: (4, 4) starting estimate of ``T_rig0_rig1`` (identity).
-    Raises :class:`InputError` for unusable input (NaNs, mismatched dims).
+    Raises :class:`InputError` for unusable input: NaNs where W is not 0, dims that do not match
+    the grid or each other's colour channels, non-numeric dtypes, intensities beyond
+    :data:`MAX_INTENSITY`, W outside [0, 1], a ``T_init`` that is not a finite (4, 4) transform,
+    a grid without faces, with a face whose f is not finite and > 0, or with fewer than 3
+    directions along u or v.
     """
     opts = (options or MotionOptions()).for_frames(W0 is not None or W1 is not None)
     _check_grid(grid)
