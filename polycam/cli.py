@@ -273,6 +273,9 @@ def cmd_motion(args: argparse.Namespace) -> int:
     levels = _level_line(results)
     if levels:
         print(levels)
+    one = _one_level_line(results, opts.levels)
+    if one:
+        print(one)
     if truth is not None:
         from .evaluate import ate_rmse, error_over_std, pair_errors, solved_pairs
 
@@ -413,6 +416,19 @@ def _level_line(results) -> str:
     return (f"  views far apart for the scene ({disp:.2f} samples per view step, median): "
             f"{len(coarse)} of {len(results)} pairs solved at (u, v) level {'/'.join(map(str, levels))} "
             "(--option max_view_disparity=inf forces the finest; docs/motion.md, \"Camera arrays\")")
+
+
+def _one_level_line(results, levels: int) -> str:
+    """When solved pairs had one (u, v) level only although the options ask for ``levels`` (the grid's
+    directions allow no coarser level): their covariance lacks the level change, the model error the
+    residuals do not show (``PairResult.level_change`` NaN), and may be several times too small; ''
+    otherwise."""
+    one = [r for r in results if r and not all(math.isfinite(float(c)) for c in r.level_change)]
+    if levels < 2 or not one:
+        return ""
+    return (f"  warning: {len(one)} of {len(results)} pairs solved on one (u, v) level (too few directions for a "
+            "coarser one): their std counts the residuals' scatter only, not the model error a second level "
+            "shows, and may be several times too small (docs/motion.md, \"How far to trust the covariance\")")
 
 
 def _slower_cameras_line(session) -> str:

@@ -292,6 +292,7 @@ def test_motion_on_a_lightfield_with_report(tmp_path, selection):
     header = (tmp_path / "rep" / "pairs.csv").read_text().splitlines()[0]
     assert header.startswith("pair,timestamp_ns,t_x") and ",sigma,noise_sigma," in header
     assert "sensor noise" in res.stdout and "--preset noisy" not in res.stdout     # noise-free float frames
+    assert "one (u, v) level" not in res.stdout                                    # 32 directions: levels
 
 
 def test_motion_points_to_the_noise_options_on_noisy_frames():
@@ -469,6 +470,22 @@ def test_a_bad_groundtruth_fails_before_the_solve(tmp_path, verb, case):
         return
     assert_one_line_error(res, str(gt), *fragments)
     assert "wrote" not in res.stdout and not out.exists()
+
+
+def test_motion_warns_when_a_pair_had_one_uv_level(tmp_path):
+    """24 directions allow no coarser (u, v) level: the pairs' covariance lacks the level change (the model
+    error the residuals do not show), and the command says so; 32 directions do not get the line
+    (test_motion_on_a_lightfield_with_report's store)."""
+    grid = tmp_path / "grid.toml"
+    grid.write_text('[grid]\nf = 60\nz_pi = 0.03\nfaces = ["+z"]\nx = [-0.03, 0.03, 5]\ny = [-0.03, 0.03, 5]\n'
+                    'u = [-57.5, 57.5, 24]\nv = [-57.5, 57.5, 24]\n')
+    lf = tmp_path / "lf.zarr"
+    assert polycam("synth", "lightfield", "--grid", str(grid), "--frames", "2", "--out", str(lf)).returncode == 0
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"))
+    assert res.returncode == 0, res.stderr
+    assert "warning: 1 of 1 pairs solved on one (u, v) level" in res.stdout, res.stdout
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--option", "levels=1")
+    assert res.returncode == 0 and "one (u, v) level" not in res.stdout, res.stdout     # as asked
 
 
 def test_motion_on_a_broken_store_names_it(tmp_path):
