@@ -364,6 +364,8 @@ def _read_frame(path: Path, array, name: str, t: int) -> np.ndarray:
     chunk dims that do not match the array)."""
     try:
         return np.asarray(array[t], dtype=np.float32)
+    except MemoryError:
+        raise                  # not the file's fault: the CLI says so in its own line
     except Exception as e:     # zarr and its codecs raise many types (RuntimeError, ValueError, OSError, ...)
         raise FormatError(path, f"frame {t}: unreadable chunk data ({type(e).__name__})", name) from None
 

@@ -1151,7 +1151,7 @@ def _check_frame(name: str, L: np.ndarray, grid: LightFieldGrid, W: np.ndarray |
                          "(F, Ny, Nx, Nv, Nu)")
     L = np.ascontiguousarray(L, dtype=np.float32)     # no copy when it already is (never written)
     L = finite_frame(name, L, W, who="motion")
-    big = float(np.max(np.abs(L), initial=0.0)) if intensities else 0.0
+    big = max(float(L.max()), -float(L.min())) if intensities and L.size else 0.0     # no |L| temporary
     if big > MAX_INTENSITY:
         raise InputError(f"motion: {name} has intensities up to {big:.3g}; expected [0, 1] (8-bit / 255, "
                          "16-bit / 65535: SPEC.md)")

@@ -31,9 +31,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--grid", metavar="GRID.toml",
                    help="sample grid (default: chosen from the rig: views at and between the cameras, "
                         "directions over their fields of view)")
-    p.add_argument("--uv-step", type=_positive_float, default=1.0, metavar="PX",
+    p.add_argument("--uv-step", type=_positive_float, default=None, metavar="PX",
                    help="automatic grid: direction spacing in camera pixels (default 1)")
-    p.add_argument("--xy-oversample", type=_positive_int, default=2, metavar="N",
+    p.add_argument("--xy-oversample", type=_positive_int, default=None, metavar="N",
                    help="automatic grid: viewpoints per camera spacing along x and y (default 2: a view at every "
                         "camera and one between neighbouring cameras, filled by --view-fill)")
     p.add_argument("--view-fill", choices=("depth", "pushpull"), default="depth",
@@ -63,7 +63,7 @@ def cmd_resample(args: argparse.Namespace) -> int:
         raise InputError(f"{session}: not a session folder (no session.toml)")
     if args.calib is not None and not Path(args.calib).is_dir():
         raise InputError(f"{args.calib}: no such calibration folder")
-    if args.grid is not None and (args.uv_step != 1.0 or args.xy_oversample != 2):
+    if args.grid is not None and (args.uv_step is not None or args.xy_oversample is not None):
         raise InputError("resample: --uv-step and --xy-oversample choose the automatic grid; not with --grid")
     if args.scheduler is not None and args.workers is not None:
         raise InputError("resample: give either --scheduler or --workers, not both")
@@ -88,8 +88,8 @@ def cmd_resample(args: argparse.Namespace) -> int:
     if scheduler is None and args.workers == 0:
         scheduler = "sync"
     with _progress(f"resampling {session.name}", None) as advance:   # total: set by the first callback
-        s = resample_session(source, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step,
-                             xy_oversample=args.xy_oversample, options=ResampleOptions(view_fill=args.view_fill),
+        s = resample_session(source, args.out, calib_dir=args.calib, grid=grid, uv_step_px=args.uv_step or 1.0,
+                             xy_oversample=args.xy_oversample or 2, options=ResampleOptions(view_fill=args.view_fill),
                              scheduler=scheduler, workers=args.workers or None, overwrite=args.overwrite,
                              capture_motion=capture_motion, progress=advance)
     F, Ny, Nx, Nv, Nu = s.grid.shape
