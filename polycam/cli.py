@@ -330,17 +330,34 @@ def _info_calibration(path: Path) -> None:
         print(f"  {_camera_group(cams)}: {what}")
     report = path / "report.toml"
     if report.is_file():
-        import tomllib
+        print("  report: " + _report_summary(report))
 
-        try:
-            c = tomllib.loads(report.read_text()).get("calibration", {})
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError):
-            print(f"  report: {report} is not readable TOML")
-            return
-        parts = [f"{k} {c[k]}" for k in ("method", "frames", "views") if k in c]
-        if "rms_px" in c:
-            parts.append(f"RMS {c['rms_px']} px")
-        print("  report: " + ", ".join(parts))
+
+def _report_summary(report: Path) -> str:
+    """``polycam info``'s summary of a calibration's ``report.toml`` (method, frames, views, RMS), or
+    what keeps it from being read: the file comes from the user, so only a ``[calibration]`` table's
+    numbers and short one-line strings are shown."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads(report.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError):
+        return f"{report} is not readable TOML"
+    c = doc.get("calibration")
+    if not isinstance(c, dict):
+        return f"{report} has no [calibration] table"
+
+    def shown(v) -> bool:
+        if isinstance(v, bool):
+            return False
+        if isinstance(v, (int, float)):
+            return math.isfinite(v)
+        return isinstance(v, str) and 0 < len(v) <= 40 and v.isprintable()
+
+    parts = [f"{k} {c[k]}" for k in ("method", "frames", "views") if shown(c.get(k))]
+    if shown(c.get("rms_px")) and not isinstance(c["rms_px"], str):
+        parts.append(f"RMS {c['rms_px']} px")
+    return ", ".join(parts) if parts else f"{report} has none of method, frames, views, rms_px"
 
 
 def _noise_line(results, preset: str, confidences: bool = False, cameras: tuple[float, int, float] | None = None) -> str:

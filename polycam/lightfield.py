@@ -222,7 +222,9 @@ def load_grid(path: str | os.PathLike) -> LightFieldGrid:
 
 
 def _check_faces_attr(path, faces) -> tuple[Face, ...]:
-    """Faces from store attributes (used by the store reader)."""
+    """Faces from store attributes (used by the store reader): each a rotation, finite ``z_pi``,
+    finite ``f > 0``, a name given once; a nested-cube name (:data:`FACE_NAMES`) with that face's
+    rotation (other names may have any rotation: SPEC.md names only the cube's)."""
     out = []
     if not isinstance(faces, list) or not faces:
         raise FormatError(path, "expected a non-empty list", "attrs.faces")
@@ -239,7 +241,14 @@ def _check_faces_attr(path, faces) -> tuple[Face, ...]:
                 raise FormatError(path, f"{key} must be a finite number", where)
         if fa["f"] <= 0:
             raise FormatError(path, "f must be > 0", where)
-        out.append(Face(str(fa["name"]), R, float(fa["z_pi"]), float(fa["f"])))
+        name = fa["name"]
+        if not isinstance(name, str) or not name.strip():
+            raise FormatError(path, f"name must be a non-empty string, got {name!r}", where)
+        if any(o.name == name for o in out):
+            raise FormatError(path, f"a second face named {name!r}", where)
+        if name in FACE_NAMES and not np.allclose(R, R_rig_face_for(name), atol=1e-6):
+            raise FormatError(path, f"R_rig_face is not the rotation of the cube face {name!r} (SPEC.md)", where)
+        out.append(Face(name, R, float(fa["z_pi"]), float(fa["f"])))
     return tuple(out)
 
 

@@ -18,7 +18,7 @@ from .geometry import R_from_quat, R_from_r, T_from_Rt, T_inverse, quat_from_R, 
 from .tomlio import atomic_write_text
 
 __all__ = ["Trajectory", "pose_at", "step_beyond", "poses_at_times", "read_tum", "write_tum", "tum_text",
-           "MATCH_TOLERANCE_NS"]
+           "MATCH_TOLERANCE_NS", "MAX_TUM_POSITION"]
 
 MATCH_TOLERANCE_NS = 1_000_000
 """[ns] how far a trajectory's pose may be from a frame's timestamp and still be that frame's
@@ -145,8 +145,16 @@ def _parse_ns(token: str) -> int:
     return -ns if neg else ns
 
 
+MAX_TUM_POSITION = 1e9
+"""[m] The largest |coordinate| :func:`read_tum` takes (UTM northings are ~1e7 m; beyond 1e9 m a
+position is a unit mistake, and 1e300 overflowed when poses were composed)."""
+_NS_LIMIT = 2 ** 63
+"""Timestamps are int64 nanoseconds (SPEC.md): about ±292 years."""
+
+
 def read_tum(path: str | os.PathLike) -> Trajectory:
-    """Read a TUM file; comments (#) and blank lines are skipped."""
+    """Read a TUM file; comments (#) and blank lines are skipped. Positions beyond
+    :data:`MAX_TUM_POSITION` and timestamps outside int64 nanoseconds are a :class:`FormatError`."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -168,8 +176,15 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
             vals = np.array([float(v) for v in tok[1:]])
         except ValueError:
             raise FormatError(path, "not a number", f"line {lineno}") from None
+        except OverflowError:            # an infinite timestamp
+            raise FormatError(path, "non-finite value", f"line {lineno}") from None
         if not np.all(np.isfinite(vals)):
             raise FormatError(path, "non-finite value", f"line {lineno}")
+        if not -_NS_LIMIT < ns < _NS_LIMIT:
+            raise FormatError(path, f"timestamp {tok[0]} s is beyond int64 nanoseconds", f"line {lineno}")
+        if np.abs(vals[:3]).max() > MAX_TUM_POSITION:
+            raise FormatError(path, f"position beyond {MAX_TUM_POSITION:.0e} m (|t| up to "
+                              f"{np.abs(vals[:3]).max():.3g})", f"line {lineno}")
         qn = np.linalg.norm(vals[3:])
         if abs(qn - 1.0) > 1e-3:
             raise FormatError(path, f"quaternion is not unit length (|q| = {qn:.6g})", f"line {lineno}")

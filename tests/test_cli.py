@@ -248,6 +248,17 @@ def test_info_on_a_calibration_folder(tmp_path):
     assert lines[0].startswith(f"calibration {calib}: 3 cameras, centres spanning 100.0 x 0.0 x 0.0 mm")
     assert "3 cameras (cam00, cam01, cam02): LENSMODEL_" in lines[1] and "64x48" in lines[1]
     assert lines[2] == "  report: method mrcal, frames 25, views 75, RMS 0.12 px"
+    # a user's report.toml: only a [calibration] table's numbers and short one-line strings
+    for text, expected in (('calibration = 5\n', "has no [calibration] table"),
+                           ('[calibration]\nmethod = "a\\nb"\nframes = [1]\nrms_px = nan\n', "has none of"),
+                           ('[calibration]\nmethod = "mrcal"\nrms_px = "0.1"\nviews = true\n', "method mrcal"),
+                           ('[calibration\n', "not readable TOML")):
+        (calib / "report.toml").write_text(text)
+        res = polycam("info", str(calib))
+        assert res.returncode == 0 and res.stderr == "", res.stderr
+        line = res.stdout.splitlines()[2]
+        assert line.startswith("  report: ") and expected in line and len(res.stdout.splitlines()) == 3, res.stdout
+        assert line == "  report: method mrcal" or "report.toml" in line, line
     (calib / "cam01.cameramodel").write_text("not a model\n")
     res = polycam("info", str(calib))
     assert_one_line_error(res, "cam01.cameramodel", "not a valid mrcal cameramodel")

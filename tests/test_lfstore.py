@@ -219,6 +219,9 @@ def test_array_is_not_a_group(store):
     _expect(store / "L", "not a Zarr group")
 
 
+_I3 = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+
+
 @pytest.mark.parametrize("key, value, substrings", [
     ("format", "polycam-session", ["attrs.format", "polycam-lightfield"]),
     ("format", _DELETE, ["attrs.format"]),
@@ -227,6 +230,9 @@ def test_array_is_not_a_group(store):
     ("faces", [{"name": "+z", "R_rig_face": [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "z_pi": 0, "f": 1},
                {"name": "-x", "R_rig_face": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "z_pi": 0, "f": 1}],
      ["attrs.faces[0]", "rotation"]),
+    ("faces", [{"name": 5, "R_rig_face": _I3, "z_pi": 0, "f": 1}], ["attrs.faces[0]", "non-empty string"]),
+    ("faces", [{"name": "+z", "R_rig_face": _I3, "z_pi": 0, "f": 1}] * 2, ["attrs.faces[1]", "a second face"]),
+    ("faces", [{"name": "-x", "R_rig_face": _I3, "z_pi": 0, "f": 1}], ["attrs.faces[0]", "cube face '-x'"]),
     ("x", [0.0, 1.0, 3.0], ["attrs.x", "regularly spaced"]),
     ("u", [0.5, 0.0, -0.5, -1, -1.5], ["attrs.u", "increasing"]),
     ("v", "0..1", ["attrs.v", "list of numbers"]),
@@ -366,3 +372,16 @@ def test_confidences_outside_0_1_are_an_error(tmp_path, rng, grid, value):
     lf.weights(0)
     with pytest.raises(FormatError, match=r"lf.zarr: W: frame 1: confidences outside \[0, 1\]"):
         lf.weights(1)
+
+
+def test_faces_with_other_names_take_any_rotation(store):
+    """SPEC.md names the cube's faces only: a face of another name may have any rotation."""
+    c, s = np.cos(0.3), np.sin(0.3)
+    R = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+    meta = json.loads((store / "zarr.json").read_text())
+    faces = meta["attributes"]["faces"]
+    faces[1] = {**faces[1], "name": "tilted", "R_rig_face": R}
+    _set_attr(store, "faces", faces)
+    g = open_lightfield(store).grid
+    assert g.faces[1].name == "tilted"
+    np.testing.assert_allclose(g.faces[1].R_rig_face, R)

@@ -66,6 +66,9 @@ def test_tum_reader_accepts_comments_blank_lines_and_short_fractions(tmp_path):
     ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", ["line 2", "not strictly increasing"]),
     ("# only a comment\n", ["no poses"]),
     ("abc 0 0 0 0 0 0 1\n", ["line 1", "not a number"]),
+    ("1e400 0 0 0 0 0 0 1\n", ["line 1", "non-finite"]),
+    ("99999999999999999999 0 0 0 0 0 0 1\n", ["line 1", "beyond int64"]),
+    ("1 1e300 0 0 0 0 0 1\n", ["line 1", "position beyond"]),
 ])
 def test_tum_errors(tmp_path, text, substrings):
     p = tmp_path / "bad.tum"
