@@ -115,7 +115,9 @@ Diagnostics
 Each pair yields a :class:`PairResult` with the 6x6 covariance of the rig
 motion's ``(t, r)`` (``T_prev_next = [R_from_r(r) | t]``), the Jacobi-scaled
 condition number, the inlier fraction, and the unobservable directions when
-the normal matrix is (near-)singular (no texture, one viewpoint, ...). The
+the normal matrix is (near-)singular (no texture, one viewpoint, ...) or when the translation
+columns show no parallax above the noise (:func:`polycam.parallax.parallax_signal`: measured from
+each frame alone, their share common to both frames is below ``MotionOptions.parallax_min``). The
 covariance is a cluster-robust sandwich over tiles of rays (residuals of
 filtered derivatives are correlated over the filter support) around the
 noise-corrected normal matrix ``AᵀWA − E`` (E = expected energy of sensor noise in
@@ -186,6 +188,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              frame_noise_variance, min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
                              solver_filter_pairs)
 from .pyramid import _add_level, _Level, _pyramid
+from .parallax import ParallaxSignal, parallax_signal
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min, _warped_confidence_kernel,
                    _filled_view_mean, _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into,
@@ -236,7 +239,8 @@ class PairResult:
 
     Falsy when the estimate failed (``reason`` says why, e.g. unobservable
     directions); ``T_prev_next`` is then the best estimate in the observable
-    subspace (zero motion along the unobservable directions), or, when the final solve
+    subspace (zero motion along the unobservable directions; a translation without parallax above
+    the noise, ``parallax_fraction``, is kept as least squares found it), or, when the final solve
     had fewer than ``MotionOptions.min_rays`` usable rays or the grid is a linear array,
     the estimate the solve started from (``T_init``: in a trajectory with
     ``constant_velocity`` the previous pair's motion).
@@ -288,6 +292,11 @@ class PairResult:
     """(6,) (t [m], r [rad]) of ``T_prev_next`` minus those of the estimate the level above the
     finest (u, v) level handed down to it (NaN with one level: ``covariance`` is then
     ``covariance_noise``)."""
+    parallax_fraction: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    """(3,) signal fractions of the translation directions, ascending: how much of the
+    translation columns' energy is parallax common to both frames rather than noise
+    (:func:`polycam.parallax.parallax_signal`; ~1: parallax well above the noise, ~0: none);
+    directions below ``MotionOptions.parallax_min`` are unobservable. NaN when not measured."""
     covariance_calibration: np.ndarray | None = None
     """(6, 6) the part of ``covariance`` the camera models' calibration error explains (the spread of
     the estimate over models drawn from the calibration's uncertainty:
@@ -1415,11 +1424,15 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     continue                      # converged: now the whitened (GLS) re-solves
                 if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
+    parallax = None
+    if opts.parallax_min > 0:
+        lev = levels[0]
+        parallax = parallax_signal(lev.L0, lev.L1, lev.grid, M, filters=filters, W0=lev.W0, W1=lev.W1)
     change = None
     if coarse is not None:
         change = np.concatenate([M[:3, 3] - coarse[:3, 3], r_from_R(M[:3, :3]) - r_from_R(coarse[:3, :3])])
     return _result(index, M, diag, opts, n_solves, _few_views(levels[0].grid, filters),
-                   math.sqrt(_noise_variance(levels[0])), change, M_start)
+                   math.sqrt(_noise_variance(levels[0])), change, M_start, parallax)
 
 
 def _finer_rho_bar(rho_bar: np.ndarray, coarse: LightFieldGrid, fine: LightFieldGrid) -> np.ndarray:
@@ -1521,7 +1534,7 @@ def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
 
 def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str = "",
             noise_sigma: float = math.nan, level_change: np.ndarray | None = None,
-            M_start: np.ndarray | None = None) -> PairResult:
+            M_start: np.ndarray | None = None, parallax: ParallaxSignal | None = None) -> PairResult:
     """The :class:`PairResult` of the final solve ``diag`` at estimate ``M``; ``level_change``:
     (6,) its (t, r) minus the coarser level's (None: one level). When the final solve had
     fewer than ``opts.min_rays`` usable rays, the estimate carries no information (the warp
@@ -1546,6 +1559,13 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
     cov = cov_noise + (np.outer(change, change) if np.all(np.isfinite(change)) else 0.0)
     unobs_vecs = sol["unobs"]
     texture = sol["texture"]
+    flat = np.zeros((0, 3)) if parallax is None else parallax.below(opts.parallax_min)
+    if len(flat):
+        # translation directions without parallax above the noise (the rig's t and the ray motion's
+        # differ by a rotation and a sign: any such direction makes the whole t block infinite below);
+        # the estimate is kept as least squares gave it (a fit of the noise where there is no parallax
+        # at all, still near the truth where a weak one drowns in strong noise)
+        unobs_vecs = np.concatenate([unobs_vecs, np.hstack([flat, np.zeros((len(flat), 3))])])
     if texture < _TEXTURE_FLOOR:
         unobs_vecs = np.eye(6)
     if len(unobs_vecs):
@@ -1558,6 +1578,8 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
             C[:, touched] = 0.0
             C[touched, touched] = np.inf
     names = tuple(_name_direction(v) for v in unobs_vecs)
+    if len(flat) == 3 and len(flat) == len(names):
+        names = PARAM_NAMES[:3]                # the whole translation (the three span it)
     reason = ""
     if num < opts.min_rays:
         reason = (f"only {num} usable rays (need {opts.min_rays}): "
@@ -1565,6 +1587,10 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
     elif texture < _TEXTURE_FLOOR:
         reason = (f"unobservable: no texture (RMS gradient {texture:.2g} per sample); "
                   "all of " + ", ".join(names))
+    elif len(flat) and len(flat) == len(names):
+        reason = (f"unobservable: {', '.join(names)}: no parallax above the noise (signal fraction "
+                  f"{float(np.nanmin(parallax.fraction)):.2f} < {opts.parallax_min:g}: the translation would be "
+                  "a fit of the noise)")
     elif names:
         reason = "unobservable: " + ", ".join(names)
     elif not np.all(np.isfinite(M)):
@@ -1575,7 +1601,8 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
                       sigma=math.sqrt(sigma2), condition=sol["cond"], inlier_fraction=inl,
                       num_rays=num, iterations=n_solves, unobservable=names,
                       unobservable_directions=unobs_vecs, reason=reason, noise_sigma=noise_sigma,
-                      level_change=change)
+                      level_change=change,
+                      parallax_fraction=np.full(3, np.nan) if parallax is None else parallax.fraction)
 
 
 def estimate_trajectory(store, *, progress: Callable[[int, int], None] | None = None,

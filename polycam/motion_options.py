@@ -251,6 +251,14 @@ class MotionOptions:
     """Jacobi-scaled eigenvalue ratio below which a direction is unobservable."""
     min_rays: int = 64
     """Fewer usable rays than this is a failed estimate."""
+    parallax_min: float = 0.2
+    """Translation directions whose *signal fraction* is below this are unobservable (no parallax
+    above the noise): the fraction of the translation columns' energy that the two frames have in
+    common (:func:`polycam.parallax.parallax_signal`, measured after the finest level's solve on its
+    central 5 x 5 views and a textured (u, v) window per face, ~3.5 ms). The smallest fraction
+    of sets with honest estimates measured 0.45–1.0, of noise-fitted ones (a room 10³–10⁶ m away
+    with noise, frames of pure noise) −0.12 and less (docs/motion.md, "No parallax above the
+    noise"); 0 turns the test off. A flagged pair keeps its estimate; its translation std is infinite."""
     tol: float = 1e-7
     """Stop iterating when the increment is below this (|t| [m] + |ω| [rad])."""
     tile: int = 16
@@ -286,6 +294,8 @@ class MotionOptions:
             raise ValueError(f"robust_c must be > 0 and finite, got {self.robust_c}")
         if not 0.0 <= self.smooth_c < math.inf:
             raise ValueError(f"smooth_c must be >= 0 and finite, got {self.smooth_c}")
+        if not 0.0 <= self.parallax_min <= 1.0:
+            raise ValueError(f"parallax_min must be in [0, 1], got {self.parallax_min}")
         if self.levels < 1 or self.iterations < 1 or self.irls_steps < 0:
             raise ValueError("levels and iterations must be >= 1, irls_steps >= 0")
 

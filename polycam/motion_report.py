@@ -5,7 +5,7 @@ One row per frame pair ``(i, i+1)``::
     pair,timestamp_ns,t_x,t_y,t_z,r_x,r_y,r_z,std_t_x,std_t_y,std_t_z,std_r_x,std_r_y,std_r_z,
     std_noise_t,std_noise_r,level_change_t,level_change_r,std_calib_t,std_calib_r,sigma,noise_sigma,
     uv_level,view_disparity,condition,inlier_fraction,num_rays,iterations,ok,unobservable,reason,
-    std_sync_t,std_sync_r,std_sampling_t,std_sampling_r
+    std_sync_t,std_sync_r,std_sampling_t,std_sampling_r,parallax
 
 ``t`` [m] and ``r`` [rad] (axis-angle) are those of ``T_rig[i]_rig[i+1]``; ``std_*``
 the square roots of the covariance diagonal; ``std_noise_t`` [m] and ``std_noise_r`` [rad] the
@@ -25,7 +25,9 @@ robust residual scale and
 given); ``uv_level`` the (u, v) pyramid level the estimate comes from and ``view_disparity``
 the disparity per view step [samples] that chose it (empty when not measured;
 :class:`~polycam.motion_options.MotionOptions` ``max_view_disparity``); ``unobservable`` lists
-direction names separated by ``;``.
+direction names separated by ``;``; ``parallax`` is the smallest signal fraction of the translation
+directions (``PairResult.parallax_fraction``: ~1 parallax well above the noise, below
+``MotionOptions.parallax_min`` the translation is unobservable; empty when not measured).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ PAIR_REPORT_COLUMNS = (
     "std_t_x", "std_t_y", "std_t_z", "std_r_x", "std_r_y", "std_r_z",
     "std_noise_t", "std_noise_r", "level_change_t", "level_change_r", "std_calib_t", "std_calib_r",
     "sigma", "noise_sigma", "uv_level", "view_disparity", "condition", "inlier_fraction", "num_rays", "iterations",
-    "ok", "unobservable", "reason", "std_sync_t", "std_sync_r", "std_sampling_t", "std_sampling_r",
+    "ok", "unobservable", "reason", "std_sync_t", "std_sync_r", "std_sampling_t", "std_sampling_r", "parallax",
 )
 
 
@@ -79,7 +81,8 @@ def write_pair_report(results: Sequence[PairResult], path_csv: str | os.PathLike
                     f"{r.view_disparity:.4g}" if np.isfinite(r.view_disparity) else "", f"{r.condition:.6g}",
                     f"{r.inlier_fraction:.4f}", r.num_rays, r.iterations, int(r.ok),
                     ";".join(r.unobservable), r.reason,
-                    *(f"{v[k]:.6g}" if np.isfinite(v[k]) else "" for v in (sync_t, sync_r, samp_t, samp_r))])
+                    *(f"{v[k]:.6g}" if np.isfinite(v[k]) else "" for v in (sync_t, sync_r, samp_t, samp_r)),
+                    f"{r.parallax_fraction[0]:.3f}" if np.isfinite(r.parallax_fraction[0]) else ""])
     atomic_write_text(path_csv, buf.getvalue())
 
 

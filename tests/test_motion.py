@@ -9,6 +9,7 @@ unit spheres in front of it. Sample (x, y, u, v) averages 2 x 2 rays over its (u
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -239,6 +240,82 @@ def test_one_viewpoint_translation_is_unobservable(scene):
     assert np.all(np.isinf(res.std[:3])) and np.all(np.isfinite(res.std[3:]))
 
 
+def _far_room(monkeypatch, distance: float, grid: LightFieldGrid, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frames of the room scaled to ``distance`` [m] (the same texture per unit angle), from the
+    origin and from ``T``: beyond ~1 km the views 1.5 cm apart see no parallax."""
+    far = Scene(seed=3)
+    far.k = far.k * ROOM_RADIUS / distance
+    monkeypatch.setattr(sys.modules[__name__], "ROOM_RADIUS", distance)
+    return far.render(grid, np.eye(4)), far.render(grid, T)
+
+
+@pytest.mark.parametrize("faces", [("+z",), ALL])
+def test_no_parallax_above_the_noise_makes_the_translation_unobservable(scene, monkeypatch, faces):
+    """The issue's "no parallax" case with noise: a room 10 km away under half a grey level of noise.
+    The translation columns are noise alone, and the solver found a translation in them with a
+    small std (4–7 std off on six faces, docs/motion_log.md session 55); now it is unobservable,
+    named in the reason, with an infinite std, while the rotation keeps its estimate. The same
+    noise on the room at 6 m is not flagged (its parallax is far above the noise)."""
+    grid = make_grid(faces, directions=24 if len(faces) == 1 else 16)
+    rt = np.array([0.0, 0.0, 0.0, T_STEP, 0.0, 0.0])
+    near = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    L0, L1 = _far_room(monkeypatch, 1e4, grid, T_from_rt(rt))
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        noisy = [(L + rng.normal(0, 2e-3, L.shape)).astype(np.float32) for L in (L0, L1, *near)]
+        res = estimate_motion(noisy[0], noisy[1], grid)
+        assert not res and "no parallax above the noise" in res.reason, res.reason
+        assert res.parallax_fraction[0] < MotionOptions().parallax_min
+        assert np.all(np.isinf(res.std[:3])) and np.all(np.isfinite(res.std[3:]))
+        assert np.all(np.abs(res.r) < 10 * res.std[3:] + 1e-6)          # no rotation, and it says so
+        ok = estimate_motion(noisy[2], noisy[3], grid)
+        assert ok and ok.parallax_fraction[0] > 0.5, (ok.reason, ok.parallax_fraction)
+        off = estimate_motion(noisy[0], noisy[1], grid, options=MotionOptions(parallax_min=0.0))
+        assert off and np.all(np.isnan(off.parallax_fraction))         # the test off: as before
+        np.testing.assert_array_equal(off.T_prev_next, res.T_prev_next)   # the estimate itself is kept
+
+
+def test_parallax_signal_of_clean_noisy_and_noise_frames(scene):
+    """:func:`polycam.parallax.parallax_signal`: the translation columns of clean frames are all
+    signal (fractions ~1), of frames of independent noise none (the smallest fraction near 0 or
+    below: the three scatter about 0); a grid with one viewpoint along an axis is not measured."""
+    from polycam.parallax import parallax_signal
+
+    filters = pm._options_filters(MotionOptions())
+    grid = make_grid(("+z",), directions=24)
+    T = T_from_rt(np.array([0.0, 0.002, 0.0, T_STEP, 0.0, 0.0]))
+    L0, L1 = scene.render(grid, np.eye(4)).astype(np.float32), scene.render(grid, T).astype(np.float32)
+    clean = parallax_signal(L0, L1, grid, T, filters=filters)
+    assert np.all(clean.fraction > 0.99) and clean.num_rays > 500
+    np.testing.assert_allclose(np.linalg.norm(clean.directions, axis=1), 1.0)
+    assert len(clean.below(0.2)) == 0
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        A, B = rng.random(grid.shape, dtype=np.float32), rng.random(grid.shape, dtype=np.float32)
+        noise = parallax_signal(A, B, grid, np.eye(4), filters=filters)
+        assert noise.fraction[0] < 0.2 and len(noise.below(0.2)) >= 1, noise.fraction
+    one = linear_grid(("+z",), "x")
+    L = scene.render(one, np.eye(4)).astype(np.float32)
+    assert np.all(np.isnan(parallax_signal(L, L, one, np.eye(4), filters=filters).fraction))
+
+
+def test_parallax_window_is_the_most_textured_with_data():
+    """The parallax test's (u, v) window per face: the most textured of nine candidates, texture
+    counted only where the confidences are (a region without data has a sharp edge, not texture)."""
+    from polycam.parallax import _textured_window
+
+    rng = np.random.default_rng(0)
+    image = np.full((60, 60), 0.5)
+    image[36:, :24] += 0.1 * rng.random((24, 24))                  # texture at the bottom left only
+    assert _textured_window(image, None, 24) == (slice(36, 60), slice(0, 24))
+    image[:24, 36:] = 0.0                                           # a hole at the top right ...
+    conf = np.ones_like(image)
+    conf[:24, 36:] = 0.0                                            # ... without data: not texture
+    assert _textured_window(image, conf, 24) == (slice(36, 60), slice(0, 24))
+    assert _textured_window(image, None, 24) != (slice(36, 60), slice(0, 24))
+    assert _textured_window(image[:10, :12], None, 24) == (slice(0, 10), slice(0, 12))   # smaller than a window
+
+
 def test_three_viewpoints_fail_with_the_reason(scene):
     """Three viewpoints along an axis under fs3 lie inside one ray's filter support: a moved
     frame leaves no usable ray, and the failure says so (not "too little texture"); four work."""
@@ -417,6 +494,9 @@ def test_more_input_errors(scene):
             estimate_motion(*args, **kwargs)
     with pytest.raises(ValueError, match="robust_c"):
         MotionOptions(robust_c=0.0)
+    for bad_min in (-0.1, 1.5, np.nan):
+        with pytest.raises(ValueError, match="parallax_min"):
+            MotionOptions(parallax_min=bad_min)
     # frames in 8-bit units are not a mistake
     assert estimate_motion(255 * L, 255 * L, grid)
 
@@ -1725,6 +1805,7 @@ def test_pair_report_csv(scene, tmp_path):
     # 5 views 1.5 cm apart see the room at ~0.03 samples per view step: the frames' own level
     assert rows[0]["uv_level"] == "0" and 0.0 < float(rows[0]["view_disparity"]) < 0.75
     assert rows[1]["view_disparity"] == ""                       # no texture: not measured
+    assert float(rows[0]["parallax"]) == pytest.approx(good.parallax_fraction[0], abs=1e-3) and good.parallax_fraction[0] > 0.9
     assert float(rows[1]["level_change_t"]) == 0.0               # nothing to move it
     assert float(rows[0]["std_noise_t"]) > 0 and float(rows[0]["std_noise_r"]) > 0
     d = good.level_change                                        # the change from the coarser level
