@@ -69,6 +69,9 @@ class ParallaxSignal:
         return self.directions[keep]
 
 
+_EXTRAPOLATE_VIEWS = 2.0
+"""View steps a linear array's warp extrapolates across its single-view axis (the solver's
+``MotionOptions.extrapolate_views`` default)."""
 _MIN_WINDOW = 24
 """The smallest (u, v) window :func:`parallax_signal` crops a face to: its filters and ρ̂'s
 9-sample window leave 16 x 16 rays inside."""
@@ -85,11 +88,11 @@ def _not_measured(n: int = 0) -> ParallaxSignal:
     return ParallaxSignal(np.full(3, np.nan), np.eye(3), n)
 
 
-def _translation_columns(L: np.ndarray, grid: LightFieldGrid, filters: dict, w: np.ndarray,
-                         rays: tuple) -> np.ndarray:
-    """(n, 3) float64 paper Eq. 5's translation columns in the rig frame of the frame ``L`` (F, Ny,
-    Nx, Nv, Nu) alone at the n rays ``rays`` (index arrays of ``w > 0``), with Eq. 6's ``ρ̂ L_u,
-    ρ̂ L_v`` for ``L_x, L_y`` (ρ̂ pooled over the window with the weights ``w``, L's dims)."""
+def _pooled_rho(L: np.ndarray, grid: LightFieldGrid, filters: dict, w: np.ndarray):
+    """(ρ̂, derivatives) of the frame ``L`` (F, Ny, Nx, Nv, Nu) alone: ρ̂ (L's dims, float32; 0 where
+    undetermined) of Eq. 6 ``L_x = ρ L_u``, ``L_y = ρ L_v``, least squares pooled over the window of
+    :func:`polycam.eq5.rho_window_taps` with the weights ``w`` (L's dims), from the axes with
+    several viewpoints only (a linear array's single-view axis has no L_x or L_y)."""
     der = plenoptic_derivatives(L, L, grid, filters=filters)
     t9, t3 = rho_window_taps()
 
@@ -99,11 +102,25 @@ def _translation_columns(L: np.ndarray, grid: LightFieldGrid, filters: dict, w: 
                 a = correlate_axis(a, taps, axis)
         return a
 
-    Lu, Lv = der.Lu, der.Lv
-    num = pool(w * (der.Lx * Lu + der.Ly * Lv))[rays].astype(np.float64)
-    den = pool(w * (Lu * Lu + Lv * Lv))[rays].astype(np.float64)
-    rho = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
-    gx, gy = rho * Lu[rays], rho * Lv[rays]
+    num = np.zeros_like(L)
+    den = np.zeros_like(L)
+    for axis, Lpos, Ldir in (("x", der.Lx, der.Lu), ("y", der.Ly, der.Lv)):
+        if getattr(grid, axis).count > 1:
+            num += Lpos * Ldir
+            den += Ldir * Ldir
+    num, den = pool(w * num), pool(w * den)
+    rho = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0).astype(np.float32)
+    return rho, der
+
+
+def _translation_columns(L: np.ndarray, grid: LightFieldGrid, filters: dict, w: np.ndarray,
+                         rays: tuple) -> np.ndarray:
+    """(n, 3) float64 paper Eq. 5's translation columns in the rig frame of the frame ``L`` (F, Ny,
+    Nx, Nv, Nu) alone at the n rays ``rays`` (index arrays of ``w > 0``), with Eq. 6's ``ρ̂ L_u,
+    ρ̂ L_v`` for ``L_x, L_y`` (:func:`_pooled_rho` with the weights ``w``, L's dims)."""
+    rho, der = _pooled_rho(L, grid, filters, w)
+    rho = rho[rays].astype(np.float64)
+    gx, gy = rho * der.Lu[rays], rho * der.Lv[rays]
     k, v, u = rays[0], grid.v.values[rays[3]], grid.u.values[rays[4]]
     f = np.array([face.f for face in grid.faces])[k]
     c = np.stack([gx, gy, -(u * gx + v * gy) / f], axis=-1)                  # (n, 3) face frame
@@ -136,9 +153,17 @@ def _textured_window(image: np.ndarray, conf: np.ndarray | None, side: int) -> t
 
 def _face_sums(L0, L1, W0, W1, grid: LightFieldGrid, T_ray: np.ndarray, filters: dict,
                radius: dict) -> tuple[np.ndarray, np.ndarray, int]:
-    """(A, S, n): the 3 x 3 sums of the module docstring over the rays of a one-face ``grid``."""
+    """(A, S, n): the 3 x 3 sums of the module docstring over the rays of a one-face ``grid``. On a
+    linear array the warp extrapolates the rays it moves off the single-view axis by Eq. 6 (as the
+    solver's does), with frame 0's ρ̂ averaged over the views."""
     stack = [L1] if W1 is None else [L1, W1]
-    warped, ok = warp_lightfield(np.stack(stack), grid, T_ray)
+    rho = None
+    if grid.single_view_axis:
+        r0, _ = _pooled_rho(np.ascontiguousarray(L0, np.float32), grid, filters,
+                            np.ones_like(L0, np.float32) if W0 is None else np.asarray(W0, np.float32))
+        rho = r0.mean(axis=(1, 2)).astype(np.float64)                   # (1, Nv, Nu)
+    warped, ok = warp_lightfield(np.stack(stack), grid, T_ray, rho=rho,
+                                 extrapolate_views=_EXTRAPOLATE_VIEWS if rho is not None else 0.0)
     w = ok.astype(np.float32)
     if W0 is not None:
         w *= np.asarray(W0, np.float32)
@@ -177,13 +202,16 @@ def parallax_signal(L0: np.ndarray, L1: np.ndarray, grid: LightFieldGrid, T_rig0
     ``views`` x ``views`` viewpoints at most and, per face, a (u, v) window small enough for about
     ``samples`` samples per frame (at least 24 x 24 directions), the most textured of nine
     (:func:`_textured_window`); ~3 ms at 32768. Frame 1's rays that the warp moves outside the
-    window are left out. Not measured (NaN fractions) with fewer than 3 viewpoints along x or y
-    (no parallax to measure along that axis) or too few rays left once the warp's and the
+    window are left out. A linear array (one viewpoint along x or y: ``grid.single_view_axis``) is
+    measured along its other axis. Not measured (NaN fractions) with fewer than 3 viewpoints along
+    an axis that has several, one viewpoint in all, or too few rays left once the warp's and the
     filters' borders are removed.
     """
     F, Ny, Nx, Nv, Nu = grid.shape
-    radius = {k: filters[k].radius for k in "xyuv"}
-    if Ny < 2 * radius["y"] + 1 or Nx < 2 * radius["x"] + 1 or min(Nx, Ny) < 3:
+    single = grid.single_view_axis
+    radius = {k: 0 if k == single else filters[k].radius for k in "xyuv"}
+    views_ok = [n >= max(2 * radius[k] + 1, 3) for k, n in (("x", Nx), ("y", Ny)) if k != single]
+    if not all(views_ok) or Nx * Ny == 1:
         return _not_measured()
     ys, xs = _central(Ny, views), _central(Nx, views)
     sub = replace(grid, y=Axis.from_values(grid.y.values[ys]), x=Axis.from_values(grid.x.values[xs]))

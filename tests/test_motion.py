@@ -278,7 +278,7 @@ def test_no_parallax_above_the_noise_makes_the_translation_unobservable(scene, m
 def test_parallax_signal_of_clean_noisy_and_noise_frames(scene):
     """:func:`polycam.parallax.parallax_signal`: the translation columns of clean frames are all
     signal (fractions ~1), of frames of independent noise none (the smallest fraction near 0 or
-    below: the three scatter about 0); a grid with one viewpoint along an axis is not measured."""
+    below: the three scatter about 0); a grid with one viewpoint is not measured."""
     from polycam.parallax import parallax_signal
 
     filters = pm._options_filters(MotionOptions())
@@ -294,9 +294,29 @@ def test_parallax_signal_of_clean_noisy_and_noise_frames(scene):
         A, B = rng.random(grid.shape, dtype=np.float32), rng.random(grid.shape, dtype=np.float32)
         noise = parallax_signal(A, B, grid, np.eye(4), filters=filters)
         assert noise.fraction[0] < 0.2 and len(noise.below(0.2)) >= 1, noise.fraction
-    one = linear_grid(("+z",), "x")
-    L = scene.render(one, np.eye(4)).astype(np.float32)
-    assert np.all(np.isnan(parallax_signal(L, L, one, np.eye(4), filters=filters).fraction))
+    pinhole = make_grid(("+z",), views=1, directions=24)                # one viewpoint: no parallax at all
+    L = scene.render(pinhole, np.eye(4)).astype(np.float32)
+    assert np.all(np.isnan(parallax_signal(L, L, pinhole, np.eye(4), filters=filters).fraction))
+
+
+@pytest.mark.parametrize("single", ["x", "y"])
+def test_parallax_on_a_linear_array(scene, monkeypatch, single):
+    """A row or column of cameras is measured along its axis of views (the warp extrapolates across
+    the other by Eq. 6, as the solver's): the room at 6 m under half a grey level of noise is all
+    parallax; 10 km away it is mostly noise (the row's translation flagged, the column's weakest
+    direction at 0.29 of its energy)."""
+    grid = linear_grid(("+z",), single, views=5, directions=32)
+    rt = np.array([0.0, 0.003, 0.0, 0.005, 0.002, 0.0])
+    near = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
+    far = _far_room(monkeypatch, 1e4, grid, T_from_rt(rt))
+    rng = np.random.default_rng(1)
+    noisy = [(L + rng.normal(0, 2e-3, L.shape)).astype(np.float32) for L in (*near, *far)]
+    ok = estimate_motion(noisy[0], noisy[1], grid)
+    assert ok and ok.parallax_fraction[0] > 0.9, ok.parallax_fraction
+    res = estimate_motion(noisy[2], noisy[3], grid)
+    assert np.all(np.isfinite(res.parallax_fraction)) and res.parallax_fraction[0] < 0.5
+    if single == "x":
+        assert not res and "no parallax above the noise" in res.reason
 
 
 def test_parallax_window_is_the_most_textured_with_data():
