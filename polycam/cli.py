@@ -436,10 +436,11 @@ def _level_line(results) -> str:
 
 
 def _one_level_line(results, levels: int) -> str:
-    """When solved pairs had one (u, v) level only although the options ask for ``levels`` (the grid's
-    directions allow no coarser level): their covariance lacks the level change, the model error the
-    residuals do not show (``PairResult.level_change`` NaN), and may be several times too small; ''
-    otherwise."""
+    """When solved pairs had one (u, v) level only although the options ask for ``levels`` and no
+    level change either (the grid's directions allow no coarser level, and the estimate on frames
+    blurred along u and v that stands in for one failed: ``PairResult.level_change`` NaN): their
+    covariance lacks the model error the residuals do not show and may be several times too small;
+    '' otherwise."""
     one = [r for r in results if r and not all(math.isfinite(float(c)) for c in r.level_change)]
     if levels < 2 or not one:
         return ""

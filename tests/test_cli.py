@@ -483,20 +483,35 @@ def test_a_bad_groundtruth_fails_before_the_solve(tmp_path, verb, case):
     assert "wrote" not in res.stdout and not out.exists()
 
 
-def test_motion_warns_when_a_pair_had_one_uv_level(tmp_path):
-    """24 directions allow no coarser (u, v) level: the pairs' covariance lacks the level change (the model
-    error the residuals do not show), and the command says so; 32 directions do not get the line
-    (test_motion_on_a_lightfield_with_report's store)."""
+def test_motion_on_one_uv_level_has_a_level_change(tmp_path):
+    """24 directions allow no coarser (u, v) level: the pairs' covariance gets its model-error term from
+    the estimate on frames blurred along u and v instead (pairs.csv level_change_t), so no warning; a
+    pair without one (the blurred estimate failed) gets the warning line."""
+    import csv
+
+    from polycam.cli import _one_level_line
+    from polycam.motion import PairResult
+
     grid = tmp_path / "grid.toml"
     grid.write_text('[grid]\nf = 60\nz_pi = 0.03\nfaces = ["+z"]\nx = [-0.03, 0.03, 5]\ny = [-0.03, 0.03, 5]\n'
                     'u = [-57.5, 57.5, 24]\nv = [-57.5, 57.5, 24]\n')
     lf = tmp_path / "lf.zarr"
     assert polycam("synth", "lightfield", "--grid", str(grid), "--frames", "2", "--out", str(lf)).returncode == 0
-    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"))
-    assert res.returncode == 0, res.stderr
-    assert "warning: 1 of 1 pairs solved on one (u, v) level" in res.stdout, res.stdout
-    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--option", "levels=1")
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--report", str(tmp_path / "rep"))
+    assert res.returncode == 0 and "one (u, v) level" not in res.stdout, res.stdout
+    with open(tmp_path / "rep" / "pairs.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert float(rows[0]["level_change_t"]) > 0
+    res = polycam("motion", str(lf), "--out", str(tmp_path / "t.tum"), "--report", str(tmp_path / "rep1"),
+                  "--option", "levels=1")
     assert res.returncode == 0 and "one (u, v) level" not in res.stdout, res.stdout     # as asked
+    with open(tmp_path / "rep1" / "pairs.csv", newline="") as f:
+        assert next(csv.DictReader(f))["level_change_t"] == ""
+    C = np.eye(6) * 1e-6
+    lacking = PairResult(index=0, T_prev_next=np.eye(4), covariance=C, covariance_noise=C, covariance_iid=C,
+                         sigma=0.01, condition=10.0, inlier_fraction=1.0, num_rays=1000, iterations=3)
+    assert "warning: 1 of 1 pairs solved on one (u, v) level" in _one_level_line([lacking], 3)
+    assert _one_level_line([lacking], 1) == ""
 
 
 def test_motion_on_a_broken_store_names_it(tmp_path):
