@@ -188,8 +188,8 @@ from .motion_options import MotionOptions
 from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise_variance, discontinuity_weight,
                              frame_noise_variance, min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
                              solver_filter_pairs)
-from .pyramid import _add_level, _Level, _pyramid
 from .parallax import ParallaxSignal, parallax_signal
+from .pyramid import _add_level, _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min, _warped_confidence_kernel,
                    _filled_view_mean, _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into,
@@ -275,7 +275,8 @@ class PairResult:
     unobservable: tuple[str, ...] = ()
     """Names of (near-)unobservable directions, e.g. ``("t_x", "t_y", "t_z")``."""
     unobservable_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
-    """(k, 6) unit vectors (scaled parameter space) spanning the unobservable subspace."""
+    """(k, 6) unit vectors (scaled parameter space) spanning the unobservable subspace (a translation
+    direction without parallax above the noise: its rig-frame unit vector, rotation part 0)."""
     reason: str = ""
     """Why the estimate failed; empty when it succeeded."""
     noise_sigma: float = math.nan
@@ -1636,8 +1637,8 @@ def _result(index, M, diag, opts: MotionOptions, n_solves: int, few_views: str =
                   "all of " + ", ".join(names))
     elif len(flat) and len(flat) == len(names):
         reason = (f"unobservable: {', '.join(names)}: no parallax above the noise (signal fraction "
-                  f"{float(np.nanmin(parallax.fraction)):.2f} < {opts.parallax_min:g}: the translation would be "
-                  "a fit of the noise)")
+                  f"{float(np.nanmin(parallax.fraction)):.2f} < {opts.parallax_min:g}: the translation columns are "
+                  "mostly noise)")
     elif names:
         reason = "unobservable: " + ", ".join(names)
     elif not np.all(np.isfinite(M)):
