@@ -95,6 +95,26 @@ def test_spheres_start_at_distance():
     assert cosang.min() >= math.cos(math.radians(70.0)) - 1e-12
 
 
+def test_spheres_too_far_for_the_horizon_is_one_line(tmp_path):
+    """Unit spheres filling the horizon grow as the distance squared: 2000 m would need ~8e7 of them
+    (the command ran for hours); beyond MAX_SPHERES it is an InputError naming the distance that fits,
+    and `polycam synth lightfield` says so in one line, exit 1, nothing written."""
+    import subprocess
+    import sys
+
+    from polycam.errors import InputError
+    from polycam.synth.scenes import MAX_SPHERES
+
+    with pytest.raises(InputError, match=r"2000 m needs .*at most 1,000,000: a distance up to about 22\d m"):
+        spheres_scene(2000.0)
+    assert len(spheres_scene(200.0, faces="forward").sphere_radii) < MAX_SPHERES     # the forward cone fits
+    out = tmp_path / "far.zarr"
+    res = subprocess.run([sys.executable, "-m", "polycam.cli", "synth", "lightfield", "--distance", "2000",
+                          "--faces", "+z", "--frames", "2", "--out", str(out)], capture_output=True, text=True)
+    assert res.returncode == 1 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert "2000 m needs" in res.stderr and not out.exists() and not Path(str(out) + ".partial").exists()
+
+
 def test_session_is_deterministic(tmp_path):
     rig = _small_rig(tmp_path, extra='[mock]\nscene = "room"\nnoise = 0.01\n')
     kw = dict(frames=2, supersample=1, perturb_position_m=0.001, perturb_rotation_deg=0.1,

@@ -37,12 +37,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = [
     "Textures",
     "SphereGrid",
     "Scene",
     "TextureBuilder",
     "spheres_scene",
+    "MAX_SPHERES",
     "room_scene",
     "make_scene",
     "SCENE_NAMES",
@@ -367,6 +370,11 @@ def _light_dir() -> np.ndarray:
     return l / np.linalg.norm(l)
 
 
+MAX_SPHERES = 1_000_000
+"""The most spheres :func:`spheres_scene` builds (~40 s on 2 cores at a million; their number grows as
+the distance squared: ~220 m for all directions, ~380 m for the forward cone)."""
+
+
 def spheres_scene(distance: float = 8.0, *, seed: int = 0, faces: str = "all", radius: float = 1.0,
                   optical_depth: float = 5.0, thickness: float = 6.0, waves: int = 24,
                   cone_deg: float = 70.0) -> Scene:
@@ -380,7 +388,8 @@ def spheres_scene(distance: float = 8.0, *, seed: int = 0, faces: str = "all", r
     optical_depth: expected number of spheres a ray crosses in the shell; the
         background (sky) fraction is about ``exp(-optical_depth)``.
     waves: cosine waves per sphere texture, wave numbers uniform in [1, 4] / radius.
-    Spheres may overlap. Sky: a smooth function of direction.
+    Spheres may overlap. Sky: a smooth function of direction. More than :data:`MAX_SPHERES`
+    spheres (a distance beyond ~220 m for all directions) is an :class:`~polycam.errors.InputError`.
     """
     if distance <= 0 or radius <= 0 or thickness <= 0:
         raise ValueError("distance, radius and thickness must be > 0")
@@ -396,6 +405,11 @@ def spheres_scene(distance: float = 8.0, *, seed: int = 0, faces: str = "all", r
         vol *= (1.0 - cos_cone) / 2.0
     density = optical_depth / (np.pi * radius**2 * thickness)
     n = max(1, int(round(density * vol)))
+    if n > MAX_SPHERES:
+        # the shell's volume grows as distance²: 2000 m would need ~8e7 spheres (hours, gigabytes)
+        d_max = distance * math.sqrt(MAX_SPHERES / n)
+        raise InputError(f"the spheres scene at {distance:g} m needs {n:,} spheres of radius {radius:g} m to fill "
+                         f"the horizon (at most {MAX_SPHERES:,}: a distance up to about {d_max:.0f} m)")
     dirs = rng.normal(size=(n, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     if faces == "forward":
