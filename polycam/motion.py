@@ -189,7 +189,7 @@ from .motion_weights import (_SCALE_SAMPLES, _level_discontinuity_weight, _noise
                              frame_noise_variance, min_over_support, model_error_weights, robust_scale, robust_slope, robust_weight,
                              solver_filter_pairs)
 from .parallax import ParallaxSignal, parallax_signal
-from .pyramid import _add_level, _Level, _pyramid
+from .pyramid import _BINOMIAL, _add_level, _Level, _pyramid
 from .trajectory import Trajectory
 from .warp import (_T_sqrt, _apply_warped_confidence, _face_abs_max, _face_abs_max_min, _warped_confidence_kernel,
                    _filled_view_mean, _near_marks, _padded, _view_mean, _views_inner_lw_kernel, _warp_into,
@@ -1442,17 +1442,12 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                    math.sqrt(_noise_variance(levels[0])), change, M_start, parallax)
 
 
-_BLUR_TAPS = np.array([1.0, 4.0, 6.0, 4.0, 1.0], np.float32) / 16.0
-"""The binomial filter :func:`_blurred_change` blurs the frames with along u and v (the pyramid's
-downsampling filter, here without the decimation)."""
-
-
 def _blur_uv(L: np.ndarray, W: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-    """(L, W) (F, Ny, Nx, Nv, Nu) blurred along u and v by :data:`_BLUR_TAPS`; with confidences a
-    normalised convolution (samples without data do not darken their neighbours; the blurred W is
-    the blurred confidences)."""
+    """(L, W) (F, Ny, Nx, Nv, Nu) blurred along u and v by the pyramid's binomial filter (not
+    decimated); with confidences a normalised convolution (samples without data do not darken their
+    neighbours; the blurred W is the blurred confidences)."""
     def blur(a):
-        return correlate_axis(correlate_axis(np.ascontiguousarray(a, np.float32), _BLUR_TAPS, 4), _BLUR_TAPS, 3)
+        return correlate_axis(correlate_axis(np.ascontiguousarray(a, np.float32), _BINOMIAL, 4), _BINOMIAL, 3)
 
     if W is None:
         return blur(L), None

@@ -41,7 +41,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .derivatives import correlate_axis, min_filter_axis, plenoptic_derivatives
+from .derivatives import _valid_mask, correlate_axis, min_filter_axis, plenoptic_derivatives
 from .eq5 import rho_window_taps
 from .geometry import T_inverse
 from .lightfield import Axis, LightFieldGrid
@@ -173,11 +173,7 @@ def _face_sums(L0, L1, W0, W1, grid: LightFieldGrid, T_ray: np.ndarray, filters:
     for axis, k in ((1, "y"), (2, "x"), (3, "v"), (4, "u")):
         if radius[k]:
             w = min_filter_axis(w, radius[k], axis)
-            idx = [slice(None)] * 5
-            idx[axis] = slice(0, radius[k])
-            w[tuple(idx)] = 0.0
-            idx[axis] = slice(w.shape[axis] - radius[k], None)
-            w[tuple(idx)] = 0.0
+    w *= _valid_mask(w.shape[1:], {k: filters[k] if radius[k] else None for k in "xyuv"})
     rays = np.nonzero(w > 0)
     n = int(rays[0].size)
     if n == 0:

@@ -49,11 +49,16 @@ def _downsample_uv_kernel(a, taps, out):
                 o[j] = acc
 
 
+_BINOMIAL = np.array([1, 4, 6, 4, 1], np.float32) / 16
+"""The pyramid's smoothing filter along each halved axis (also the motion solver's blur of a grid too
+small for a coarser level: ``polycam.motion._blur_uv``)."""
+
+
 def _downsample(a: np.ndarray, axes: tuple[int, ...], alloc=None) -> np.ndarray:
     """Binomial [1 4 6 4 1]/16 smoothing then every second sample along ``axes`` of a (..., Ny, Nx, Nv, Nu)
     array. ``alloc(shape)``: where to put the result of (v, u) together, a float32 C array of
     those dims or None (a new one)."""
-    taps = np.array([1, 4, 6, 4, 1], np.float32) / 16
+    taps = _BINOMIAL
     out = np.ascontiguousarray(a, dtype=np.float32)
     if tuple(axes) == (out.ndim - 2, out.ndim - 1):            # (v, u) together: one pass
         Nv, Nu = out.shape[-2:]
