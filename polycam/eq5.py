@@ -70,6 +70,11 @@ _NSTAT = 25
 
 
 _ROBUST_KIND = {"none": 0, "tukey": 1, "huber": 2}
+"""The passes' ``kind`` of each ``MotionOptions.robust`` loss: the IRLS weight ψ(r) / r."""
+_ROBUST_SLOPE = {1: 3, 2: 4}
+"""The ``kind`` whose weight is the slope ψ'(r) of the loss ``kind`` (ψ(r) = r · its IRLS weight),
+which the M-estimator's covariance takes where least squares takes the weight: Tukey's
+(1 − z²)(1 − 5z²) for z < 1, Huber's 1 for z <= 1 (z = |r| / (s c)); 0 beyond."""
 
 
 def _view_origin(Ny: int, Nx: int, box: np.ndarray | None = None) -> np.ndarray:
@@ -347,8 +352,10 @@ def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind,
     (5,) float32 the derivatives' scales (module docstring); c = the ray's Eq. 5
     coefficients in face coordinates, b = −L_t. With ``kind`` 1 (Tukey) or 2 (Huber) the
     weight is wb times the IRLS weight of the residual ``r = L_t + c · p`` normalised by
-    1 / inv_sc. Adds the sums to acc (n_tv, n_tu, 29) per (u, v) tile of ``tile`` samples
-    and counts to st (25,); with ``final`` also the texture and the noise energy.
+    1 / inv_sc; with 3 or 4 wb times the slope ψ' of Tukey's or Huber's loss there
+    (:data:`_ROBUST_SLOPE`: the M-estimator covariance's normal matrix). Adds the sums to acc
+    (n_tv, n_tu, 29) per (u, v) tile of ``tile`` samples and counts to st (25,); with ``final``
+    also the texture and the noise energy.
     The ray loop has no branches (rays with weight <= 0 add zeros; their derivatives
     are finite) and unsigned indices, so that it vectorises (callers use ``_FASTMATH``).
     """
@@ -426,8 +433,13 @@ def _accumulate_view(gx, gy, gu, gv, lt, sc, wb, x, y, us, vs, z_pi, f, p, kind,
                     if kind == 1:
                         q = one - zz * zz
                         wr = q * q if zz < one else z32
-                    else:
+                    elif kind == 2:
                         wr = one if zz <= one else one / zz
+                    elif kind == 3:                 # Tukey's ψ'(r) / ψ'(0) (_ROBUST_SLOPE)
+                        q = one - zz * zz
+                        wr = q * (one - np.float32(5.0) * zz * zz) if zz < one else z32
+                    else:                           # Huber's
+                        wr = one if zz <= one else z32
                     c_in += one if (pos and wr > np.float32(0.5)) else z32
                     wi = wi * wr
                 c_w += one if wi > z32 else z32

@@ -120,8 +120,9 @@ columns show no parallax above the noise (:func:`polycam.parallax.parallax_signa
 each frame alone, their share common to both frames is below ``MotionOptions.parallax_min``). The
 covariance is a cluster-robust sandwich over tiles of rays (residuals of
 filtered derivatives are correlated over the filter support) around the
-noise-corrected normal matrix ``AᵀWA − E`` (E = expected energy of sensor noise in
-the derivatives, with the noise level estimated from second differences across
+M-estimate's noise-corrected sensitivity ``Σ base ψ'(r) c cᵀ − E`` (ψ' the slope of the
+IRLS loss at each ray's residual, :meth:`_Solver.slope_normal`; E = expected energy of sensor
+noise in the derivatives, with the noise level estimated from second differences across
 viewpoints), kept as ``covariance_noise``; the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as
 ``covariance_iid``. The reported ``covariance`` adds ``d dᵀ``, ``d`` the change of (t, r) from
 the estimate of the (u, v) level above the finest to the final one: model error coherent over
@@ -154,12 +155,11 @@ vectorises them; work arrays are kept per thread for the next call on the same g
 :mod:`polycam.warp`, :mod:`polycam.whitening` (generalised least squares).
 
 Limits: ``covariance_noise`` describes noise, not the systematic errors of aliased
-or occluded data (on resampled camera-array sessions the errors are 3–5x its standard
-deviations, RMS per axis); the level change brings that to ~2x (the errors' median to ~1.5x
-their predicted norm), and makes six faces of clean noisy frames 1.3–2.5x conservative in t
-(docs/motion.md, "How far to trust the covariance"). Under noise alone ``covariance_noise``
-matches the scatter of repeated estimates to within about 1.5x (tests/test_motion.py). One face
-alone couples t and ω (condition numbers of 10²–10³).
+or occluded data (on resampled camera-array sessions the errors were 3–5x its standard
+deviations, RMS per axis, in session 37); with the level change camera-array sessions err
+0.7–1.1x the reported std (RMS per axis, session 56) and clean frames 0.1–0.5x (conservative);
+under noise on the tests' small grids 1.1–1.5x (docs/motion.md, "How far to trust the covariance";
+tests/test_motion.py). One face alone couples t and ω (condition numbers of 10²–10³).
 
 This module does no file I/O; :func:`estimate_trajectory` streams frames from
 a light-field store (anything with ``grid``, ``timestamps_ns``, ``frame(i)``,
@@ -177,9 +177,9 @@ from typing import Callable
 import numpy as np
 
 from .derivatives import FILTERS, Derivatives, correlate_axis, derivative_noise, filter_taps, parallel_chunks
-from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _accumulate, _apply_rho, _box_views, _face_B, _fill_rho,
-                  _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals, _store_weights,
-                  _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
+from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _ROBUST_SLOPE, _accumulate, _apply_rho, _box_views, _face_B,
+                  _fill_rho, _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals,
+                  _store_weights, _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
 from .errors import InputError
 from .filter_response import divide_rho_by_gain, window_rms_frequency
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
@@ -259,7 +259,8 @@ class PairResult:
     ``covariance_sampling`` where they were measured."""
     covariance_noise: np.ndarray
     """(6, 6) the part of ``covariance`` the residuals' scatter explains: a cluster-robust
-    sandwich over tiles of rays."""
+    sandwich over tiles of rays around the M-estimate's sensitivity (each ray's slope ψ' of the
+    IRLS loss, not its weight; module docstring)."""
     covariance_iid: np.ndarray
     """(6, 6) ``σ² (AᵀWA)⁻¹`` mapped like ``covariance`` (assumes independent residuals)."""
     sigma: float
@@ -900,6 +901,23 @@ class _Solver:
                      self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
         return self._sums()
 
+    def slope_normal(self) -> tuple[np.ndarray, float] | None:
+        """(N_ψ', Σ base ψ'): the rig-frame normal matrix (6, 6) of the last solve's rays with each
+        weight the base weight times the slope ψ' of the robust loss at the residual the last IRLS
+        pass weighted by (at ``p_w``, scale ``scale``; :data:`polycam.eq5._ROBUST_SLOPE`), and the sum
+        of those weights; for :func:`_increment_covariance`. None without IRLS weights (no robust
+        loss or no reweighted pass) and after the whitened re-solves (their rows carry √w). One more
+        pass over the rays; it overwrites the pass sums (call it after the last solve)."""
+        if not self.kind or self.p_w is None or self.whitened or self.scale is None:
+            return None
+        Lx, Ly, Lu, Lv, Lt = self.der
+        _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
+                     self._face_params(self.p_w), _ROBUST_SLOPE[self.kind],
+                     1.0 / (self.scale * self.opts.robust_c), self._tile(False), self.box, self.vo, self.h,
+                     self.var, False, self.acc, self.st, parallel_chunks())
+        (N, _, _, sw, _), _ = self._sums()
+        return N, sw
+
     def mad(self, p_rig: np.ndarray, max_samples: int = _SCALE_SAMPLES) -> float:
         """1.4826 × weighted median of |residual| over base weight > 0 (weights = base), on
         every k-th (v) row of the valid views, at least ``max_samples`` rays (the scale
@@ -1431,6 +1449,10 @@ def _estimate_levels(levels: list, M: np.ndarray, opts: MotionOptions, filters: 
                     continue                      # converged: now the whitened (GLS) re-solves
                 if done or (finest and not solver.whitened and it >= opts.iterations - 1):
                     break
+    if diag is not None:
+        # the reported covariance with the M-estimate's sensitivity (one more pass; the
+        # convergence tests above took the IRLS weights')
+        diag = (diag[0], _increment_covariance(diag[0], solver.slope_normal()), diag[2])
     parallax = None
     if opts.parallax_min > 0:
         lev = levels[0]
@@ -1529,7 +1551,8 @@ _WHITEN_ITERATIONS = 3
 """Most whitened (GLS) re-solves after the plain solve converged at the finest level."""
 
 
-def _increment_covariance(sol: dict) -> tuple[np.ndarray, np.ndarray, float]:
+def _increment_covariance(sol: dict, slope: tuple[np.ndarray, float] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray, float]:
     """Covariances (6, 6) of the converged estimate: cluster-robust sandwich and
     ``σ² (AᵀWA)⁺``, and σ².
 
@@ -1539,19 +1562,41 @@ def _increment_covariance(sol: dict) -> tuple[np.ndarray, np.ndarray, float]:
     if needed to keep it well inside positive definite); with one face, where t and ω
     couple, this is a factor of several for the translation. The scores are the
     per-tile sums of w c r over (u, v) tiles of all views (``_Solver.solve``).
+
+    ``slope``: (N_ψ', Σ base ψ') of :meth:`_Solver.slope_normal`, the normal matrix with each ray's
+    weight the slope ψ' of the robust loss at its residual instead of the IRLS weight ψ(r) / r.
+    IRLS converges to the M-estimate ``Σ base c ψ(r) = 0``, which noise moves through ψ', not
+    through the weight: for Tukey's loss ψ' is below the weight everywhere (negative beyond 45 %
+    of the cut-off), so the sandwich's sensitivity is ``N_ψ' − κE`` (κ = Σ base ψ' / Σ w, E's
+    share), as :mod:`polycam.design` predicts it. Taken only where it is well inside positive
+    definite (its Jacobi-scaled eigenvalues above 5 % of N's smallest); ``σ² (AᵀWA)⁺`` keeps N.
+    The solver's convergence tests take the IRLS weights' N (the estimate is as before session
+    56); the reported covariance takes the slope (:func:`_estimate_levels`).
     """
     sigma2 = sol["chi2"] / max(sol["sw"] - 6.0, 1.0)
     Np = _corrected_pinv(sol["N"], sol["E"], sol)
+    Nb = Np
+    if slope is not None:
+        N_s, sw_s = slope
+        d = np.diag(sol["N"])
+        live = d > max(float(d.max()), 1e-300) * 1e-14
+        sc = np.where(live, 1.0 / np.sqrt(np.where(live, d, 1.0)), 0.0)
+        ev_s = np.linalg.eigvalsh((N_s * sc[:, None] * sc[None, :])[np.ix_(live, live)])
+        ev = np.linalg.eigvalsh((sol["N"] * sc[:, None] * sc[None, :])[np.ix_(live, live)])
+        if len(ev) and ev_s.min() > 0.05 * ev.min() and sol["sw"] > 0:
+            Nb = _corrected_pinv(N_s, sol["E"] * (sw_s / sol["sw"]), sol, N_scale=sol["N"])
     S = sol["scores"]
     G = S.shape[0]
     meat = S.T @ S * (G / max(G - 1, 1))
-    return Np @ meat @ Np, sigma2 * Np, sigma2
+    return Nb @ meat @ Nb, sigma2 * Np, sigma2
 
 
-def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict) -> np.ndarray:
+def _corrected_pinv(N: np.ndarray, E: np.ndarray, sol: dict, N_scale: np.ndarray | None = None) -> np.ndarray:
     """Pseudo-inverse of N − αE on the observable subspace; α is the largest of 1, 1/2,
-    1/4, ... keeping every (Jacobi-scaled) observable eigenvalue above 20% of N's smallest."""
-    d = np.diag(N)
+    1/4, ... keeping every (Jacobi-scaled) observable eigenvalue above 20% of N's smallest.
+    ``N_scale``: the normal matrix whose diagonal scales the parameters (``sol["unobs"]`` is in
+    its scaled coordinates; None: N's own)."""
+    d = np.diag(N if N_scale is None else N_scale)
     live = d > max(float(d.max()), 1e-300) * 1e-14
     s = np.where(live, 1.0 / np.sqrt(np.where(live, d, 1.0)), 0.0)
     U = sol["unobs"]                                   # (k, 6) in scaled coordinates
