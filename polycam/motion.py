@@ -1486,11 +1486,17 @@ def _blurred_change(res: PairResult, L0, L1, W0, W1, grid: LightFieldGrid, opts:
     level does, started from ``res``; ``covariance`` gains ``d dᵀ`` and ``level_change`` is ``d``.
     Measured on the tests' one-face and six-face rooms and spheres (docs/motion.md, "How far to trust
     the covariance"): clean frames' error / std 0.9–4.8 (RMS over the axes) → 0.1–0.4, noisy frames'
-    1.2–1.9 → 0.9–1.6. ``res`` unchanged when the blurred estimate fails."""
+    1.2–1.9 → 0.9–1.6. When the blurred estimate fails, its first step alone (one linearisation at
+    ``res``, which cannot warp the rays off the grid) stands in: one face rotated by 8–10° between
+    frames, whose second step along the weak t–ω direction left no ray on the grid (session 56).
+    ``res`` unchanged when that fails too."""
     (A, WA), (B, WB) = _blur_uv(L0, W0), _blur_uv(L1, W1)
     radius = {k: fp.radius for k, fp in filters.items()}
     one = replace(opts, levels=1, parallax_min=0.0)
     other = _estimate_levels(_pyramid(A, B, WA, WB, grid, one, radius), res.T_prev_next, one, filters, index)
+    if not other:
+        one = replace(one, iterations=1)
+        other = _estimate_levels(_pyramid(A, B, WA, WB, grid, one, radius), res.T_prev_next, one, filters, index)
     if not other:
         return res
     M, C = res.T_prev_next, other.T_prev_next

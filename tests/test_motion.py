@@ -342,6 +342,18 @@ def test_one_uv_level_gets_the_blurred_change(scene):
     assert with_w and np.all(np.isfinite(with_w.level_change))
 
 
+def test_one_uv_level_blurred_change_after_a_large_rotation(scene):
+    """One face rotated by 10° between frames: the blurred frames' estimate left every ray off the grid
+    (its second step, along the weak t–ω direction), so the pair had no model-error term and its
+    translation erred ~7x its std (session 54's audit); the blurred frames' first step stands in."""
+    grid = make_grid(("+z",), directions=24)
+    rt = np.array([0.0, np.radians(10.0), 0.0, 0.005, 0.0, 0.0])
+    res = estimate_motion(scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt)), grid)
+    assert res and np.all(np.isfinite(res.level_change))
+    err = np.r_[res.t - rt[3:], res.r - rt[:3]]
+    assert np.all(np.abs(err) < res.std), err / res.std
+
+
 def test_parallax_window_is_the_most_textured_with_data():
     """The parallax test's (u, v) window per face: the most textured of nine candidates, texture
     counted only where the confidences are (a region without data has a sharp edge, not texture)."""
