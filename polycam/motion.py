@@ -121,8 +121,9 @@ each frame alone, their share common to both frames is below ``MotionOptions.par
 covariance is a cluster-robust sandwich over tiles of rays (residuals of
 filtered derivatives are correlated over the filter support) around the
 M-estimate's noise-corrected sensitivity ``Σ base ψ'(r) c cᵀ − E`` (ψ' the slope of the
-IRLS loss at each ray's residual, :meth:`_Solver.slope_normal`; E = expected energy of sensor
-noise in the derivatives, with the noise level estimated from second differences across
+IRLS loss at each ray's residual, :meth:`_Solver.slope_normal`; without IRLS, and after the
+noise options' whitened re-solves, the weighted normal matrix ``AᵀWA``; E = expected energy of
+sensor noise in the derivatives, with the noise level estimated from second differences across
 viewpoints), kept as ``covariance_noise``; the textbook ``σ² (AᵀWA − E)⁻¹`` is kept as
 ``covariance_iid``. The reported ``covariance`` adds ``d dᵀ``, ``d`` the change of (t, r) from
 the estimate of the (u, v) level above the finest to the final one: model error coherent over
@@ -179,7 +180,8 @@ import numpy as np
 from .derivatives import FILTERS, Derivatives, correlate_axis, derivative_noise, filter_taps, parallel_chunks
 from .eq5 import (_NACC, _NSTAT, _QMAX, _ROBUST_KIND, _ROBUST_SLOPE, _accumulate, _apply_rho, _box_views, _face_B,
                   _fill_rho, _load_accumulate_view, _pass_kernel, _prepare_kernel, _reduce, _sample_residuals,
-                  _store_weights, _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho, ray_motion_coefficients)
+                  _store_weights, _unpack_sym, _view_origin, _weighted_median, RegressorMix, depth_rho,
+                  ray_motion_coefficients)
 from .errors import InputError
 from .filter_response import divide_rho_by_gain, window_rms_frequency
 from .geometry import R_from_r, T_from_Rt, T_inverse, adjoint, r_from_R
