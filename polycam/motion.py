@@ -1495,11 +1495,11 @@ def _blurred_change(res: PairResult, L0, L1, W0, W1, grid: LightFieldGrid, opts:
     (A, WA), (B, WB) = _blur_uv(L0, W0), _blur_uv(L1, W1)
     radius = {k: fp.radius for k, fp in filters.items()}
     one = replace(opts, levels=1, parallax_min=0.0)
-    other = _estimate_levels(_pyramid(A, B, WA, WB, grid, one, radius), res.T_prev_next, one, filters, index)
-    if not other:
-        one = replace(one, iterations=1)
-        other = _estimate_levels(_pyramid(A, B, WA, WB, grid, one, radius), res.T_prev_next, one, filters, index)
-    if not other:
+    for o in (one, replace(one, iterations=1)):         # then the first step alone
+        other = _estimate_levels(_pyramid(A, B, WA, WB, grid, o, radius), res.T_prev_next, o, filters, index)
+        if other:
+            break
+    else:
         return res
     M, C = res.T_prev_next, other.T_prev_next
     d = np.concatenate([M[:3, 3] - C[:3, 3], r_from_R(M[:3, :3]) - r_from_R(C[:3, :3])])
