@@ -895,11 +895,13 @@ class _Solver:
             self._var0 = np.asarray(var, float).copy()
         return self._var0
 
-    def reweighted(self, p_rig: np.ndarray, final: bool):
-        """Normal sums with IRLS weights of the residuals at p_rig (robust scale self.scale)."""
+    def reweighted(self, p_rig: np.ndarray, final: bool, kind: int | None = None):
+        """Normal sums with IRLS weights of the residuals at p_rig (robust scale self.scale); ``kind``:
+        the pass's weight instead of the IRLS loss's (:mod:`polycam.eq5`, e.g. its slope)."""
         Lx, Ly, Lu, Lv, Lt = self.der
         _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
-                     self._face_params(p_rig), self.kind, 1.0 / (self.scale * self.opts.robust_c), self._tile(final),
+                     self._face_params(p_rig), self.kind if kind is None else kind,
+                     1.0 / (self.scale * self.opts.robust_c), self._tile(final),
                      self.box, self.vo, self.h, self.var, final, self.acc, self.st, parallel_chunks())
         return self._sums()
 
@@ -912,12 +914,7 @@ class _Solver:
         pass over the rays; it overwrites the pass sums (call it after the last solve)."""
         if not self.kind or self.p_w is None or self.whitened or self.scale is None:
             return None
-        Lx, Ly, Lu, Lv, Lt = self.der
-        _pass_kernel(Lx, Ly, Lu, Lv, Lt, self.dsc, self.base, True, *self.vals, self.zs, self.fs,
-                     self._face_params(self.p_w), _ROBUST_SLOPE[self.kind],
-                     1.0 / (self.scale * self.opts.robust_c), self._tile(False), self.box, self.vo, self.h,
-                     self.var, False, self.acc, self.st, parallel_chunks())
-        (N, _, _, sw, _), _ = self._sums()
+        (N, _, _, sw, _), _ = self.reweighted(self.p_w, False, _ROBUST_SLOPE[self.kind])
         return N, sw
 
     def mad(self, p_rig: np.ndarray, max_samples: int = _SCALE_SAMPLES) -> float:
@@ -1155,7 +1152,7 @@ def _solve_normal(N: np.ndarray, rhs: np.ndarray, rcond: float) -> dict:
     p = N_pinv @ rhs
     bad_dirs = evecs[:, ~good].T
     cond = float(lmax / evals[good].min()) if good.all() and lmax > 0 else math.inf
-    return {"p": p, "N_pinv": N_pinv, "unobs": bad_dirs, "cond": cond}
+    return {"p": p, "N_pinv": N_pinv, "unobs": bad_dirs, "cond": cond, "scale": eig.scale}
 
 
 def _name_direction(vec: np.ndarray) -> str:
@@ -1586,9 +1583,8 @@ def _increment_covariance(sol: dict, slope: tuple[np.ndarray, float] | None = No
     Nb = Np
     if slope is not None:
         N_s, sw_s = slope
-        d = np.diag(sol["N"])
-        live = d > max(float(d.max()), 1e-300) * 1e-14
-        sc = np.where(live, 1.0 / np.sqrt(np.where(live, d, 1.0)), 0.0)
+        sc = sol["scale"]                                 # N's Jacobi scaling (_solve_normal)
+        live = sc > 0
         ev_s = np.linalg.eigvalsh((N_s * sc[:, None] * sc[None, :])[np.ix_(live, live)])
         ev = np.linalg.eigvalsh((sol["N"] * sc[:, None] * sc[None, :])[np.ix_(live, live)])
         if len(ev) and ev_s.min() > 0.05 * ev.min() and sol["sw"] > 0:
