@@ -24,7 +24,7 @@ from polycam.derivatives import plenoptic_derivatives
 from polycam.eq5 import _RHO_NONE
 from polycam.trajectory import Trajectory
 
-from tolerances import (MOTION_COV_RMS_MAX, MOTION_SLOPE_SUMS_RTOL,
+from tolerances import (MOTION_COV_RMS_MAX, MOTION_COV_RMS_MAX_IRLS, MOTION_JACKKNIFE_RTOL, MOTION_SLOPE_SUMS_RTOL,
                         MOTION_INT16_WEIGHTS_REL, MOTION_MODEL_BUMP_GAIN, MOTION_NOISE_SIGMA_REL, MOTION_COMBINED_REL,
                         MOTION_W_LAG_REL, MOTION_W_PAIR_REL,
                         MOTION_COMBINED_REL_ONE_FACE, MOTION_COV_RATIO_MAX,
@@ -746,6 +746,36 @@ def test_covariance_matches_scatter_under_noise(scene):
     assert np.all(ratio > MOTION_COV_RATIO_MIN) and np.all(ratio < MOTION_COV_RATIO_MAX), ratio
 
 
+@pytest.mark.parametrize("dead", [False, True], ids=["observable", "one-dead-column"])
+def test_jackknife_scores_give_the_leave_one_tile_out_variance(rng, dead):
+    """With the tiles' scores scaled by their leverage, the sandwich around N⁻¹ is the variance of
+    the leave-one-tile-out solutions about the solution, Σ_g (p_(−g) − p)(p_(−g) − p)ᵀ, computed
+    by brute force; with a parameter no ray observes, on the other five (its row and column 0)."""
+    G, n = 20, 30
+    A = rng.normal(size=(G, n, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 5.0, 2.0]) * rng.gamma(1.0, size=(G, 1, 1))
+    if dead:
+        A[..., 4] = 0.0
+    b = rng.normal(size=(G, n))
+    N, rhs = np.einsum("gni,gnj->ij", A, A), np.einsum("gni,gn->i", A, b)
+    Ng, rg = np.einsum("gni,gnj->gij", A, A), np.einsum("gni,gn->gi", A, b)
+    sol = pm._solve_normal(N, rhs, 1e-12)
+    p = sol["p"]
+    sol.update(N=N, E=np.zeros((6, 6)), sw=float(G * n), chi2=1.0, scores=Ng @ p - rg, tile_N=Ng)
+    C = pm._increment_covariance(sol, jackknife=True)[0]
+    live = np.arange(6) != 4 if dead else np.ones(6, bool)
+    J = np.zeros((6, 6))
+    for g in range(G):
+        pg = np.zeros(6)
+        pg[live] = np.linalg.solve((N - Ng[g])[np.ix_(live, live)], (rhs - rg[g])[live])
+        J += np.outer(pg - p, pg - p)
+    lev = max(np.linalg.eigvals(np.linalg.solve(N[np.ix_(live, live)], Ng[g][np.ix_(live, live)])).real.max()
+              for g in range(G))
+    assert 0.2 < lev < pm._JACKKNIFE_LEVERAGE_MAX            # the scaling matters and is not clipped
+    np.testing.assert_allclose(C, J, rtol=0, atol=MOTION_JACKKNIFE_RTOL * np.abs(J).max())
+    plain = pm._increment_covariance(sol)[0]
+    assert np.all(np.diag(C)[live] > np.diag(plain)[live])  # the leverage only inflates the scores
+
+
 @pytest.mark.parametrize("robust", ["tukey", "huber"])
 def test_slope_pass_sums_the_loss_slope(scene, rng, robust):
     """The pass kinds of :data:`polycam.eq5._ROBUST_SLOPE` weight each ray by its base weight times
@@ -785,8 +815,9 @@ def test_slope_pass_sums_the_loss_slope(scene, rng, robust):
 def test_reported_std_is_the_m_estimates_under_noise(scene, monkeypatch):
     """On six faces under noise the reported std explains the errors (RMS of error / std over 12
     seeded draws and the six axes near 1): the sandwich's sensitivity is the M-estimate's (each
-    ray's ψ', not its IRLS weight). With the IRLS weights' normal matrix in the sandwich (the
-    solver before session 56) the same estimates err 1.45x their std."""
+    ray's ψ', not its IRLS weight), and its tiles' scores are scaled by their leverage (the
+    cluster jackknife). Without the jackknife (the solver of session 56) the same estimates err
+    1.25x their std, with neither (before session 56) 1.45x."""
     grid = make_grid(ALL, directions=16)
     rt = np.array([0.0, 0.003, 0.0, 0.005, 0.0, 0.0])
     L0, L1 = scene.render(grid, np.eye(4)), scene.render(grid, T_from_rt(rt))
@@ -803,8 +834,10 @@ def test_reported_std_is_the_m_estimates_under_noise(scene, monkeypatch):
         return float(np.sqrt(np.mean(np.square(z))))
 
     assert z_rms() < MOTION_COV_RMS_MAX
-    monkeypatch.setattr(pm._Solver, "slope_normal", lambda self: None)
+    monkeypatch.setattr(pm, "_jackknife_scores", lambda S, tile_N, sol: S * np.sqrt(len(S) / (len(S) - 1)))
     assert z_rms() > MOTION_COV_RMS_MAX
+    monkeypatch.setattr(pm._Solver, "slope_normal", lambda self: None)
+    assert z_rms() > MOTION_COV_RMS_MAX_IRLS
 
 
 def test_model_weight_discounts_model_error_the_irls_weights_keep(scene):
