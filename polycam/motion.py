@@ -1047,8 +1047,7 @@ class _Solver:
     def _tile_normals(self, tiles) -> np.ndarray:
         """(G, 6, 6) each tile's rig-frame normal matrix Σ w c cᵀ, in the order of :meth:`_misfit`'s
         scores (for :func:`_jackknife_scores`)."""
-        return np.concatenate([np.einsum("ai,gab,bj->gij", Bk, _unpack_sym(tiles[k, :, :21]), Bk)
-                               for k, Bk in enumerate(self.B)])
+        return np.concatenate([Bk.T @ _unpack_sym(tiles[k, :, :21]) @ Bk for k, Bk in enumerate(self.B)])
 
     def _increment_and_sigma(self) -> tuple[np.ndarray, np.ndarray, float]:
         """The unit-weight increment (6,) of the current sums (tiled: ``self.tile``), its
@@ -1641,7 +1640,7 @@ def _jackknife_scores(S: np.ndarray, tile_N: np.ndarray, sol: dict) -> np.ndarra
     ev, V = np.linalg.eigh(sol["N"] * sc[:, None] * sc[None, :])
     ev, V = np.maximum(ev[-n_obs:], 1e-300), V[:, -n_obs:]
     R = V / np.sqrt(ev)                                   # (6, n_obs)
-    lev, U = np.linalg.eigh(np.einsum("ai,gab,bj->gij", R, tile_N * sc[:, None] * sc[None, :], R))
+    lev, U = np.linalg.eigh(R.T @ (tile_N * sc[:, None] * sc[None, :]) @ R)
     f = 1.0 / (1.0 - np.clip(lev, 0.0, _JACKKNIFE_LEVERAGE_MAX))
     z = (S * sc) @ R                                      # (G, n_obs): the scaled scores in R's basis
     z = np.einsum("gij,gj->gi", U, f * np.einsum("gji,gj->gi", U, z))
