@@ -1625,7 +1625,7 @@ def _jackknife_scores(S: np.ndarray, tile_N: np.ndarray, sol: dict) -> np.ndarra
     At the fit the residuals are orthogonal to the regressors, so a tile's score shows its noise
     less the part the fit took up, and most so where the tile carries much of a direction's
     information (a textured patch, an occluding edge: on the tests' six faces of 16 x 16 directions
-    one tile of 96 carries up to a third of one). Leaving tile g out moves the solution by
+    the tile with the most of 96 carries a third to a half of one). Leaving tile g out moves the solution by
     ``(N − N_g)⁻¹ s_g``, so with these scores the sandwich ``N⁻¹ (Σ s̃ s̃ᵀ) N⁻¹`` is the variance
     of the leave-one-tile-out estimates about the estimate (the cluster jackknife, "CR3" of the
     cluster-robust literature; MacKinnon & White 1985 for single rays). Computed in N's Jacobi
