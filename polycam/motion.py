@@ -1614,8 +1614,8 @@ def _increment_covariance(sol: dict, slope: tuple[np.ndarray, float] | None = No
 _JACKKNIFE_LEVERAGE_MAX = 0.9
 """Largest leverage eigenvalue of one tile that :func:`_jackknife_scores` takes as it is: its score
 then grows at most 10x. Near 1 (a direction that one tile nearly alone determines) the factor is
-unbounded while the score along it goes to 0 (the fit takes up that tile's noise there); the tests'
-and example rigs' tiles reach 0.3–0.7."""
+unbounded while the score along it goes to 0 (the fit takes up that tile's noise there); the tiles
+of the tests' grids reach 0.3–0.7."""
 
 
 def _jackknife_scores(S: np.ndarray, tile_N: np.ndarray, sol: dict) -> np.ndarray:

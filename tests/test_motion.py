@@ -750,7 +750,7 @@ def test_covariance_matches_scatter_under_noise(scene):
 def test_jackknife_scores_give_the_leave_one_tile_out_variance(rng, dead):
     """With the tiles' scores scaled by their leverage, the sandwich around N⁻¹ is the variance of
     the leave-one-tile-out solutions about the solution, Σ_g (p_(−g) − p)(p_(−g) − p)ᵀ, computed
-    by brute force; with a parameter no ray observes, on the other five (its row and column 0)."""
+    by brute force; with a parameter no ray observes, on the other five (its row and column 0 in both)."""
     G, n = 20, 30
     A = rng.normal(size=(G, n, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 5.0, 2.0]) * rng.gamma(1.0, size=(G, 1, 1))
     if dead:
