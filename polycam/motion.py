@@ -1656,27 +1656,29 @@ def _clusters(S: np.ndarray, tile_N: np.ndarray, grid: tuple[int, int, int, int]
 
 
 _JACKKNIFE_LEVERAGE_MAX = 0.9
-"""Largest leverage eigenvalue of one tile that :func:`_jackknife_scores` takes as it is: its score
-then grows at most 10x. Near 1 (a direction that one tile nearly alone determines) the factor is
-unbounded while the score along it goes to 0 (the fit takes up that tile's noise there); the tiles
-of the tests' grids reach 0.3–0.7."""
+"""Largest leverage eigenvalue of one cluster that :func:`_jackknife_scores` takes as it is: its
+score then grows at most 10x. Near 1 (a direction that one cluster nearly alone determines) the
+factor is unbounded while the score along it goes to 0 (the fit takes up that cluster's noise
+there); the clusters of the tests' grids reach 0.3–0.7."""
 
 
 def _jackknife_scores(S: np.ndarray, tile_N: np.ndarray, sol: dict) -> np.ndarray:
-    """(G, 6) the tiles' scores S (G, 6) each scaled by its leverage: ``N (N − N_g)⁻¹ s_g``, N the
-    solve's normal matrix ``sol["N"]`` (6, 6) and N_g (``tile_N``, (G, 6, 6)) the tile's share.
+    """(G, 6) the clusters' scores S (G, 6) each scaled by its leverage: ``N (N − N_g)⁻¹ s_g``, N
+    the solve's normal matrix ``sol["N"]`` (6, 6) and N_g (``tile_N``, (G, 6, 6)) the cluster's
+    share (:func:`_clusters`).
 
-    At the fit the residuals are orthogonal to the regressors, so a tile's score shows its noise
-    less the part the fit took up, and most so where the tile carries much of a direction's
+    At the fit the residuals are orthogonal to the regressors, so a cluster's score shows its noise
+    less the part the fit took up, and most so where the cluster carries much of a direction's
     information (a textured patch, an occluding edge: on the tests' six faces of 16 x 16 directions
-    the tile with the most of 96 carries a third to a half of one). Leaving tile g out moves the solution by
-    ``(N − N_g)⁻¹ s_g``, so with these scores the sandwich ``N⁻¹ (Σ s̃ s̃ᵀ) N⁻¹`` is the variance
-    of the leave-one-tile-out estimates about the estimate (the cluster jackknife, "CR3" of the
-    cluster-robust literature; MacKinnon & White 1985 for single rays). Computed in N's Jacobi
-    scaling (``sol["scale"]``) on its observable subspace (``sol["unobs"]`` its complement): with
-    ``R`` the subspace's eigenvectors over the square roots of their eigenvalues, ``N R Rᵀ`` is
-    the identity there and ``N (N − N_g)⁻¹ = N R (I − Rᵀ N_g R)⁻¹ Rᵀ``; the tile's leverages (the
-    eigenvalues of ``Rᵀ N_g R``, in [0, 1]) are clipped at :data:`_JACKKNIFE_LEVERAGE_MAX`."""
+    the one with the most of 96 tiles carries a third to a half of one direction, of 24 clusters
+    about a half). Leaving cluster g out moves the solution by ``(N − N_g)⁻¹ s_g``, so with these
+    scores the sandwich ``N⁻¹ (Σ s̃ s̃ᵀ) N⁻¹`` is the variance of the leave-one-cluster-out
+    estimates about the estimate (the cluster jackknife, "CR3" of the cluster-robust literature;
+    MacKinnon & White 1985 for single rays). Computed in N's Jacobi scaling (``sol["scale"]``) on
+    its observable subspace (``sol["unobs"]`` its complement): with ``R`` the subspace's
+    eigenvectors over the square roots of their eigenvalues, ``N R Rᵀ`` is the identity there and
+    ``N (N − N_g)⁻¹ = N R (I − Rᵀ N_g R)⁻¹ Rᵀ``; the cluster's leverages (the eigenvalues of
+    ``Rᵀ N_g R``, in [0, 1]) are clipped at :data:`_JACKKNIFE_LEVERAGE_MAX`."""
     n_obs = 6 - len(sol["unobs"])
     if n_obs <= 0 or not len(S):
         return S
