@@ -263,7 +263,9 @@ class MotionOptions:
     """Stop iterating when the increment is below this (|t| [m] + |ω| [rad])."""
     tile: int = 16
     """Largest (u, v) tile in samples for the cluster-robust covariance (smaller on small
-    grids so that each face has about 8 x 8 tiles)."""
+    grids so that each face has about 8 x 8 tiles, at least 4 samples; the reported covariance
+    sums tiles under 8 samples into blocks of 8 where 24 such clusters remain:
+    ``polycam.motion._clusters``)."""
 
     def __post_init__(self) -> None:
         if self.robust not in ("tukey", "huber", "none"):
