@@ -1045,11 +1045,6 @@ class _Solver:
             scores.append((Nt @ (Bk @ p) - tiles[k, :, 21:27]) @ Bk)
         return chi2, np.concatenate(scores)
 
-    def _tile_normals(self, tiles) -> np.ndarray:
-        """(G, 6, 6) each tile's rig-frame normal matrix Σ w c cᵀ, in the order of :meth:`_misfit`'s
-        scores (for :func:`_jackknife_scores`)."""
-        return np.concatenate([Bk.T @ _unpack_sym(tiles[k, :, :21]) @ Bk for k, Bk in enumerate(self.B)])
-
     def _increment_and_sigma(self) -> tuple[np.ndarray, np.ndarray, float]:
         """The unit-weight increment (6,) of the current sums (tiled: ``self.tile``), its
         (t, ω) standard deviations (2,) from the cluster-robust covariance, and the normal
@@ -1099,7 +1094,7 @@ class _Solver:
         p = sol["p"]
         chi2, scores = self._misfit(p, N, rhs, sbb, tiles)
         tot = stats.sum(axis=0)
-        sol.update(N=N, E=E, sw=sw, chi2=chi2, scores=scores, tile_N=self._tile_normals(tiles),
+        sol.update(N=N, E=E, sw=sw, chi2=chi2, scores=scores, tiles=tiles, B=self.B,
                    tile_grid=(self.shape[0], *self.acc.shape[1:3], self.tile), num=int(tot[0]),
                    base_n=int(tot[1]), inliers=int(tot[2]) if steps else None,
                    texture=math.sqrt(tot[3] / sw) if sw > 0 else 0.0)
@@ -1606,8 +1601,8 @@ def _increment_covariance(sol: dict, slope: tuple[np.ndarray, float] | None = No
             Nb = _corrected_pinv(N_s, sol["E"] * (sw_s / sol["sw"]), sol, N_scale=sol["N"])
     S = sol["scores"]
     G = S.shape[0]
-    if jackknife and "tile_N" in sol:
-        S, tile_N = _clusters(S, sol["tile_N"], sol.get("tile_grid"))
+    if jackknife and "tiles" in sol:
+        S, tile_N = _clusters(S, _tile_normals(sol["tiles"], sol["B"]), sol["tile_grid"])
         S = _jackknife_scores(S, tile_N, sol)
         meat = S.T @ S
     else:
@@ -1626,7 +1621,14 @@ parameters over fewer turns erratic (one face of 24 x 24 directions in 9 cluster
 clip, the std up to 1.7x conservative)."""
 
 
-def _clusters(S: np.ndarray, tile_N: np.ndarray, grid: tuple[int, int, int, int] | None
+def _tile_normals(tiles: np.ndarray, B: list) -> np.ndarray:
+    """(G, 6, 6) each tile's rig-frame normal matrix Σ w c cᵀ from the per-face tile sums ``tiles``
+    (F, n_tiles, 29) and the faces' rig → face maps B, in the order of :meth:`_Solver._misfit`'s
+    scores."""
+    return np.concatenate([Bk.T @ _unpack_sym(tiles[k, :, :21]) @ Bk for k, Bk in enumerate(B)])
+
+
+def _clusters(S: np.ndarray, tile_N: np.ndarray, grid: tuple[int, int, int, int]
               ) -> tuple[np.ndarray, np.ndarray]:
     """The reported covariance's clusters: the tiles' scores S (G, 6) and normal matrices tile_N (G, 6,
     6), G = F n_tv n_tu (``grid`` = (F, n_tv, n_tu, tile): faces, tiles along v and u, the tile's
@@ -1635,20 +1637,18 @@ def _clusters(S: np.ndarray, tile_N: np.ndarray, grid: tuple[int, int, int, int]
     clusters with rays. Only small grids have tiles under 8 samples (``_Solver``'s tiles are an
     eighth of the directions, at least 4): on six faces of 16 x 16 directions the 96 tiles of 4
     samples become 24 of 8, and the noisy sets' errors 1.05–1.33x their std become 0.87–1.12x."""
-    if grid is None:
-        return S, tile_N
     F, n_tv, n_tu, tile = grid
     b = -(-_CLUSTER_SAMPLES // max(int(tile), 1))
     if b <= 1 or len(S) != F * n_tv * n_tu:
         return S, tile_N
-    idx = (np.arange(F)[:, None, None] * (-(-n_tv // b)) + np.arange(n_tv)[None, :, None] // b) * (-(-n_tu // b)) \
-        + np.arange(n_tu)[None, None, :] // b
-    idx = idx.reshape(-1)
-    G = int(idx.max()) + 1
-    S_c = np.zeros((G, 6))
-    N_c = np.zeros((G, 6, 6))
-    np.add.at(S_c, idx, S)
-    np.add.at(N_c, idx, tile_N)
+
+    def blocks(X):                                        # (G, ...) → (F nbv nbu, ...) block sums
+        X = X.reshape((F, n_tv, n_tu) + X.shape[1:])
+        X = np.pad(X, [(0, 0), (0, -n_tv % b), (0, -n_tu % b)] + [(0, 0)] * (X.ndim - 3))
+        X = X.reshape((F, X.shape[1] // b, b, X.shape[2] // b, b) + X.shape[3:]).sum(axis=(2, 4))
+        return X.reshape((-1,) + X.shape[3:])
+
+    S_c, N_c = blocks(S), blocks(tile_N)
     live = np.trace(N_c, axis1=1, axis2=2) > 0
     if live.sum() < _CLUSTER_MIN:
         return S, tile_N

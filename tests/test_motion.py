@@ -21,7 +21,7 @@ from polycam.lightfield import Axis, LightFieldGrid
 from polycam.motion import (MotionOptions, PairResult, estimate_motion, estimate_trajectory, frame_view_disparity,
                             free_work_buffers, ray_motion_coefficients, solve_ray_motion, warp_lightfield)
 from polycam.derivatives import plenoptic_derivatives
-from polycam.eq5 import _RHO_NONE
+from polycam.eq5 import _IU, _RHO_NONE
 from polycam.trajectory import Trajectory
 
 from tolerances import (MOTION_COV_RMS_MAX, MOTION_COV_RMS_MIN, MOTION_COV_RMS_MAX_IRLS, MOTION_JACKKNIFE_RTOL, MOTION_SLOPE_SUMS_RTOL,
@@ -760,7 +760,10 @@ def test_jackknife_scores_give_the_leave_one_tile_out_variance(rng, dead):
     Ng, rg = np.einsum("gni,gnj->gij", A, A), np.einsum("gni,gn->gi", A, b)
     sol = pm._solve_normal(N, rhs, 1e-12)
     p = sol["p"]
-    sol.update(N=N, E=np.zeros((6, 6)), sw=float(G * n), chi2=1.0, scores=Ng @ p - rg, tile_N=Ng)
+    tiles = np.zeros((1, G, 29))                               # one face, rig = face frame, tiles of 8 samples
+    tiles[0, :, :21] = Ng[:, _IU[0], _IU[1]]
+    sol.update(N=N, E=np.zeros((6, 6)), sw=float(G * n), chi2=1.0, scores=Ng @ p - rg, tiles=tiles,
+               B=[np.eye(6)], tile_grid=(1, G, 1, 8))
     C = pm._increment_covariance(sol, jackknife=True)[0]
     live = np.arange(6) != 4 if dead else np.ones(6, bool)
     J = np.zeros((6, 6))
