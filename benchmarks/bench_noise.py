@@ -526,7 +526,9 @@ def noise_table(name: str, grid, L0, L1, M, sigmas, draws: int, opts: MotionOpti
     upper = max((max(r["ci_t"][1], r["ci_w"][1]) for r in rows if r["sigma"] > 0), default=math.nan)
     print(f"\nworst measured / CRB ratio over σ > 0: {worst:.2f} (goal ≤ 1.5: {'met' if worst <= 1.5 else 'NOT met'}); "
           f"the largest upper end of the ratios' 90 % intervals (another draw set's spread): {upper:.2f}; "
-          f"|t| = {1e3 * np.linalg.norm(M[:3, 3]):.1f} mm, |ω| = {1e6 * np.linalg.norm(rt_from_T(M)[:3]):.0f} µrad")
+          f"|t| = {1e3 * np.linalg.norm(M[:3, 3]):.1f} mm, |ω| = {1e6 * np.linalg.norm(rt_from_T(M)[:3]):.0f} µrad"
+          + ("" if opts == NOISY else "; target 2 is judged on the noise options (--high-noise; docs/motion.md, "
+             "\"Where issue #3's targets stand\")"))
     return rows
 
 

@@ -390,7 +390,7 @@ def _noise_line(results, preset: str, confidences: bool = False, cameras: tuple[
     line = f"  sensor noise {med:.2f} grey levels (of 255, median over the pairs)"
     if preset == "default" and med >= NOISY_HINT_GREY:
         line += ("; with a grey level or more, --preset noisy came closer to the noise bound on six-face "
-                 "frames of finely integrated pixels, at about twice the time: try it on your frames "
+                 "frames of finely integrated pixels, at two to three times the time: try it on your frames "
                  "(docs/motion.md, \"Which preset\")")
     return line
 
