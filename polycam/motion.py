@@ -1601,7 +1601,7 @@ def _increment_covariance(sol: dict, slope: tuple[np.ndarray, float] | None = No
             Nb = _corrected_pinv(N_s, sol["E"] * (sw_s / sol["sw"]), sol, N_scale=sol["N"])
     S = sol["scores"]
     G = S.shape[0]
-    if jackknife and "tiles" in sol:
+    if jackknife:
         S, tile_N = _clusters(S, _tile_normals(sol["tiles"], sol["B"]), sol["tile_grid"])
         S = _jackknife_scores(S, tile_N, sol)
         meat = S.T @ S
